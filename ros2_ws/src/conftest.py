@@ -1,0 +1,156 @@
+"""Shared pytest fixtures for every hyperarm package (all test tiers).
+
+- ``ros_domain``: a ROS_DOMAIN_ID of the test's own, also exported to os.environ, so
+  in-process nodes and the processes a test starts see only each other.
+- ``rclpy_context``: an initialised rclpy Context on that domain, shut down afterwards.
+- ``executor``: a SingleThreadedExecutor on that context, spun in a thread;
+  ``executor.add_node(node)`` and use the node from the test.
+- ``launch``: starts installed executables (the same ones `ros2 run` starts) as separate
+  processes on that domain, and stops them with SIGINT (then SIGKILL) at teardown, failing
+  the test if one does not shut down cleanly.
+- ``wait_for``: poll a condition with a deadline; returns its last truthy value.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import threading
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import pytest
+
+_DOMAIN_BASE = 100 + (os.getpid() % 50) * 2  # domains 100..199+, distinct per pytest run
+_domain_counter = [0]
+
+
+def _next_domain() -> int:
+    _domain_counter[0] += 1
+    return 100 + ((_DOMAIN_BASE + _domain_counter[0]) % 132)  # stays within 100..231
+
+
+@pytest.fixture
+def ros_domain(monkeypatch: pytest.MonkeyPatch) -> int:
+    dom = _next_domain()
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(dom))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    return dom
+
+
+@pytest.fixture
+def rclpy_context(ros_domain: int):
+    import rclpy
+    from rclpy.context import Context
+
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=ros_domain)
+    yield ctx
+    rclpy.try_shutdown(context=ctx)
+
+
+@pytest.fixture
+def executor(rclpy_context):
+    from rclpy.executors import SingleThreadedExecutor
+
+    ex = SingleThreadedExecutor(context=rclpy_context)
+    stop = threading.Event()
+
+    def spin() -> None:
+        while not stop.is_set() and rclpy_context.ok():
+            ex.spin_once(timeout_sec=0.02)
+
+    thread = threading.Thread(target=spin, name="test-executor", daemon=True)
+    thread.start()
+    yield ex
+    stop.set()
+    thread.join(timeout=5.0)
+    for node in list(ex.get_nodes()):
+        ex.remove_node(node)
+        node.destroy_node()
+    ex.shutdown(timeout_sec=1.0)
+
+
+def wait_until(cond: Callable[[], Any], timeout: float, period: float = 0.01,
+               what: str = "condition") -> Any:
+    """Poll ``cond`` until it returns a truthy value; raise AssertionError at ``timeout``."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = cond()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout:.1f} s waiting for {what}")
+        time.sleep(period)
+
+
+@pytest.fixture
+def wait_for():
+    return wait_until
+
+
+def executable_path(package: str, name: str) -> str:
+    """Path of an installed executable, as `ros2 run package name` would find it."""
+    from ament_index_python.packages import get_package_prefix
+
+    path = Path(get_package_prefix(package)) / "lib" / package / name
+    if not path.exists():
+        raise FileNotFoundError(f"{path} not found: is the workspace built (make setup)?")
+    return str(path)
+
+
+class Launched:
+    """A started executable; ``output()`` returns what it printed so far."""
+
+    def __init__(self, proc: subprocess.Popen, log: Path) -> None:
+        self.proc = proc
+        self.log = log
+
+    def output(self) -> str:
+        return self.log.read_text(errors="replace") if self.log.exists() else ""
+
+
+@pytest.fixture
+def launch(ros_domain: int, tmp_path: Path):
+    started: list[Launched] = []
+
+    def _launch(package: str, name: str, *args: str, params: dict | None = None,
+                namespace: str | None = None, env: dict | None = None) -> Launched:
+        cmd = [executable_path(package, name), *args]
+        ros_args: list[str] = []
+        for key, value in (params or {}).items():
+            if isinstance(value, bool):
+                value = "true" if value else "false"
+            ros_args += ["-p", f"{key}:={value}"]
+        if namespace:
+            ros_args += ["-r", f"__ns:={namespace}"]
+        if ros_args:
+            cmd += ["--ros-args", *ros_args]
+        log = tmp_path / f"{name}-{len(started)}.log"
+        full_env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain), PYTHONUNBUFFERED="1",
+                        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", **(env or {}))
+        with open(log, "wb") as fh:
+            proc = subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, env=full_env,
+                                    start_new_session=True)
+        item = Launched(proc, log)
+        started.append(item)
+        return item
+
+    yield _launch
+    unclean = []
+    for item in started:
+        if item.proc.poll() is None:
+            item.proc.send_signal(signal.SIGINT)
+            try:
+                item.proc.wait(timeout=10.0)
+            except subprocess.TimeoutExpired:
+                os.killpg(item.proc.pid, signal.SIGKILL)
+                item.proc.wait(timeout=5.0)
+                unclean.append(f"{item.log.name}: did not exit on SIGINT\n{item.output()[-2000:]}")
+                continue
+            if item.proc.returncode not in (0, -signal.SIGINT):
+                unclean.append(f"{item.log.name}: exit code {item.proc.returncode} on SIGINT\n"
+                               f"{item.output()[-2000:]}")
+    if unclean:
+        pytest.fail("unclean shutdown:\n" + "\n".join(unclean))

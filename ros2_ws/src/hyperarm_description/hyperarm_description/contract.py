@@ -1,0 +1,58 @@
+"""The hyperarm interface contract as plain constants (no ROS import).
+
+Every node takes its topic, service and frame names from here, so the drivers, the mock and
+the higher-level nodes cannot drift apart. Names are relative: nodes run in the namespace
+``/hyperarm`` by default (``DEFAULT_NAMESPACE``), except ``/diagnostics`` and ``/clock``,
+which are absolute by ROS convention. See docs/architecture.md for the full contract.
+"""
+from __future__ import annotations
+
+DEFAULT_NAMESPACE = "/hyperarm"
+
+# Frames
+WORLD_FRAME = "world"
+BASE_FRAME = "base_link"
+TOOL_FRAME = "tool0"
+RAIL_FRAME = "rail_carriage"
+CAMERA_FRAME = "camera_link"
+
+# Topics (relative to the namespace)
+JOINT_STATES = "joint_states"          # sensor_msgs/JointState, every driver, its own joints
+JOINT_COMMAND = "joint_command"        # sensor_msgs/JointState, setpoints by joint name
+TOOL_POSE = "tool_pose"                # geometry_msgs/PoseStamped, fk_node
+HYBRID_GOAL = "hybrid_goal"            # hyperarm_interfaces/HybridGoal -> hybrid_force node
+EE_WRENCH = "ee_wrench"                # geometry_msgs/WrenchStamped, estimated at tool0
+DETECTIONS = "detections"              # hyperarm_interfaces/Detections, in camera_link
+DETECTIONS_TRUTH = "debug/detections_truth"  # mock only: ground truth, same type
+DIAGNOSTICS = "/diagnostics"           # diagnostic_msgs/DiagnosticArray (absolute)
+CLOCK = "/clock"                       # rosgraph_msgs/Clock, mock with sim time (absolute)
+
+# Services (relative to the namespace)
+SOLVE_IK = "solve_ik"                  # hyperarm_interfaces/SolveIK
+SET_TORQUE = "set_torque"              # std_srvs/SetBool: true = torque on
+REBOOT = "reboot"                      # hyperarm_interfaces/Reboot
+HOLD = "hold"                          # std_srvs/Trigger: stop where you are
+RAIL_HOME = "rail/home"                # std_srvs/Trigger (rail drivers)
+
+# Actions (relative to the namespace)
+RUN_TASK = "run_task"                  # hyperarm_interfaces/RunTask
+
+# QoS, as plain settings (hyperarm_description.qos builds rclpy profiles from them).
+# Everything the robot acts on or reports is RELIABLE (a lost command or state is a bug, and
+# reliable writers also match best-effort readers such as rviz); commands keep depth 1 (only
+# the newest setpoint matters), states and detections a short history.
+QOS = {
+    JOINT_STATES: {"reliability": "reliable", "durability": "volatile", "depth": 10},
+    JOINT_COMMAND: {"reliability": "reliable", "durability": "volatile", "depth": 1},
+    TOOL_POSE: {"reliability": "reliable", "durability": "volatile", "depth": 10},
+    HYBRID_GOAL: {"reliability": "reliable", "durability": "volatile", "depth": 1},
+    EE_WRENCH: {"reliability": "reliable", "durability": "volatile", "depth": 10},
+    DETECTIONS: {"reliability": "reliable", "durability": "volatile", "depth": 5},
+    DETECTIONS_TRUTH: {"reliability": "reliable", "durability": "volatile", "depth": 5},
+    DIAGNOSTICS: {"reliability": "reliable", "durability": "volatile", "depth": 10},
+}
+
+# Joint naming
+ARM_JOINTS = tuple(f"joint{i}" for i in range(1, 10))
+GRIPPER_JOINT = "gripper"
+RAIL_JOINT = "rail"

@@ -1,0 +1,1 @@
+"""hyperarm_driver: Dynamixel, PMAC rail and mock drivers, and wire-protocol emulators."""

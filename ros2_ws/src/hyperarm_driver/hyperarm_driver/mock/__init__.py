@@ -1,0 +1,1 @@
+"""Mock driver core: simulated joints (and, later, the simulated work cell). No ROS."""

@@ -1,0 +1,1 @@
+"""hyperarm_tasks: task sequences (pick-and-place, ...) and the task node."""

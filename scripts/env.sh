@@ -1,0 +1,17 @@
+# Source this file (bash) to use the built workspace: `source scripts/env.sh`.
+# Prefers /opt/ros/jazzy (the robot); falls back to the PyPI venv made by scripts/setup.sh.
+_hyperarm_root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+_hyperarm_venv="${HYPERARM_VENV:-$_hyperarm_root/.venv}"
+if [ -f /opt/ros/jazzy/setup.bash ]; then
+  # shellcheck disable=SC1091
+  source /opt/ros/jazzy/setup.bash
+else
+  export AMENT_PREFIX_PATH="$_hyperarm_venv${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
+  export CMAKE_PREFIX_PATH="$_hyperarm_venv${CMAKE_PREFIX_PATH:+:$CMAKE_PREFIX_PATH}"
+fi
+export PATH="$_hyperarm_venv/bin:$PATH"
+export VIRTUAL_ENV="$_hyperarm_venv"
+# shellcheck disable=SC1091
+source "$_hyperarm_root/ros2_ws/install/local_setup.bash"
+export RMW_IMPLEMENTATION="${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"
+unset _hyperarm_root _hyperarm_venv

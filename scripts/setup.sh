@@ -1,0 +1,99 @@
+#!/usr/bin/env bash
+# Idempotent set-up of the hyperarm workspace, used by `make demo`, `make test` and CI.
+#
+# 1. ROS 2 Jazzy: /opt/ros/jazzy when it exists (the robot), else a .venv with the ROS 2
+#    Jazzy PyPI wheels pinned in requirements.lock (development machines, CI).
+# 2. colcon build of ros2_ws/ (symlink install).
+#
+# Each step is skipped when its inputs did not change (stamp files hold their hashes), so a
+# second run takes a second or two. FORCE=1 redoes everything.
+set -euo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+VENV="${HYPERARM_VENV:-$ROOT/.venv}"
+WS="$ROOT/ros2_ws"
+STAMPS="$ROOT/.stamps"
+mkdir -p "$STAMPS"
+
+log() { printf '[setup] %s\n' "$*"; }
+hash_of() { sha256sum "$@" | sha256sum | cut -d' ' -f1; }
+stamp_ok() { [ "${FORCE:-0}" != 1 ] && [ -f "$STAMPS/$1" ] && [ "$(cat "$STAMPS/$1")" = "$2" ]; }
+
+pick_python() {
+  for p in "${PYTHON:-}" python3.11 python3.12 python3; do
+    [ -n "$p" ] && command -v "$p" >/dev/null 2>&1 && { echo "$p"; return; }
+  done
+  echo "no python3 found" >&2; exit 1
+}
+
+if [ -f /opt/ros/jazzy/setup.bash ]; then
+  # The robot: ROS from apt. The venv only adds the non-ROS Python packages.
+  log "using /opt/ros/jazzy"
+  set +u; source /opt/ros/jazzy/setup.bash; set -u
+  if [ ! -x "$VENV/bin/python" ]; then
+    python3 -m venv --system-site-packages "$VENV"
+  fi
+  want="$(hash_of "$ROOT/requirements-python.txt")-apt"
+  if ! stamp_ok python "$want"; then
+    "$VENV/bin/pip" install -q -r "$ROOT/requirements-python.txt" 2>&1 \
+      | { grep -v "is ignored: it is neither a file nor a directory" || true; }
+    echo "$want" > "$STAMPS/python"
+  fi
+  PREFIX=""
+else
+  PY="$(pick_python)"
+  if [ ! -x "$VENV/bin/python" ]; then
+    log "creating $VENV with $PY"
+    "$PY" -m venv "$VENV"
+    "$VENV/bin/python" -m pip install -q --upgrade pip 2>&1 \
+      | { grep -v "is ignored: it is neither a file nor a directory" || true; }
+  fi
+  want="$(hash_of "$ROOT/requirements.lock")"
+  if ! stamp_ok python "$want"; then
+    log "installing pinned ROS 2 Jazzy wheels and Python packages (requirements.lock)"
+    "$VENV/bin/pip" install -q -r "$ROOT/requirements.lock" 2>&1 \
+      | { grep -v "is ignored: it is neither a file nor a directory" || true; }
+    # The wheels' CMake configs hard-code the wheel builder's Python paths; point them at ours.
+    "$VENV/bin/python" "$ROOT/scripts/fix_cmake_paths.py" "$VENV"
+    echo "$want" > "$STAMPS/python"
+  fi
+  PREFIX="$VENV"
+  export CMAKE_PREFIX_PATH="$VENV${CMAKE_PREFIX_PATH:+:$CMAKE_PREFIX_PATH}"
+  export AMENT_PREFIX_PATH="$VENV${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
+fi
+
+export PATH="$VENV/bin:$PATH"
+
+# Rebuild only when something colcon installs changed: package manifests, setup files,
+# interface definitions, data files, scripts, and the list of non-Python files. Python
+# packages are installed in develop mode (--symlink-install), so editing or adding a module
+# needs no rebuild; a new top-level Python package or console script does.
+build_inputs() {
+  (cd "$WS/src" && find . -type f ! -name '*.py' ! -name '*.pyc' \
+     ! -path '*/__pycache__/*' ! -path '*/.pytest_cache/*' | LC_ALL=C sort)
+  (cd "$WS/src" && find . -mindepth 3 -maxdepth 3 -name __init__.py | LC_ALL=C sort)
+  (cd "$WS/src" && find . -type f \( -name package.xml -o -name setup.py -o -name setup.cfg \
+     -o -name CMakeLists.txt -o -name '*.msg' -o -name '*.srv' -o -name '*.action' \
+     -o -name '*.yaml' -o -name '*.urdf' -o -name '*.sh' \) ! -path '*/__pycache__/*' \
+     | LC_ALL=C sort | xargs sha256sum)
+}
+want="$(build_inputs | sha256sum | cut -d' ' -f1)"
+if ! stamp_ok build "$want" || [ ! -f "$WS/install/local_setup.bash" ]; then
+  log "colcon build (ros2_ws)"
+  cd "$WS"
+  # colcon cannot switch an existing build/ between symlink and copy installs; a failed
+  # earlier build can leave it half-made. Start clean when the stamp is missing.
+  if [ ! -f "$STAMPS/build" ]; then rm -rf build install log; fi
+  if ! colcon --log-base log build --symlink-install \
+        --event-handlers console_cohesion- status- \
+        --cmake-args -DBUILD_TESTING=OFF -DPython3_EXECUTABLE="$VENV/bin/python" \
+        > "$STAMPS/colcon.log" 2>&1; then
+    cat "$STAMPS/colcon.log"
+    rm -f "$STAMPS/build"
+    echo "[setup] colcon build failed (log above)" >&2
+    exit 1
+  fi
+  echo "$want" > "$STAMPS/build"
+  log "built: $(ls "$WS/install" | grep -c hyperarm_) packages"
+fi
+log "ready (source scripts/env.sh to use the workspace)"

@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# Run the whole test suite (all tiers) against the built workspace. Extra args go to pytest.
+set -eo pipefail
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$ROOT"
+# shellcheck disable=SC1091
+source scripts/env.sh
+# Tests that start ROS processes isolate themselves (ROS_DOMAIN_ID per test, localhost only).
+export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+export PYTHONDONTWRITEBYTECODE=1
+start=$(date +%s)
+set +e
+python -m pytest "$@"
+rc=$?
+set -e
+echo "[test] pytest exit code $rc after $(( $(date +%s) - start )) s"
+if [ "$rc" -eq 5 ]; then
+  echo "[test] pytest collected no tests: that is a failure, not a pass" >&2
+  exit 1
+fi
+exit "$rc"
