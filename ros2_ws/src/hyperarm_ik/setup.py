@@ -24,7 +24,6 @@ setup(
         "console_scripts": [
             "fk_node = hyperarm_ik.fk_node:main",
             "ik_service = hyperarm_ik.ik_service_node:main",
-            "hybrid_force = hyperarm_ik.hybrid_force_node:main",
             "ik_benchmark = hyperarm_ik.benchmark.ik_benchmark:main",
         ],
     },

@@ -1,0 +1,1 @@
+"""Benchmark scripts (console scripts dxl_benchmark, pmac_benchmark, mock_benchmark)."""

@@ -1,0 +1,1 @@
+"""IK benchmark (console script ik_benchmark)."""
