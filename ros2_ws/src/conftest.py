@@ -8,6 +8,7 @@
 - ``launch``: starts installed executables (the same ones `ros2 run` starts) as separate
   processes on that domain, and stops them with SIGINT (then SIGKILL) at teardown, failing
   the test if one does not shut down cleanly.
+- ``executable(package, name)``: path of an installed executable (what `ros2 run` runs).
 - ``wait_for``: poll a condition with a deadline; returns its last truthy value.
 """
 from __future__ import annotations
@@ -154,3 +155,9 @@ def launch(ros_domain: int, tmp_path: Path):
                                f"{item.output()[-2000:]}")
     if unclean:
         pytest.fail("unclean shutdown:\n" + "\n".join(unclean))
+
+
+@pytest.fixture
+def executable():
+    """``executable(package, name)``: path of an installed executable (see executable_path)."""
+    return executable_path

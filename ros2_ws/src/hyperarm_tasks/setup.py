@@ -13,6 +13,8 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
         ("share/" + package_name + "/launch", glob("launch/*.py")),
+        # shell scripts, runnable as `ros2 run hyperarm_tasks <script>.sh`
+        ("lib/" + package_name, glob("scripts/*.sh")),
     ],
     install_requires=["setuptools"],
     zip_safe=False,
