@@ -1,0 +1,60 @@
+#!/usr/bin/env bash
+# `make demo`: the main job on the mock driver, no hardware.
+#
+# Starts mock_driver, fk_node and task_node as separate processes (exactly what
+# `ros2 run` starts on the robot), then runs task sequences from the shell script and prints
+# where the tool went. Everything is stopped with Ctrl-C semantics (SIGINT) at the end.
+set -eo pipefail
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$ROOT"
+# shellcheck disable=SC1091
+source scripts/env.sh
+export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-42}"
+export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
+LOGS="$(mktemp -d)"
+pids=()
+cleanup() {
+  for pid in "${pids[@]}"; do kill -INT "$pid" 2>/dev/null || true; done
+  for pid in "${pids[@]}"; do wait "$pid" 2>/dev/null || true; done
+}
+trap cleanup EXIT
+
+lib() { echo "$ROOT/ros2_ws/install/$1/lib/$1/$2"; }
+
+echo "== hyperarm demo (ROS_DOMAIN_ID=$ROS_DOMAIN_ID, logs in $LOGS)"
+"$(lib hyperarm_description show_description)"
+echo
+echo "== starting mock_driver, fk_node, task_node"
+"$(lib hyperarm_driver mock_driver)" > "$LOGS/mock_driver.log" 2>&1 & pids+=($!)
+"$(lib hyperarm_ik fk_node)" > "$LOGS/fk_node.log" 2>&1 & pids+=($!)
+"$(lib hyperarm_tasks task_node)" > "$LOGS/task_node.log" 2>&1 & pids+=($!)
+
+tool_pose() {
+  python - <<'PY'
+import time, rclpy
+from geometry_msgs.msg import PoseStamped
+from hyperarm_description import contract
+from hyperarm_description.qos import qos_for
+rclpy.init()
+node = rclpy.create_node("demo_probe", namespace=contract.DEFAULT_NAMESPACE)
+got = []
+node.create_subscription(PoseStamped, contract.TOOL_POSE, got.append, qos_for(contract.TOOL_POSE))
+deadline = time.monotonic() + 10
+while not got and time.monotonic() < deadline:
+    rclpy.spin_once(node, timeout_sec=0.1)
+if got:
+    p = got[-1].pose.position
+    print(f"   tool0 in {got[-1].header.frame_id}: x={p.x:.4f} y={p.y:.4f} z={p.z:.4f} m")
+else:
+    print("   no tool_pose received")
+node.destroy_node()
+rclpy.try_shutdown()
+PY
+}
+
+echo "== task sequence: rest, ready (hyperarm_tasks/scripts/run_sequence.sh)"
+"$(lib hyperarm_tasks run_sequence.sh)" rest
+tool_pose
+"$(lib hyperarm_tasks run_sequence.sh)" ready
+tool_pose
+echo "== demo done"
