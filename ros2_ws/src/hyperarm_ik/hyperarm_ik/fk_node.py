@@ -2,17 +2,14 @@
 from __future__ import annotations
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import PoseStamped
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rcl_interfaces.msg import ParameterDescriptor
 from sensor_msgs.msg import JointState
 
 from hyperarm_description import contract
 from hyperarm_description.joints import JointStateCache, JointStateError
-from hyperarm_description.model import VARIANTS, DescriptionError, load_description
 from hyperarm_description.qos import qos_for
+from hyperarm_description.ros_main import declare_robot_description, run_node
 
 from .kinematics import Kinematics
 from .ros_conversions import matrix_to_pose
@@ -23,16 +20,8 @@ class FkNode(Node):
 
     def __init__(self) -> None:
         super().__init__("fk_node", namespace=contract.DEFAULT_NAMESPACE)
-        self.declare_parameter("variant", "arm", ParameterDescriptor(
-            description=f"robot variant: {' or '.join(VARIANTS)}", read_only=True))
-        self.declare_parameter("description_file", "", ParameterDescriptor(
-            description="robot description YAML ('' = the packaged one)", read_only=True))
-        variant = self.get_parameter("variant").value
-        path = self.get_parameter("description_file").value or None
-        try:
-            desc = load_description(path, variant)
-        except DescriptionError as exc:
-            raise SystemExit(f"fk_node: {exc}") from exc
+        desc = declare_robot_description(self)
+        variant = desc.variant
         self._kin = Kinematics(desc)
         self._cache = JointStateCache()
         self._pub = self.create_publisher(PoseStamped, contract.TOOL_POSE,
@@ -57,17 +46,7 @@ class FkNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = FkNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(FkNode, args)
 
 
 if __name__ == "__main__":

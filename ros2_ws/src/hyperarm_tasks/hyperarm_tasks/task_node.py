@@ -13,14 +13,14 @@ import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from hyperarm_description import contract
 from hyperarm_description.joints import JointStateCache, JointStateError
-from hyperarm_description.model import VARIANTS, DescriptionError, load_description
 from hyperarm_description.qos import qos_for
+from hyperarm_description.ros_main import declare_robot_description, run_node
 from hyperarm_interfaces.action import RunTask
 
 from .sequences import StageStatus, TaskError, build_task, stage_status
@@ -29,10 +29,6 @@ from .sequences import StageStatus, TaskError, build_task, stage_status
 class TaskNode(Node):
     def __init__(self) -> None:
         super().__init__("task_node", namespace=contract.DEFAULT_NAMESPACE)
-        self.declare_parameter("variant", "arm", ParameterDescriptor(
-            description=f"robot variant: {' or '.join(VARIANTS)}", read_only=True))
-        self.declare_parameter("description_file", "", ParameterDescriptor(
-            description="robot description YAML ('' = the packaged one)", read_only=True))
         self.declare_parameter("command_rate", 50.0, ParameterDescriptor(
             description="rate at which stage goals are re-sent on joint_command, Hz",
             read_only=True))
@@ -40,11 +36,7 @@ class TaskNode(Node):
         if not 1.0 <= rate <= 500.0:
             raise SystemExit(f"task_node: command_rate must be within 1..500 Hz, got {rate}")
         self._period = 1.0 / rate
-        try:
-            self._desc = load_description(self.get_parameter("description_file").value or None,
-                                          self.get_parameter("variant").value)
-        except DescriptionError as exc:
-            raise SystemExit(f"task_node: {exc}") from exc
+        self._desc = declare_robot_description(self)
         self._cache = JointStateCache()
         self._lock = threading.Lock()
         self._busy = False
@@ -143,20 +135,7 @@ class TaskNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    node = None
-    executor = MultiThreadedExecutor(num_threads=3)
-    try:
-        node = TaskNode()
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        executor.shutdown()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(TaskNode, args, executor=lambda: MultiThreadedExecutor(num_threads=3))
 
 
 if __name__ == "__main__":

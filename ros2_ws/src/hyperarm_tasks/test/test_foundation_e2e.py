@@ -90,3 +90,12 @@ def test_unknown_task_fails_with_message(launch, ros_domain, executable):
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 1
     assert "unknown task 'dance'" in done.stdout + done.stderr
+
+
+def test_bad_description_file_exits_with_clear_message(launch, wait_for, tmp_path):
+    proc = launch("hyperarm_tasks", "task_node",
+                  params={"description_file": str(tmp_path / "missing.yaml")})
+    wait_for(lambda: proc.proc.poll() is not None, 20.0, what="task_node to exit")
+    assert proc.proc.returncode == 1
+    assert "cannot read robot description" in proc.output()
+    assert "Traceback" not in proc.output()

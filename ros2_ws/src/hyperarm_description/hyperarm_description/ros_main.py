@@ -1,0 +1,63 @@
+"""The one `main()` of every hyperarm node (imports rclpy: for nodes only).
+
+The ros2/demos pattern, written once: init, build the node, spin, and on Ctrl-C / SIGTERM
+(KeyboardInterrupt or ExternalShutdownException) destroy the node and shut down cleanly.
+A node constructor that raises SystemExit (bad parameters, bad description) ends the
+process with that message and exit code 1, after the same clean-up.
+"""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Callable
+
+import rclpy
+from rclpy.executors import Executor, ExternalShutdownException
+from rclpy.node import Node
+
+if TYPE_CHECKING:
+    from .model import RobotDescription
+
+__all__ = ["run_node", "declare_robot_description"]
+
+
+def run_node(factory: Callable[[], Node], args: list[str] | None = None,
+             executor: Callable[[], Executor] | None = None) -> None:
+    """Spin the node made by ``factory`` until shutdown; ``executor`` builds a custom one."""
+    rclpy.init(args=args)
+    node = None
+    ex = executor() if executor is not None else None
+    try:
+        node = factory()
+        if ex is None:
+            rclpy.spin(node)
+        else:
+            ex.add_node(node)
+            ex.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if ex is not None:
+            ex.shutdown()
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def declare_robot_description(node: Node) -> "RobotDescription":
+    """Declare the common read-only parameters ``variant`` and ``description_file`` on
+    ``node`` and load the description they name. Raises SystemExit with the reason if the
+    variant or the file is bad (the node cannot run without its robot)."""
+    from rcl_interfaces.msg import ParameterDescriptor
+
+    from .model import VARIANTS, DescriptionError, load_description
+
+    node.declare_parameter("variant", "arm", ParameterDescriptor(
+        description=f"robot variant: {' or '.join(VARIANTS)}", read_only=True))
+    node.declare_parameter("description_file", "", ParameterDescriptor(
+        description="robot description YAML ('' = the packaged config/hyperarm.yaml)",
+        read_only=True))
+    variant = node.get_parameter("variant").value
+    path = node.get_parameter("description_file").value or None
+    try:
+        return load_description(path, variant)
+    except DescriptionError as exc:
+        raise SystemExit(f"{node.get_name()}: {exc}") from exc
