@@ -1,0 +1,1 @@
+"""Dynamixel Protocol 2.0 bus: model table, protocol codec, emulator, SDK-based bus (no ROS)."""

@@ -1,0 +1,342 @@
+"""The driver core: commands, safety, watchdog, cycle and reconnection (no ROS).
+
+:class:`DynamixelDriver` owns a :class:`DynamixelBus`. ``cycle(now)`` does one sync read +
+one sync write; while the port is down it retries opening it every ``reconnect_period``.
+Commands arrive by joint name (``command``); positions are clamped into the joint limits,
+NaN/inf rejected; efforts clamped to the servo's current limit. A joint in current (torque)
+control whose effort command is older than ``command_timeout`` is switched to hold its
+present position (watchdog); in current control a torque pushing a joint further past a
+limit is zeroed (the servo does not enforce position limits in current mode).
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from .bus import BusState, DynamixelBus
+from .config import BusConfig
+from .control_table import OperatingMode, decode_hardware_error
+from .errors import CommandError, CommError, PortError, PortLostError, StartupError
+
+__all__ = ["CommandReport", "DynamixelDriver"]
+
+_log = logging.getLogger(__name__)
+
+POSITION = "position"
+CBP = "current_based_position"
+CURRENT = "current"
+
+
+@dataclass
+class CommandReport:
+    """What became of a command: joints clamped into limits (positions) or current limits."""
+
+    clamped: list[str] = field(default_factory=list)
+    effort_clamped: list[str] = field(default_factory=list)
+
+
+class DynamixelDriver:
+    """Bus + per-joint goals + safety. Arrays are in ``config.joints`` order."""
+
+    def __init__(self, bus: DynamixelBus, *, command_timeout: float = 0.5,
+                 reconnect_period: float = 0.5) -> None:
+        if not 0.0 < command_timeout <= 60.0:
+            raise ValueError(f"command_timeout must be in (0, 60] s, got {command_timeout}")
+        if not 0.0 < reconnect_period <= 60.0:
+            raise ValueError(f"reconnect_period must be in (0, 60] s, got {reconnect_period}")
+        self.bus = bus
+        self.config: BusConfig = bus.config
+        self.command_timeout = command_timeout
+        self.reconnect_period = reconnect_period
+        n = len(self.config.joints)
+        self.lower = np.array([j.lower for j in self.config.joints])
+        self.upper = np.array([j.upper for j in self.config.joints])
+        self.max_effort = np.array([j.effort_limit for j in self.config.joints])
+        self._hold_effort = np.array([j.hold_effort if j.hold_effort is not None
+                                      else j.effort_limit for j in self.config.joints])
+        self.goal_position = np.zeros(n)        # rad
+        self.goal_effort = self._hold_effort.copy()  # N·m (limit in cbp, torque in current)
+        self.control = [self._configured(i) for i in range(n)]  # wanted control mode
+        self.effort_stamp = np.full(n, -math.inf)
+        self.state: BusState | None = None
+        self.connected = False
+        self.missing: list[str] = []
+        self.last_error = ""
+        self.reconnects = 0
+        self._next_attempt = 0.0
+        self._have_goal = False
+        self.watchdog_trips = 0
+        self.events: list[str] = []      # human-readable events for the node to log
+
+    # -- helpers -----------------------------------------------------------------------------
+    def _configured(self, i: int) -> str:
+        return self.config.joints[i].mode
+
+    def _event(self, text: str) -> None:
+        self.events.append(text)
+        _log.info(text)
+
+    def pop_events(self) -> list[str]:
+        out, self.events = self.events, []
+        return out
+
+    @property
+    def names(self) -> list[str]:
+        return self.config.names
+
+    # -- connection --------------------------------------------------------------------------
+    def connect(self) -> None:
+        """Open the port and run the start-up check (torque stays off). Raises PortError or
+        StartupError."""
+        try:
+            self.bus.open()
+            self.bus.startup()
+        except (PortError, StartupError, CommError) as exc:
+            self.bus.close()
+            self.connected = False
+            self.last_error = str(exc)
+            if isinstance(exc, StartupError):
+                self.missing = exc.missing
+            raise
+        self.connected = True
+        self.missing = []
+        self.state = self.bus.read_state()
+        self._reset_goals_to_present()
+
+    def _reset_goals_to_present(self) -> None:
+        assert self.state is not None
+        self.goal_position = np.clip(self.state.position, self.lower, self.upper)
+        self.goal_effort = self._hold_effort.copy()
+        self.control = [self._configured(i) for i in range(len(self.control))]
+        self.effort_stamp[:] = -math.inf
+        self._have_goal = True
+
+    def _lost(self, exc: Exception, now: float) -> None:
+        self.connected = False
+        self.state = None
+        self.last_error = str(exc)
+        self.bus.close()
+        self._next_attempt = now + self.reconnect_period
+        self._event(f"port lost: {exc}; torque will be off after reconnecting")
+
+    # -- commands ----------------------------------------------------------------------------
+    def command(self, names: Sequence[str], position: Sequence[float] = (),
+                effort: Sequence[float] = (), now: float | None = None) -> CommandReport:
+        """Apply a by-name command (joints not on this bus are ignored).
+
+        position only -> position control; effort only -> current control (torque, N·m);
+        both -> current-based position with |effort| as the torque limit. Raises
+        CommandError (nothing applied) on length mismatch, duplicates, NaN/inf or when no
+        name is one of this bus's joints.
+        """
+        now = time.monotonic() if now is None else now
+        n = len(names)
+        if len(position) not in (0, n) or len(effort) not in (0, n):
+            raise CommandError(f"{len(position)} positions and {len(effort)} efforts for "
+                               f"{n} joint names (each must be 0 or {n})")
+        if not position and not effort:
+            raise CommandError("command has neither positions nor efforts")
+        if len(set(names)) != n:
+            raise CommandError(f"duplicate joint names in command: {list(names)}")
+        idx: list[tuple[int, int]] = []
+        for k, name in enumerate(names):
+            try:
+                idx.append((k, self.config.index(name)))
+            except KeyError:
+                continue
+        if not idx:
+            raise CommandError(f"no joint of this driver in command {list(names)}; "
+                               f"known: {self.names}")
+        bad = [names[k] for k, _ in idx
+               if (position and not math.isfinite(float(position[k])))
+               or (effort and not math.isfinite(float(effort[k])))]
+        if bad:
+            raise CommandError(f"non-finite setpoint for {bad}: command rejected")
+        report = CommandReport()
+        for k, i in idx:
+            name = self.config.joints[i].name
+            if position:
+                q = float(position[k])
+                qc = min(max(q, self.lower[i]), self.upper[i])
+                if qc != q:
+                    report.clamped.append(name)
+                self.goal_position[i] = qc
+            if effort:
+                e = float(effort[k])
+                lim = self.max_effort[i]
+                if abs(e) > lim:
+                    report.effort_clamped.append(name)
+                    e = math.copysign(lim, e)
+            if position and effort:
+                self.control[i] = CBP
+                self.goal_effort[i] = abs(e)
+                self.effort_stamp[i] = now
+            elif effort:
+                self.control[i] = CURRENT
+                self.goal_effort[i] = e
+                self.effort_stamp[i] = now
+            else:
+                if self.control[i] == CURRENT:
+                    self.control[i] = self._configured(i)
+                if self.control[i] == CBP and self._configured(i) != CBP:
+                    self.goal_effort[i] = self.max_effort[i]
+                elif self.control[i] == CBP:
+                    self.goal_effort[i] = self._hold_effort[i]
+        self._have_goal = True
+        return report
+
+    def hold(self) -> None:
+        """Every joint: hold the present position in its configured mode."""
+        if self.state is None:
+            raise PortLostError("no state: port down")
+        self._reset_goals_to_present()
+
+    # -- cycle -------------------------------------------------------------------------------
+    def cycle(self, now: float | None = None) -> BusState | None:
+        """One control cycle. Returns the state read, or None while the port is down."""
+        now = time.monotonic() if now is None else now
+        if not self.connected:
+            if now < self._next_attempt:
+                return None
+            self._next_attempt = now + self.reconnect_period
+            try:
+                self.connect()
+            except (PortError, StartupError, CommError) as exc:
+                self.last_error = str(exc)
+                return None
+            self.reconnects += 1
+            self._event(f"connected to {self.bus.port_name} ({len(self.names)} servos); "
+                        "torque off")
+        t0 = time.perf_counter()
+        try:
+            try:
+                self.state = self.bus.read_state()
+            except CommError as exc:
+                self.last_error = str(exc)
+                return None
+            self._apply(now)
+        except PortLostError as exc:
+            self._lost(exc, now)
+            return None
+        self.bus.stats.cycle_times.append(time.perf_counter() - t0)
+        return self.state
+
+    def _apply(self, now: float) -> None:
+        """Watchdog, mode switches, limit guard, then the sync write of goals."""
+        st = self.state
+        assert st is not None
+        stale = [i for i, c in enumerate(self.control)
+                 if c == CURRENT and now - self.effort_stamp[i] > self.command_timeout]
+        if stale:
+            self.watchdog_trips += 1
+            names = [self.config.joints[i].name for i in stale]
+            self._event(f"watchdog: no effort command for {self.command_timeout:g} s on "
+                        f"{names}; holding position")
+            for i in stale:
+                self.control[i] = self._configured(i)
+                self.goal_position[i] = min(max(st.position[i], self.lower[i]), self.upper[i])
+                self.goal_effort[i] = self._hold_effort[i]
+        effort = np.where([c == CURRENT for c in self.control], self.goal_effort,
+                          np.abs(self.goal_effort))
+        for i, c in enumerate(self.control):
+            if c == CURRENT:
+                # servo ignores position limits in current mode: never push further out
+                if (st.position[i] >= self.upper[i] and effort[i] > 0) or (
+                        st.position[i] <= self.lower[i] and effort[i] < 0):
+                    effort[i] = 0.0
+                # keep the position goal at the present position for the switch back
+                self.goal_position[i] = min(max(st.position[i], self.lower[i]), self.upper[i])
+            elif c == POSITION:
+                effort[i] = self.max_effort[i]
+        ticks = self.bus.goal_ticks(self.goal_position)
+        current = self.bus.goal_current(effort)
+        # limits in cbp/position are unsigned magnitudes; direction applies to torque only
+        pos_modes = np.array([c != CURRENT for c in self.control])
+        current = np.where(pos_modes, np.abs(current), current)
+        for i, c in enumerate(self.control):
+            want = OperatingMode.BY_NAME[c]
+            if self.bus.modes[i] != want:
+                self.bus.set_mode(i, want, int(ticks[i]), int(current[i]))
+                self._event(f"{self.config.joints[i].name}: operating mode -> {c}")
+        self.bus.write_goals(ticks, current)
+
+    # -- services ----------------------------------------------------------------------------
+    def in_error(self) -> list[int]:
+        if self.state is None:
+            return []
+        return [i for i, e in enumerate(self.state.hardware_error) if e]
+
+    def hardware_errors(self) -> dict[str, list[str]]:
+        """Joint name -> decoded hardware error bits, for the joints in error."""
+        if self.state is None:
+            return {}
+        return {self.config.joints[i].name: decode_hardware_error(int(self.state.hardware_error[i]))
+                for i in self.in_error()}
+
+    def set_torque(self, on: bool) -> None:
+        """Torque on (holding the present position) or off, for every servo."""
+        if not self.connected:
+            raise PortLostError(f"port {self.bus.port_name} is down")
+        try:
+            if on:
+                errs = self.hardware_errors()
+                if errs:
+                    raise CommError("cannot enable torque, hardware error on "
+                                    + "; ".join(f"{n}: {', '.join(b)}" for n, b in errs.items())
+                                    + " (reboot them first)")
+                self.state = self.bus.read_state()
+                self._reset_goals_to_present()
+                self._apply(time.monotonic())
+            self.bus.set_torque(range(len(self.names)), on)
+        except PortLostError as exc:
+            self._lost(exc, time.monotonic())
+            raise
+
+    def reboot(self, names: Sequence[str]) -> list[str]:
+        """Reboot the named joints (empty = those in hardware error); returns those rebooted."""
+        if not self.connected:
+            raise PortLostError(f"port {self.bus.port_name} is down")
+        if names:
+            unknown = [n for n in names if n not in self.names]
+            if unknown:
+                raise CommandError(f"unknown joint(s) {unknown}; known: {self.names}")
+            indices = [self.config.index(n) for n in names]
+        else:
+            indices = self.in_error()
+        done = []
+        try:
+            for i in indices:
+                self.bus.reboot(i)
+                done.append(self.config.joints[i].name)
+                self.control[i] = self._configured(i)
+            self.state = self.bus.read_state()
+            for i in indices:
+                self.goal_position[i] = min(max(self.state.position[i], self.lower[i]),
+                                            self.upper[i])
+                self.goal_effort[i] = self._hold_effort[i]
+        except PortLostError as exc:
+            self._lost(exc, time.monotonic())
+            raise
+        return done
+
+    def shutdown(self, policy: str) -> None:
+        """``hold``: hold the present position, torque on; ``release``: torque off."""
+        if policy not in ("hold", "release"):
+            raise ValueError(f"shutdown policy must be hold or release, got {policy!r}")
+        if self.connected:
+            try:
+                if policy == "release":
+                    self.bus.set_torque(range(len(self.names)), False)
+                else:
+                    self.state = self.bus.read_state()
+                    self._reset_goals_to_present()
+                    self._apply(time.monotonic())
+            except (PortError, CommError) as exc:
+                _log.warning("shutdown: %s", exc)
+        self.bus.close()
+        self.connected = False

@@ -1,0 +1,735 @@
+"""dxl_emulator: a bus of Dynamixel Protocol 2.0 servos behind a pseudo-terminal (no ROS).
+
+Byte-exact Protocol 2.0 (header, stuffing, CRC-16) with PING, READ, WRITE, SYNC_READ,
+FAST_SYNC_READ, SYNC_WRITE, BULK_READ, BULK_WRITE and REBOOT; per-model control tables with
+the real addresses (indirect addressing included); first-order motion toward the goal with
+the velocity limit; current in the current-based modes (an optional obstacle makes a servo
+stall, e.g. the gripper closing on an object). Faults: dropped replies, corrupt CRC,
+hardware error bits, slow replies, and the whole port disappearing and coming back.
+
+Run ``dxl_emulator --help``. It prints the pty path to open; ``--link PATH`` keeps a stable
+symlink to it (re-created when the port comes back). ``--control PATH`` opens a Unix socket
+taking one JSON object per line (``{"op": "fault", "id": 3, "bits": 32}``; see
+:meth:`EmulatedBus.control`), answered by one JSON line.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import select
+import signal
+import socket
+import sys
+import termios
+import time
+import tty
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from . import protocol2 as p2
+from .control_table import (
+    CENTER_TICK, EEPROM_END, INDIRECT_ADDRESS_1, INDIRECT_COUNT, INDIRECT_DATA_1, MODELS,
+    REGISTERS, TABLE_SIZE, TICKS_PER_REV, VELOCITY_UNIT_RPM, ModelSpec, OperatingMode,
+    model_by_name)
+
+__all__ = ["EmulatedServo", "EmulatedBus", "PtyEmulator", "main"]
+
+TICKS_PER_S_PER_VEL_UNIT = VELOCITY_UNIT_RPM / 60.0 * TICKS_PER_REV
+POSITION_TAU = 0.03          # s, first-order time constant of the position loop
+POSITION_GAIN = 4.0          # raw current per tick of position error (position loop)
+CURRENT_TO_VEL = 2.0         # ticks/s per raw current unit in current mode (free load)
+REBOOT_TIME = 0.05           # s a rebooted servo stays silent
+_GOAL_REGS = ("goal_position", "goal_current")
+
+
+def _reg_bytes(name: str, value: int) -> bytes:
+    r = REGISTERS[name]
+    return int(value).to_bytes(r.size, "little", signed=r.signed)
+
+
+@dataclass
+class WriteRecord:
+    """One write the emulator received into a goal register (after indirect resolution)."""
+
+    id: int
+    register: str
+    value: int
+    accepted: bool
+    mode: int
+
+
+class EmulatedServo:
+    """One servo: control table bytes + a simple motion model (ticks, s)."""
+
+    def __init__(self, dxl_id: int, model: ModelSpec, position: int = CENTER_TICK) -> None:
+        self.id = dxl_id
+        self.model = model
+        self.table = bytearray(TABLE_SIZE)
+        self.pos = float(position)
+        self.vel = 0.0          # ticks/s
+        self.current = 0.0      # raw current units
+        self.obstacle: float | None = None   # tick a moving servo cannot pass
+        self.silent_until = 0.0
+        self.temperature = 36
+        self.voltage = 120      # 0.1 V
+        self._set_eeprom_defaults()
+        self._set_ram_defaults()
+
+    # -- control table ---------------------------------------------------------------------
+    def _set(self, name: str, value: int) -> None:
+        r = REGISTERS[name]
+        self.table[r.address:r.address + r.size] = _reg_bytes(name, value)
+
+    def get(self, name: str) -> int:
+        r = REGISTERS[name]
+        return int.from_bytes(self.table[r.address:r.address + r.size], "little",
+                              signed=r.signed)
+
+    def _set_eeprom_defaults(self) -> None:
+        m = self.model
+        for name, value in (("model_number", m.number), ("firmware_version", 46),
+                            ("id", self.id), ("baud_rate", 3), ("return_delay_time", 250),
+                            ("operating_mode", OperatingMode.POSITION),
+                            ("temperature_limit", 80), ("max_voltage_limit", 160),
+                            ("min_voltage_limit", 95), ("current_limit", m.current_limit),
+                            ("velocity_limit", m.velocity_limit),
+                            ("max_position_limit", TICKS_PER_REV - 1),
+                            ("min_position_limit", 0), ("shutdown", 0b110100)):
+            self._set(name, value)
+
+    def _set_ram_defaults(self) -> None:
+        self.table[EEPROM_END:] = bytes(TABLE_SIZE - EEPROM_END)
+        self._set("status_return_level", 2)
+        self._set("goal_current", self.model.current_limit)
+        self._set("goal_position", int(round(self.pos)))
+        for n in range(INDIRECT_COUNT):
+            a = INDIRECT_ADDRESS_1 + 2 * n
+            self.table[a:a + 2] = (INDIRECT_DATA_1 + n).to_bytes(2, "little")
+        self._refresh_present()
+
+    def reboot(self, now: float) -> None:
+        """Reset the RAM area (torque off, error cleared); EEPROM kept."""
+        self._set_ram_defaults()
+        self.vel = 0.0
+        self.current = 0.0
+        self.silent_until = now + REBOOT_TIME
+
+    def _resolve(self, addr: int) -> int:
+        if INDIRECT_DATA_1 <= addr < INDIRECT_DATA_1 + INDIRECT_COUNT:
+            a = INDIRECT_ADDRESS_1 + 2 * (addr - INDIRECT_DATA_1)
+            return int.from_bytes(self.table[a:a + 2], "little")
+        return addr
+
+    def _refresh_present(self) -> None:
+        self._set("present_position", int(round(self.pos)))
+        self._set("present_velocity", int(round(self.vel / TICKS_PER_S_PER_VEL_UNIT)))
+        self._set("present_current", int(round(self.current)))
+        self._set("present_input_voltage", self.voltage)
+        self._set("present_temperature", self.temperature)
+        self._set("moving", 1 if abs(self.vel) > 1.0 else 0)
+
+    def read(self, addr: int, length: int) -> tuple[int, bytes]:
+        """(error, data) of a READ of ``length`` bytes at ``addr``."""
+        if addr < 0 or length < 0 or addr + length > TABLE_SIZE:
+            return p2.ERR_ACCESS, b""
+        self._refresh_present()
+        out = bytearray()
+        for a in range(addr, addr + length):
+            r = self._resolve(a)
+            out.append(self.table[r] if r < TABLE_SIZE else 0)
+        return self.status_error(), bytes(out)
+
+    def status_error(self, code: int = 0) -> int:
+        return code | (p2.ERRBIT_ALERT if self.get("hardware_error_status") else 0)
+
+    def write(self, addr: int, data: bytes, log: list[WriteRecord] | None = None) -> int:
+        """Apply a WRITE; returns the status error byte. Rules of the real firmware:
+        EEPROM only with torque off; goal position within Min/Max Position Limit (position
+        modes); goal current within Current Limit; torque on refused during a hardware error.
+        """
+        if addr < 0 or addr + len(data) > TABLE_SIZE:
+            return self.status_error(p2.ERR_ACCESS)
+        targets = [self._resolve(a) for a in range(addr, addr + len(data))]
+        if any(t >= TABLE_SIZE for t in targets):
+            return self.status_error(p2.ERR_ACCESS)
+        torque_on = self.get("torque_enable") == 1
+        if torque_on and any(t < EEPROM_END for t in targets):
+            return self.status_error(p2.ERR_ACCESS)
+        new = bytearray(self.table)
+        for t, b in zip(targets, data):
+            new[t] = b
+        touched = set(targets)
+        code = 0
+
+        def val(name: str, table: bytearray) -> int:
+            r = REGISTERS[name]
+            return int.from_bytes(table[r.address:r.address + r.size], "little", signed=r.signed)
+
+        def touches(name: str) -> bool:
+            r = REGISTERS[name]
+            return any(a in touched for a in range(r.address, r.address + r.size))
+
+        mode = val("operating_mode", new)
+        for name in _GOAL_REGS:
+            if not touches(name):
+                continue
+            v = val(name, new)
+            if name == "goal_position":
+                ok = (mode not in (OperatingMode.POSITION, OperatingMode.CURRENT_BASED_POSITION)
+                      or val("min_position_limit", new) <= v <= val("max_position_limit", new))
+            else:
+                ok = abs(v) <= val("current_limit", new)
+            if log is not None:
+                log.append(WriteRecord(self.id, name, v, ok, mode))
+            if not ok:
+                r = REGISTERS[name]
+                new[r.address:r.address + r.size] = self.table[r.address:r.address + r.size]
+                code = p2.ERR_DATA_LIMIT
+        if touches("torque_enable") and val("torque_enable", new) == 1 \
+                and self.get("hardware_error_status"):
+            r = REGISTERS["torque_enable"]
+            new[r.address] = 0
+            code = p2.ERR_RESULT_FAIL
+        if val("operating_mode", new) not in self.model.modes:
+            return self.status_error(p2.ERR_DATA_RANGE)
+        self.table[:] = new
+        return self.status_error(code)
+
+    def raise_error(self, bits: int) -> None:
+        """Set Hardware Error Status bits; shutdown bits turn the torque off."""
+        value = self.get("hardware_error_status") | (bits & 0xFF)
+        self._set("hardware_error_status", value)
+        if value & self.get("shutdown"):
+            self._set("torque_enable", 0)
+        if bits & 0x01:
+            self.voltage = 70
+        if bits & 0x04:
+            self.temperature = 85
+
+    # -- motion ----------------------------------------------------------------------------
+    def step(self, dt: float) -> None:
+        """Advance the motion model by ``dt`` seconds."""
+        if self.get("torque_enable") != 1:
+            self.vel = 0.0
+            self.current = 0.0
+            return
+        mode = self.get("operating_mode")
+        vmax = self.get("profile_velocity") or self.get("velocity_limit")
+        vmax = vmax * TICKS_PER_S_PER_VEL_UNIT
+        if mode == OperatingMode.CURRENT:
+            goal_i = float(self.get("goal_current"))
+            target_v = max(-vmax, min(vmax, goal_i * CURRENT_TO_VEL))
+            self.vel += (target_v - self.vel) * min(1.0, dt / POSITION_TAU)
+            self.current = goal_i
+        elif mode in (OperatingMode.POSITION, OperatingMode.CURRENT_BASED_POSITION,
+                      OperatingMode.EXTENDED_POSITION):
+            err = self.get("goal_position") - self.pos
+            self.vel = max(-vmax, min(vmax, err / POSITION_TAU))
+            limit = (abs(self.get("goal_current")) if mode == OperatingMode.CURRENT_BASED_POSITION
+                     else self.get("current_limit"))
+            self.current = max(-limit, min(limit, POSITION_GAIN * err))
+        else:
+            self.vel = 0.0
+        new = self.pos + self.vel * dt
+        if mode != OperatingMode.CURRENT and abs(self.get("goal_position") - self.pos) <= abs(
+                self.vel * dt):
+            new = float(self.get("goal_position"))
+        if self.obstacle is not None and (self.pos - self.obstacle) * (new - self.obstacle) < 0:
+            new = self.obstacle
+        if self.obstacle is not None and new == self.obstacle:
+            self.vel = 0.0
+        self.pos = new
+        if mode != OperatingMode.CURRENT and self.vel == 0.0 and self.obstacle is None \
+                and new == self.get("goal_position"):
+            self.current = 0.0
+
+
+@dataclass
+class Faults:
+    """Fault injection settings of a bus (probabilities 0..1, counts, seconds)."""
+
+    drop_rate: float = 0.0
+    corrupt_rate: float = 0.0
+    reply_delay: float = 0.0
+    drop_next: dict[int, int] = field(default_factory=dict)   # id -> replies to drop
+    corrupt_next: int = 0
+
+
+class EmulatedBus:
+    """Servos on one bus: turns received bytes into replies (``feed``)."""
+
+    def __init__(self, servos: list[EmulatedServo], seed: int = 0) -> None:
+        ids = [s.id for s in servos]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"duplicate servo IDs: {ids}")
+        self.servos = {s.id: s for s in servos}
+        self.faults = Faults()
+        self.reader = p2.PacketReader()
+        self.write_log: list[WriteRecord] = []
+        self.instructions: dict[int, int] = {}
+        self.baud = 1_000_000
+        self._rng = random.Random(seed)
+        self._last = time.monotonic()
+
+    # -- time ------------------------------------------------------------------------------
+    def advance(self, now: float | None = None) -> None:
+        now = time.monotonic() if now is None else now
+        dt = min(max(0.0, now - self._last), 1.0)
+        self._last = now
+        while dt > 0:
+            h = min(dt, 0.005)
+            for s in self.servos.values():
+                s.step(h)
+            dt -= h
+
+    def _available(self, dxl_id: int, now: float) -> EmulatedServo | None:
+        s = self.servos.get(dxl_id)
+        if s is None or s.silent_until > now:
+            return None
+        return s
+
+    # -- replies ---------------------------------------------------------------------------
+    def _emit(self, dxl_id: int, packet: bytes, out: list[bytes]) -> None:
+        n = self.faults.drop_next.get(dxl_id, 0)
+        if n > 0:
+            self.faults.drop_next[dxl_id] = n - 1
+            return
+        if self.faults.drop_rate and self._rng.random() < self.faults.drop_rate:
+            return
+        if self.faults.corrupt_next > 0 or (
+                self.faults.corrupt_rate and self._rng.random() < self.faults.corrupt_rate):
+            self.faults.corrupt_next = max(0, self.faults.corrupt_next - 1)
+            packet = packet[:-1] + bytes([packet[-1] ^ 0x5A])
+        out.append(packet)
+
+    def feed(self, data: bytes, now: float | None = None) -> list[bytes]:
+        """Bytes from the host -> reply packets, in order."""
+        now = time.monotonic() if now is None else now
+        out: list[bytes] = []
+        for pkt in self.reader.feed(data):
+            self.advance(now)
+            self.instructions[pkt.instruction] = self.instructions.get(pkt.instruction, 0) + 1
+            self._handle(pkt, now, out)
+        return out
+
+    def _handle(self, pkt: p2.Packet, now: float, out: list[bytes]) -> None:
+        inst, prm = pkt.instruction, pkt.params
+        broadcast = pkt.id == p2.BROADCAST_ID
+        if inst == p2.INST_PING:
+            ids = sorted(self.servos) if broadcast else [pkt.id]
+            for i in ids:
+                s = self._available(i, now)
+                if s:
+                    data = _reg_bytes("model_number", s.model.number) + bytes([46])
+                    self._emit(i, p2.build_status(i, s.status_error(), data), out)
+        elif inst == p2.INST_READ and not broadcast:
+            s = self._available(pkt.id, now)
+            if s and len(prm) == 4:
+                err, data = s.read(prm[0] | prm[1] << 8, prm[2] | prm[3] << 8)
+                self._emit(s.id, p2.build_status(s.id, err, data), out)
+            elif s:
+                self._emit(s.id, p2.build_status(s.id, s.status_error(p2.ERR_DATA_LENGTH)), out)
+        elif inst == p2.INST_WRITE:
+            targets = list(self.servos) if broadcast else [pkt.id]
+            for i in targets:
+                s = self._available(i, now)
+                if s is None:
+                    continue
+                err = (s.write(prm[0] | prm[1] << 8, prm[2:], self.write_log) if len(prm) >= 3
+                       else s.status_error(p2.ERR_DATA_LENGTH))
+                if not broadcast:
+                    self._emit(i, p2.build_status(i, err), out)
+        elif inst == p2.INST_REBOOT:
+            s = self._available(pkt.id, now)
+            if s and not broadcast:
+                self._emit(s.id, p2.build_status(s.id, 0), out)
+                s.reboot(now)
+        elif inst in (p2.INST_SYNC_READ, p2.INST_FAST_SYNC_READ) and broadcast and len(prm) >= 5:
+            addr, length = prm[0] | prm[1] << 8, prm[2] | prm[3] << 8
+            ids = list(prm[4:])
+            if inst == p2.INST_SYNC_READ:
+                for i in ids:
+                    s = self._available(i, now)
+                    if s:
+                        err, data = s.read(addr, length)
+                        self._emit(i, p2.build_status(i, err, data), out)
+            else:
+                self._fast_sync_read(ids, addr, length, now, out)
+        elif inst == p2.INST_SYNC_WRITE and broadcast and len(prm) >= 4:
+            addr, length = prm[0] | prm[1] << 8, prm[2] | prm[3] << 8
+            body = prm[4:]
+            step = 1 + length
+            for k in range(0, len(body) - step + 1, step):
+                s = self._available(body[k], now)
+                if s:
+                    s.write(addr, body[k + 1:k + step], self.write_log)
+        elif inst == p2.INST_BULK_READ and broadcast:
+            for k in range(0, len(prm) - 4, 5):
+                i = prm[k]
+                s = self._available(i, now)
+                if s:
+                    err, data = s.read(prm[k + 1] | prm[k + 2] << 8, prm[k + 3] | prm[k + 4] << 8)
+                    self._emit(i, p2.build_status(i, err, data), out)
+        elif inst == p2.INST_BULK_WRITE and broadcast:
+            k = 0
+            while k + 5 <= len(prm):
+                i, addr, length = prm[k], prm[k + 1] | prm[k + 2] << 8, prm[k + 3] | prm[k + 4] << 8
+                s = self._available(i, now)
+                if s:
+                    s.write(addr, prm[k + 5:k + 5 + length], self.write_log)
+                k += 5 + length
+        elif not broadcast and self._available(pkt.id, now):
+            s = self.servos[pkt.id]
+            self._emit(s.id, p2.build_status(s.id, s.status_error(p2.ERR_INSTRUCTION)), out)
+
+    def _fast_sync_read(self, ids: list[int], addr: int, length: int, now: float,
+                        out: list[bytes]) -> None:
+        items = []
+        for i in ids:
+            s = self._available(i, now)
+            if s is None:
+                break
+            err, data = s.read(addr, length)
+            items.append((i, err, data))
+        if not items:
+            return
+        full = p2.build_fast_sync_status(items)
+        if len(items) < len(ids):
+            # the chain stops at the silent servo: the length field announces all of them
+            length_all = 1 + len(ids) * (4 + length)
+            full = full[:5] + bytes([length_all & 0xFF, length_all >> 8]) + full[7:]
+        self._emit(ids[0], full, out)
+
+    # -- control ---------------------------------------------------------------------------
+    def control(self, cmd: dict[str, Any]) -> dict[str, Any]:
+        """Apply a control command (from the control socket or a test); returns a reply.
+
+        ops: ``fault`` {id, bits} raise Hardware Error bits; ``clear`` {id} clear them;
+        ``drop`` {id, count} drop that servo's next replies; ``corrupt`` {count} corrupt the
+        CRC of the next replies; ``rates`` {drop_rate, corrupt_rate, reply_delay};
+        ``obstacle`` {id, position (tick) or null}; ``set`` {id, position (tick)};
+        ``state`` -> per-servo registers; ``write_log`` {clear} -> goal writes received;
+        ``stats`` -> packet counts.
+        """
+        op = cmd.get("op")
+        try:
+            if op == "fault":
+                self.servos[int(cmd["id"])].raise_error(int(cmd["bits"]))
+            elif op == "clear":
+                s = self.servos[int(cmd["id"])]
+                s._set("hardware_error_status", 0)
+            elif op == "drop":
+                self.faults.drop_next[int(cmd["id"])] = int(cmd.get("count", 1))
+            elif op == "corrupt":
+                self.faults.corrupt_next = int(cmd.get("count", 1))
+            elif op == "rates":
+                for k in ("drop_rate", "corrupt_rate", "reply_delay"):
+                    if k in cmd:
+                        setattr(self.faults, k, float(cmd[k]))
+            elif op == "obstacle":
+                pos = cmd.get("position")
+                self.servos[int(cmd["id"])].obstacle = None if pos is None else float(pos)
+            elif op == "set":
+                self.servos[int(cmd["id"])].pos = float(cmd["position"])
+            elif op == "state":
+                self.advance()
+                return {"ok": True, "servos": {str(i): self._state(s)
+                                               for i, s in self.servos.items()}}
+            elif op == "write_log":
+                log = [vars(r) for r in self.write_log]
+                if cmd.get("clear"):
+                    self.write_log.clear()
+                return {"ok": True, "log": log}
+            elif op == "stats":
+                return {"ok": True, "packets": self.reader.packets,
+                        "crc_errors": self.reader.crc_errors,
+                        "instructions": {hex(k): v for k, v in self.instructions.items()}}
+            elif op != "ping":
+                return {"ok": False, "error": f"unknown op {op!r}"}
+        except (KeyError, ValueError, TypeError) as exc:
+            return {"ok": False, "error": f"{op}: bad or missing argument ({exc})"}
+        return {"ok": True}
+
+    @staticmethod
+    def _state(s: EmulatedServo) -> dict[str, Any]:
+        s._refresh_present()
+        names = ("model_number", "operating_mode", "torque_enable", "goal_position",
+                 "goal_current", "present_position", "present_velocity", "present_current",
+                 "hardware_error_status", "return_delay_time", "min_position_limit",
+                 "max_position_limit", "profile_velocity", "current_limit")
+        return {n: s.get(n) for n in names}
+
+
+class PtyEmulator:
+    """Serves an :class:`EmulatedBus` on a pseudo-terminal (optionally a stable symlink)."""
+
+    def __init__(self, bus: EmulatedBus, link: str | None = None,
+                 control: str | None = None) -> None:
+        self.bus = bus
+        self.link = Path(link) if link else None
+        self.control_path = Path(control) if control else None
+        self.master: int | None = None
+        self._keep_slave: int | None = None
+        self.device = ""
+        self._pending: list[tuple[float, bytes]] = []
+        self._back_at: float | None = None
+        self._ctl_srv: socket.socket | None = None
+        self._clients: dict[int, tuple[socket.socket, bytearray]] = {}
+        self._stop = False
+
+    def open(self) -> str:
+        """Create the pty (and the link); returns the device path."""
+        master, slave = os.openpty()
+        tty.setraw(slave, termios.TCSANOW)
+        os.set_blocking(master, False)
+        self.master, self._keep_slave = master, slave
+        self.device = os.ttyname(slave)
+        if self.link:
+            tmp = self.link.with_name(self.link.name + ".tmp")
+            tmp.unlink(missing_ok=True)
+            tmp.symlink_to(self.device)
+            os.replace(tmp, self.link)
+        return self.device
+
+    def close_port(self) -> None:
+        """The port disappears: the pty is closed and the link removed."""
+        if self.link:
+            self.link.unlink(missing_ok=True)
+        for fd in (self.master, self._keep_slave):
+            if fd is not None:
+                os.close(fd)
+        self.master = self._keep_slave = None
+        self._pending.clear()
+
+    def disappear(self, seconds: float) -> None:
+        self.close_port()
+        self._back_at = time.monotonic() + max(0.0, seconds)
+
+    def _open_control(self) -> None:
+        if not self.control_path:
+            return
+        self.control_path.unlink(missing_ok=True)
+        srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        srv.bind(str(self.control_path))
+        srv.listen(4)
+        srv.setblocking(False)
+        self._ctl_srv = srv
+
+    def _on_control_line(self, line: bytes) -> dict[str, Any]:
+        try:
+            cmd = json.loads(line)
+            if not isinstance(cmd, dict):
+                raise ValueError("expected a JSON object")
+        except ValueError as exc:
+            return {"ok": False, "error": f"bad JSON: {exc}"}
+        if cmd.get("op") == "disappear":
+            self.disappear(float(cmd.get("seconds", 1.0)))
+            return {"ok": True}
+        if cmd.get("op") == "device":
+            return {"ok": True, "device": self.device if self.master is not None else None}
+        return self.bus.control(cmd)
+
+    def stop(self) -> None:
+        self._stop = True
+
+    def serve_forever(self) -> None:
+        """Run until :meth:`stop` (or SIGINT/SIGTERM in :func:`main`)."""
+        if self.master is None:
+            self.open()
+        self._open_control()
+        try:
+            while not self._stop:
+                self._once()
+        finally:
+            self.close_port()
+            for c, _ in self._clients.values():
+                c.close()
+            if self._ctl_srv:
+                self._ctl_srv.close()
+                if self.control_path:
+                    self.control_path.unlink(missing_ok=True)
+
+    def _once(self) -> None:
+        now = time.monotonic()
+        if self.master is None and self._back_at is not None and now >= self._back_at:
+            self._back_at = None
+            self.open()
+            print(f"dxl_emulator: port back on {self.device}", flush=True)
+        fds = [c.fileno() for c, _ in self._clients.values()]
+        if self._ctl_srv:
+            fds.append(self._ctl_srv.fileno())
+        if self.master is not None:
+            fds.append(self.master)
+        timeout = 0.05
+        if self._pending:
+            timeout = max(0.0, min(timeout, self._pending[0][0] - now))
+        if self._back_at is not None:
+            timeout = max(0.0, min(timeout, self._back_at - now))
+        readable, _, _ = select.select(fds, [], [], timeout)
+        now = time.monotonic()
+        for fd in readable:
+            if fd == self.master:
+                try:
+                    data = os.read(fd, 65536)
+                except (BlockingIOError, InterruptedError):
+                    continue
+                except OSError:
+                    data = b""
+                if data:
+                    delay = self.bus.faults.reply_delay
+                    for reply in self.bus.feed(data, now):
+                        if delay > 0:
+                            self._pending.append((now + delay, reply))
+                        else:
+                            self._write(reply)
+            elif self._ctl_srv and fd == self._ctl_srv.fileno():
+                conn, _ = self._ctl_srv.accept()
+                conn.setblocking(False)
+                self._clients[conn.fileno()] = (conn, bytearray())
+            elif fd in self._clients:
+                conn, buf = self._clients[fd]
+                try:
+                    chunk = conn.recv(65536)
+                except BlockingIOError:
+                    continue
+                if not chunk:
+                    conn.close()
+                    del self._clients[fd]
+                    continue
+                buf += chunk
+                while b"\n" in buf:
+                    line, _, rest = bytes(buf).partition(b"\n")
+                    buf[:] = rest
+                    reply = json.dumps(self._on_control_line(line)).encode() + b"\n"
+                    conn.setblocking(True)
+                    conn.sendall(reply)
+                    conn.setblocking(False)
+        now = time.monotonic()
+        while self._pending and self._pending[0][0] <= now:
+            self._write(self._pending.pop(0)[1])
+
+    def _write(self, data: bytes) -> None:
+        if self.master is None:
+            return
+        try:
+            os.write(self.master, data)
+        except (BlockingIOError, OSError):
+            pass  # nobody reading: the bytes are lost, as on a real bus
+
+
+class EmulatorControl:
+    """Client of an emulator's control socket (for tests and scripts)."""
+
+    def __init__(self, path: str | os.PathLike[str], timeout: float = 5.0) -> None:
+        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self._sock.settimeout(timeout)
+        self._sock.connect(str(path))
+        self._buf = b""
+
+    def __call__(self, op: str, **kwargs: Any) -> dict[str, Any]:
+        self._sock.sendall(json.dumps({"op": op, **kwargs}).encode() + b"\n")
+        while b"\n" not in self._buf:
+            chunk = self._sock.recv(1 << 20)
+            if not chunk:
+                raise ConnectionError("emulator control socket closed")
+            self._buf += chunk
+        line, _, self._buf = self._buf.partition(b"\n")
+        reply = json.loads(line)
+        if not reply.get("ok"):
+            raise RuntimeError(f"emulator: {reply.get('error')}")
+        return reply
+
+    def close(self) -> None:
+        self._sock.close()
+
+
+def servos_from_description(path: str | None, omit: list[int],
+                            models: dict[int, str]) -> list[EmulatedServo]:
+    """One emulated servo per joint of the description (IDs omitted, models overridden)."""
+    from hyperarm_description.model import load_description
+
+    desc = load_description(path or None)
+    specs = [(j.servo.id, j.servo.model) for j in desc.joints]
+    specs.append((desc.gripper.servo.id, desc.gripper.servo.model))
+    out = []
+    for sid, model in specs:
+        if sid in omit:
+            continue
+        out.append(EmulatedServo(sid, model_by_name(models.get(sid, model))))
+    return out
+
+
+def _parse_model_overrides(items: list[str]) -> dict[int, str]:
+    out = {}
+    for item in items:
+        sid, sep, model = item.partition("=")
+        if not sep or not sid.isdigit():
+            raise argparse.ArgumentTypeError(f"--model expects ID=MODEL, got {item!r}")
+        model_by_name(model)
+        out[int(sid)] = model
+    return out
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog="dxl_emulator",
+        description="Emulate a bus of Dynamixel Protocol 2.0 servos on a pseudo-terminal. "
+                    "Prints the device path; open it with the driver (port:=PATH).")
+    ap.add_argument("--description", default="",
+                    help="robot description YAML giving the servo IDs/models "
+                         "('' = the packaged one)")
+    ap.add_argument("--servos", default="",
+                    help="instead of the description: comma-separated ID:MODEL list, "
+                         f"e.g. 1:XM430-W350,2:MX-64 (models: {', '.join(MODELS)})")
+    ap.add_argument("--omit", type=int, action="append", default=[], metavar="ID",
+                    help="leave this servo off the bus (repeatable)")
+    ap.add_argument("--model", action="append", default=[], metavar="ID=MODEL",
+                    help="emulate servo ID as another model (repeatable)")
+    ap.add_argument("--link", default="",
+                    help="stable symlink to the pty, re-created when the port comes back")
+    ap.add_argument("--control", default="",
+                    help="Unix socket for fault injection/inspection (JSON lines)")
+    ap.add_argument("--drop-rate", type=float, default=0.0, help="probability a reply is lost")
+    ap.add_argument("--corrupt-rate", type=float, default=0.0,
+                    help="probability a reply has a bad CRC")
+    ap.add_argument("--reply-delay", type=float, default=0.0, help="extra reply delay, s")
+    ap.add_argument("--seed", type=int, default=0, help="random seed of the fault injection")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        if args.servos:
+            servos = []
+            for item in args.servos.split(","):
+                sid, _, model = item.partition(":")
+                servos.append(EmulatedServo(int(sid), model_by_name(model.strip())))
+        else:
+            servos = servos_from_description(args.description, args.omit,
+                                             _parse_model_overrides(args.model))
+        bus = EmulatedBus(servos, seed=args.seed)
+    except (ValueError, argparse.ArgumentTypeError, OSError) as exc:
+        print(f"dxl_emulator: {exc}", file=sys.stderr)
+        return 2
+    bus.faults.drop_rate = args.drop_rate
+    bus.faults.corrupt_rate = args.corrupt_rate
+    bus.faults.reply_delay = args.reply_delay
+    emu = PtyEmulator(bus, link=args.link or None, control=args.control or None)
+    device = emu.open()
+    signal.signal(signal.SIGTERM, lambda *_: emu.stop())
+    signal.signal(signal.SIGINT, lambda *_: emu.stop())
+    ids = ", ".join(f"{s.id}:{s.model.name}" for s in servos)
+    print(device, flush=True)
+    print(f"dxl_emulator: {len(servos)} servos [{ids}] on {device}"
+          + (f" (link {args.link})" if args.link else "")
+          + (f", control socket {args.control}" if args.control else ""), flush=True)
+    emu.serve_forever()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
