@@ -1,0 +1,206 @@
+"""hyperarm's default IK solver: damped, weighted, limit-clamped Levenberg-Marquardt.
+
+One iteration, with e = [p0 - p; s * log3(R0 R^T)] (s = ``orientation_scale`` m/rad,
+position rows only when position_only), J the matching rows of the LOCAL_WORLD_ALIGNED
+Jacobian (orientation rows scaled by s), W^-1 = diag(winv) and z a desired joint motion:
+
+    lambda = e.e + lambda0                                    (analytic damping, Sugihara)
+    dq     = z + W^-1 J^T (J W^-1 J^T + lambda I)^-1 (e - J z)
+    q      = clip(q + dq, lower, upper)
+
+i.e. dq minimises |J dq - e|^2 + lambda |dq - z|^2_W. Damping that shrinks with the error
+gives Gauss-Newton speed near the solution and stays bounded at singular poses (q = 0).
+Redundancy: z pulls joints out of the outer ``limit_margin`` of their range and, when a
+``preferred`` posture is given, towards it; with z = 0 the step is the smallest joint motion,
+which keeps warm-started tracking close to the seed. A joint held at a limit by the clip is
+removed from the step (its W^-1 set to 0) and the step recomputed once (active set).
+
+Restarts: an attempt stops when it stalls (error not reduced by 1 % over ``stall``
+iterations) or after ``max_iterations``; the next starts from uniform random joints, until the
+timeout. The best configuration seen is returned, with success computed from it.
+Unreachable: a target farther from the shoulder than the sum of the link lengths (plus the
+rail's travel) is out of reach for certain; the solver then returns at once with the
+position-only best effort of a short attempt and says so.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import eigenpy
+import numpy as np
+from pinocchio import log3
+
+from ..errors import InvalidOptionError
+from .base import OUT_OF_REACH, Solver
+
+__all__ = ["DefaultSolver"]
+
+
+class DefaultSolver(Solver):
+    """Fast, limit-respecting, redundancy-aware IK with restarts (the service's default)."""
+
+    name = "default"
+
+    def __init__(self, kin, max_iterations: int = 60, orientation_scale: float = 0.6,
+                 damping: float = 1e-8, max_step: float = 0.6, stall: int = 8,
+                 limit_margin: float = 0.08, limit_gain: float = 0.5,
+                 preferred: np.ndarray | None = None, preferred_gain: float = 0.0,
+                 gain: float = 0.1, seed: int = 0) -> None:
+        super().__init__(kin, max_iterations)
+        for name, v in (("orientation_scale", orientation_scale), ("max_step", max_step)):
+            if not np.isfinite(v) or v <= 0.0:
+                raise InvalidOptionError(f"{name} must be > 0, got {v!r}")
+        for name, v in (("damping", damping), ("limit_gain", limit_gain), ("gain", gain),
+                        ("preferred_gain", preferred_gain)):
+            if not np.isfinite(v) or v < 0.0:
+                raise InvalidOptionError(f"{name} must be >= 0, got {v!r}")
+        if not 0.0 <= limit_margin < 0.5:
+            raise InvalidOptionError(f"limit_margin must be in [0, 0.5), got {limit_margin!r}")
+        if preferred is not None:
+            preferred = np.asarray(preferred, dtype=float).reshape(-1)
+            if preferred.shape != (kin.nq,) or not np.all(np.isfinite(preferred)):
+                raise InvalidOptionError(f"preferred posture needs {kin.nq} finite values")
+        self.s = float(orientation_scale)
+        self.lambda0 = float(damping)
+        self.gain = float(gain)
+        self.max_step = float(max_step)
+        self.stall = int(stall)
+        self.preferred = preferred
+        self.preferred_gain = float(preferred_gain)
+        span = kin.upper - kin.lower
+        self._soft_lo = kin.lower + limit_margin * span
+        self._soft_hi = kin.upper - limit_margin * span
+        self.limit_gain = float(limit_gain)
+        self._lo, self._hi = kin.lower, kin.upper
+        self.rng = np.random.default_rng(seed)
+        self._eye3 = np.eye(3)
+        self._eye6 = np.eye(6)
+        self._ones = np.ones(kin.nq)
+        # joints are surely inside their limits when |q_i| <= _rmin (fast path of the clip)
+        self._rmin = kin.safe_range
+        self._soft_rmin = float(max(0.0, min(np.min(-self._soft_lo), np.min(self._soft_hi))))
+
+    # --- secondary motion ----------------------------------------------------------------
+    def _z(self, q: np.ndarray) -> np.ndarray | None:
+        z = None
+        if self.limit_gain > 0.0:
+            below = q < self._soft_lo
+            above = q > self._soft_hi
+            if below.any() or above.any():
+                z = self.limit_gain * (np.where(below, self._soft_lo - q, 0.0)
+                                       + np.where(above, self._soft_hi - q, 0.0))
+        if self.preferred is not None and self.preferred_gain > 0.0:
+            zp = self.preferred_gain * (self.preferred - q)
+            z = zp if z is None else z + zp
+        return z
+
+    # --- one attempt ---------------------------------------------------------------------
+    def _attempt(self, p, r, q, position_only, ptol, otol, deadline, max_iter):
+        """Iterate from q (within limits).
+
+        Returns (q_best, cost_best, iterations, errors): ``errors`` is (position error,
+        orientation error) evaluated at q_best when the tolerances were met, else None.
+        """
+        kin = self.kin
+        s = self.s
+        c = self.gain
+        lo, hi, rmin = self._lo, self._hi, self._rmin
+        soft_rmin = self._soft_rmin
+        max_step2 = self.max_step * self.max_step
+        need_z = self.limit_gain > 0.0 or self.preferred is not None
+        eye = self._eye3 if position_only else self._eye6
+        best_q, best_cost = q, np.inf
+        window_cost = np.inf
+        llt = eigenpy.LLT
+        concat = np.concatenate
+        qmin, qmax = q.min(), q.max()
+        for it in range(1, max_iter + 1):
+            pq, rq, j = kin.pose_jacobian_view(q)
+            ep = p - pq
+            perr = math.sqrt(ep @ ep)
+            if position_only:
+                cost = perr
+                if perr <= ptol:
+                    return q, cost, it - 1, None
+                e = ep
+                jt = j[:3]
+            else:
+                eo = log3(r @ rq.T)
+                oerr = math.sqrt(eo @ eo)
+                cost = perr + s * oerr
+                if perr <= ptol and oerr <= otol:
+                    return q, cost, it - 1, (perr, oerr)
+                e = concat((ep, eo * s))
+                j[3:] *= s
+                jt = j
+            if cost < best_cost:
+                best_q, best_cost = q, cost
+            if it % self.stall == 0:
+                if best_cost > 0.99 * window_cost:
+                    return best_q, best_cost, it, None
+                window_cost = best_cost
+                if time.perf_counter() > deadline:
+                    return best_q, best_cost, it, None
+            lam = c * float(e @ e) + self.lambda0
+            z = None
+            if need_z and not (qmin >= -soft_rmin and qmax <= soft_rmin):
+                z = self._z(q)
+            winv = None
+            for _ in range(2):  # second pass only if the clip bound a joint
+                jw = jt if winv is None else jt * winv
+                a = jw @ jt.T
+                a += lam * eye
+                if z is None:
+                    dq = jw.T @ llt(a).solve(e)
+                else:
+                    dq = jw.T @ llt(a).solve(e - jt @ z)
+                    dq += z
+                n2 = float(dq @ dq)
+                if n2 > max_step2:
+                    dq *= math.sqrt(max_step2 / n2)
+                qn = q + dq
+                qmin, qmax = qn.min(), qn.max()
+                if qmin >= -rmin and qmax <= rmin:
+                    break  # inside the smallest |limit|: no per-joint test needed
+                blocked = (qn < lo) | (qn > hi)
+                if not blocked.any():
+                    break
+                qn = np.minimum(np.maximum(qn, lo), hi)
+                qmin, qmax = qn.min(), qn.max()
+                if winv is not None:
+                    break
+                winv = np.where(blocked, 0.0, 1.0)
+                if z is not None:
+                    z = np.where(blocked, 0.0, z)
+            q = qn
+        return best_q, best_cost, max_iter, None
+
+    def _solve(self, p, r, q0, position_only, ptol, otol, deadline):
+        kin = self.kin
+        q = q0
+        if not (q.min() >= -self._rmin and q.max() <= self._rmin):
+            q = np.minimum(np.maximum(q0, self._lo), self._hi)
+        excess = kin.reach_excess(p)
+        if excess > 0.0:
+            qb, _, it, _ = self._attempt(p, r, q, True, ptol, otol, deadline, 30)
+            return qb, it, (f"{OUT_OF_REACH}: the target is {excess:.3f} m beyond the "
+                            f"{kin.reach:.3f} m reach of the arm; returning the closest "
+                            f"configuration found")
+        total = 0
+        best_q, best_cost = q, np.inf
+        attempts = 0
+        while True:
+            attempts += 1
+            qa, cost, it, errs = self._attempt(p, r, q, position_only, ptol, otol, deadline,
+                                               self.max_iterations)
+            total += it
+            if errs is not None or (position_only and cost <= ptol):
+                note = "" if attempts == 1 else f"{attempts} attempts"
+                return (qa, total, note) if errs is None else (qa, total, note, errs)
+            if cost < best_cost:
+                best_q, best_cost = qa, cost
+            if time.perf_counter() > deadline:
+                return best_q, total, (f"timeout after {attempts} attempts: best "
+                                       f"approximate solution returned")
+            q = self.rng.uniform(self._soft_lo, self._soft_hi)
