@@ -12,6 +12,7 @@ import math
 from dataclasses import dataclass, fields
 from typing import Protocol
 
+from .protocol import parse_number
 from .errors import PmacProtocolError, RailCommandError, RailConfigError
 
 __all__ = ["MotorStatus", "RailConfig", "RailState", "RailAxis", "CommandPort",
@@ -214,7 +215,7 @@ class RailAxis:
     # -- setup ----------------------------------------------------------------------------
     def read_servo_period(self) -> float:
         lines = self.port.command("I10")
-        self.servo_period = servo_period_from_i10(_number(lines, "I10"))
+        self.servo_period = servo_period_from_i10(parse_number(lines, "I10"))
         return self.servo_period
 
     def configure(self, speed: float | None = None) -> None:
@@ -240,7 +241,7 @@ class RailAxis:
         """Read motor I-variable Ixx{n} (n = 0..99)."""
         if not 0 <= n <= 99:
             raise RailCommandError(f"motor I-variable suffix must be 0..99, got {n}")
-        return _number(self.port.command(self._ivar(n)), self._ivar(n))
+        return parse_number(self.port.command(self._ivar(n)), self._ivar(n))
 
     # -- state ----------------------------------------------------------------------------
     def read(self) -> RailState:
@@ -296,11 +297,3 @@ class RailAxis:
         """``#nHM``: start the home search (Ixx23 speed/direction, Ixx26 offset)."""
         self.port.command(f"#{self.motor}HM")
 
-
-def _number(lines: list[str], what: str) -> float:
-    if len(lines) != 1:
-        raise PmacProtocolError(f"{what}: expected one value, got {lines!r}")
-    try:
-        return float(lines[0])
-    except ValueError:
-        raise PmacProtocolError(f"{what}: not a number: {lines[0]!r}") from None

@@ -37,13 +37,7 @@ class _Base:
 
     def query_float(self, command: str) -> float:
         """A command expected to answer exactly one number."""
-        lines = self.command(command)
-        if len(lines) != 1:
-            raise PmacProtocolError(f"{command!r}: expected one value, got {lines!r}")
-        try:
-            return float(lines[0])
-        except ValueError:
-            raise PmacProtocolError(f"{command!r}: not a number: {lines[0]!r}") from None
+        return proto.parse_number(self.command(command), command)
 
     def __enter__(self) -> Any:
         return self

@@ -29,7 +29,7 @@ __all__ = [
     "REPLY_CHUNK", "MAX_COMMAND", "ACK", "BELL", "CR", "LF", "FLUSH_REPLY", "Header",
     "encode_request", "decode_header", "getresponse_packet", "flush_packet",
     "getbuffer_packet", "readready_packet", "check_command", "reply_complete",
-    "parse_reply", "Reply",
+    "parse_reply", "Reply", "parse_number",
 ]
 
 VR_DOWNLOAD = 0x40
@@ -180,3 +180,13 @@ def parse_reply(buf: bytes, command: str = "") -> Reply:
     if any(b < 0x20 and b not in (CR, LF) for b in body):
         raise PmacProtocolError(f"control character in reply: {body!r}")
     return Reply(_lines(body))
+
+
+def parse_number(lines: list[str] | tuple[str, ...], what: str) -> float:
+    """The single number of a one-line reply (``#1P``, ``I122``, ...)."""
+    if len(lines) != 1:
+        raise PmacProtocolError(f"{what}: expected one value, got {list(lines)!r}")
+    try:
+        return float(lines[0])
+    except ValueError:
+        raise PmacProtocolError(f"{what}: not a number: {lines[0]!r}") from None

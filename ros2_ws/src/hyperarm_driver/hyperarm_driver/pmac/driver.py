@@ -1,0 +1,354 @@
+"""The rail driver core (no ROS): a worker thread that owns the PMAC link.
+
+The worker polls the axis at ``rate`` (one round trip: position, velocity, following error,
+status), sends the newest setpoint, runs one-shot requests (home, hold, enable, kill) and
+supervises the link: a timeout or a closed socket marks the link down at once (so loss is
+seen within ``timeout + 1/rate``), drops any pending setpoint (nothing stale is sent later),
+fails waiting requests, and reconnects every ``reconnect_period``. After a reconnect the
+card is configured again and a moving motor is stopped (``J/``): motion resumes only on a new
+setpoint. Callers (the ROS node) read :meth:`RailDriver.snapshot` and call
+:meth:`set_target` / :meth:`request` from any thread.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from concurrent.futures import Future
+from concurrent.futures import TimeoutError as FutureTimeout
+from dataclasses import dataclass
+from typing import Callable
+
+from .axis import RailAxis, RailState
+from .errors import PmacCommandError, PmacError, PmacLinkError, PmacProtocolError, \
+    RailCommandError
+
+__all__ = ["RailDriver", "DriverSnapshot", "REQUESTS", "OK", "WARN", "ERROR"]
+
+OK, WARN, ERROR = 0, 1, 2          # diagnostic levels (diagnostic_msgs/DiagnosticStatus)
+REQUESTS = ("home", "hold", "enable", "kill")
+Logger = Callable[[str, str], None]   # (level: "info" | "warn" | "error", message)
+
+
+@dataclass(frozen=True)
+class DriverSnapshot:
+    """What the driver knows now. ``state`` is the last poll (None before the first)."""
+
+    link_up: bool
+    state: RailState | None
+    stamp: float                 # time.monotonic() of ``state``
+    round_trip: float            # s, last poll
+    reconnects: int
+    rejected_setpoints: int
+    last_error: str
+    endpoint: str
+    motor: int
+
+    @property
+    def homed(self) -> bool:
+        return bool(self.state and self.state.status.home_complete)
+
+    def diagnostic(self) -> tuple[int, str, list[tuple[str, str]]]:
+        """(level, message, key/values) for ``/diagnostics``."""
+        s = self.state
+        kv = [("link", "up" if self.link_up else "down"), ("endpoint", self.endpoint),
+              ("motor", str(self.motor))]
+        if s is not None:
+            st = s.status
+            kv += [("position_m", f"{s.position:.6f}"), ("velocity_mps", f"{s.velocity:.6f}"),
+                   ("following_error_m", f"{s.following_error:.6f}")]
+            kv += [(k, str(getattr(st, a)).lower()) for k, a in (
+                ("homed", "home_complete"), ("amp_enabled", "amp_enabled"),
+                ("in_position", "in_position"), ("neg_limit", "neg_limit"),
+                ("pos_limit", "pos_limit"), ("amp_fault", "amp_fault"),
+                ("fatal_following_error", "fatal_following_error"),
+                ("warning_following_error", "warning_following_error"))]
+            kv.append(("status_word", st.hex()))
+        kv += [("round_trip_ms", f"{self.round_trip * 1e3:.3f}"),
+               ("reconnects", str(self.reconnects)),
+               ("rejected_setpoints", str(self.rejected_setpoints)),
+               ("last_error", self.last_error)]
+        if not self.link_up:
+            return ERROR, f"PMAC link down: {self.last_error}", kv
+        if s is None:
+            return WARN, "connected, no status yet", kv
+        st = s.status
+        if st.amp_fault or st.i2t_fault:
+            return ERROR, "amplifier fault (motor killed)", kv
+        if st.fatal_following_error or st.integrated_following_error:
+            return ERROR, "fatal following error (motor killed)", kv
+        problems = []
+        if st.neg_limit or st.pos_limit:
+            problems.append("on " + " and ".join(
+                n for n, on in (("negative", st.neg_limit), ("positive", st.pos_limit)) if on)
+                + " limit switch")
+        if st.warning_following_error:
+            problems.append("following error warning")
+        if not st.amp_enabled:
+            problems.append("torque off (killed)")
+        if st.home_search:
+            problems.append("homing")
+        elif not st.home_complete:
+            problems.append("not homed")
+        if problems:
+            return WARN, ", ".join(problems), kv
+        return OK, "ok", kv
+
+
+class _Request:
+    def __init__(self, kind: str) -> None:
+        self.kind = kind
+        self.future: Future[str] = Future()
+
+
+class RailDriver:
+    """Owns ``axis.port`` (a PMAC client) in one worker thread; see the module docstring.
+
+    ``rate`` Hz (polls), ``reconnect_period`` s; ``require_homing``: refuse setpoints before
+    home complete; ``configure_card``: write Ixx22/19/20/21/13/14 on each connect.
+    """
+
+    def __init__(self, axis: RailAxis, rate: float = 50.0, reconnect_period: float = 1.0,
+                 require_homing: bool = True, configure_card: bool = True,
+                 log: Logger | None = None) -> None:
+        if not 1.0 <= rate <= 1000.0:
+            raise ValueError(f"rate must be within 1..1000 Hz, got {rate}")
+        if not 0.01 <= reconnect_period <= 600.0:
+            raise ValueError(f"reconnect_period must be within 0.01..600 s, got {reconnect_period}")
+        for attr in ("connect", "close", "connected"):
+            if not hasattr(axis.port, attr):
+                raise TypeError(f"axis.port must be a PMAC client (no {attr!r})")
+        self.axis = axis
+        self.client = axis.port
+        self.period = 1.0 / rate
+        self.reconnect_period = float(reconnect_period)
+        self.require_homing = bool(require_homing)
+        self.configure_card = bool(configure_card)
+        self._log = log or (lambda level, msg: None)
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._requests: list[_Request] = []
+        self._target: float | None = None       # m, pending (newest wins)
+        self._sent_counts: float | None = None  # last J= target, counts
+        self._snap = DriverSnapshot(False, None, 0.0, float("nan"), 0, 0, "not connected yet",
+                                    getattr(self.client, "endpoint", "?"), axis.motor)
+        self._ever_connected = False
+
+    # -- life cycle -----------------------------------------------------------------------
+    def start(self) -> None:
+        if self._thread is not None:
+            raise RuntimeError("driver already started")
+        self._thread = threading.Thread(target=self._run, name="pmac-rail-driver", daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout: float = 2.0) -> None:
+        """Stop the worker and close the link (the card keeps its state: no motion is
+        commanded; a jog in progress completes on the card)."""
+        self._stop.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+        self.client.close()
+        with self._lock:
+            reqs, self._requests = self._requests, []
+        for r in reqs:
+            r.future.set_exception(RailCommandError("driver stopped"))
+
+    # -- API for any thread ---------------------------------------------------------------
+    def snapshot(self) -> DriverSnapshot:
+        with self._lock:
+            return self._snap
+
+    def set_target(self, metres: float) -> float:
+        """Queue a rail setpoint (m); returns it. Raises RailCommandError if refused:
+        not finite, outside the soft limits, link down, torque off, fault, homing or not
+        homed (when required). Nothing is sent for a refused setpoint."""
+        try:
+            x = self.axis.config.check_position(metres)
+            snap = self.snapshot()
+            if not snap.link_up or snap.state is None:
+                raise RailCommandError(f"PMAC link down ({snap.last_error})")
+            st = snap.state.status
+            if st.faults:
+                raise RailCommandError(f"motor fault: {', '.join(st.faults)}; "
+                                       "clear it and enable torque first")
+            if not st.amp_enabled:
+                raise RailCommandError("torque is off (motor killed); call set_torque true")
+            if st.home_search:
+                raise RailCommandError("homing in progress")
+            if self.require_homing and not st.home_complete:
+                raise RailCommandError("rail not homed; call rail/home first")
+        except RailCommandError:
+            with self._lock:
+                self._snap = _replace(self._snap, rejected_setpoints=self._snap.rejected_setpoints + 1)
+            raise
+        with self._lock:
+            self._target = x
+        self._wake.set()
+        return x
+
+    def request(self, kind: str, timeout: float = 2.0) -> str:
+        """Run ``home`` / ``hold`` / ``enable`` / ``kill`` on the worker; wait for it.
+
+        Returns a human-readable result; raises RailCommandError (refused or failed, with the
+        reason) or PmacError from the card.
+        """
+        if kind not in REQUESTS:
+            raise ValueError(f"unknown request {kind!r}; known: {REQUESTS}")
+        if not self.snapshot().link_up:
+            raise RailCommandError(f"PMAC link down ({self.snapshot().last_error})")
+        req = _Request(kind)
+        with self._lock:
+            self._requests.append(req)
+        self._wake.set()
+        try:
+            return req.future.result(timeout)
+        except FutureTimeout:
+            raise RailCommandError(f"{kind}: no result within {timeout:g} s") from None
+
+    # -- worker ---------------------------------------------------------------------------
+    def _run(self) -> None:
+        next_poll = time.monotonic()
+        while not self._stop.is_set():
+            if not self.client.connected or not self.snapshot().link_up:
+                if not self._connect():
+                    self._stop.wait(self.reconnect_period)
+                    continue
+                next_poll = time.monotonic()
+            try:
+                self._serve_requests()
+                self._send_target()
+                if time.monotonic() >= next_poll:
+                    self._poll()
+                    next_poll += self.period
+                    if next_poll < time.monotonic():      # fell behind: don't burst
+                        next_poll = time.monotonic() + self.period
+            except (PmacLinkError, PmacProtocolError) as exc:
+                self._link_lost(exc)
+                continue
+            except PmacCommandError as exc:
+                self._note_error(str(exc), "error")
+            self._wake.wait(max(0.0, next_poll - time.monotonic()))
+            self._wake.clear()
+
+    def _connect(self) -> bool:
+        try:
+            self.client.connect()
+            if self.configure_card:
+                self.axis.configure()
+            else:
+                self.axis.read_servo_period()
+            state = self.axis.read()
+            if state.status.amp_enabled and not state.status.desired_velocity_zero:
+                self.axis.stop()     # a move from before the link loss: hold, don't finish it
+                self._log("warn", f"rail was moving at {state.position:.4f} m on connect: held")
+        except PmacError as exc:
+            self.client.close()
+            with self._lock:
+                self._snap = _replace(self._snap, link_up=False, last_error=str(exc))
+            return False
+        with self._lock:
+            reconnects = self._snap.reconnects + (1 if self._ever_connected else 0)
+            self._snap = _replace(self._snap, link_up=True, state=state, stamp=time.monotonic(),
+                                  reconnects=reconnects, last_error="")
+            self._target, self._sent_counts = None, None
+        word = "reconnected to" if self._ever_connected else "connected to"
+        self._ever_connected = True
+        self._log("info", f"{word} PMAC at {self._snap.endpoint}, motor {self.axis.motor}: "
+                          f"{state.position:.4f} m, homed={state.status.home_complete}, "
+                          f"torque={'on' if state.status.amp_enabled else 'off'}")
+        return True
+
+    def _link_lost(self, exc: Exception) -> None:
+        self.client.close()
+        with self._lock:
+            self._snap = _replace(self._snap, link_up=False, last_error=str(exc))
+            self._target, self._sent_counts = None, None
+            reqs, self._requests = self._requests, []
+        for r in reqs:
+            r.future.set_exception(RailCommandError(f"PMAC link lost: {exc}"))
+        self._log("error", f"PMAC link lost ({exc}); setpoints dropped, reconnecting every "
+                           f"{self.reconnect_period:g} s")
+
+    def _note_error(self, msg: str, level: str) -> None:
+        with self._lock:
+            self._snap = _replace(self._snap, last_error=msg)
+        self._log(level, msg)
+
+    def _poll(self) -> None:
+        t0 = time.perf_counter()
+        state = self.axis.read()
+        rt = time.perf_counter() - t0
+        with self._lock:
+            prev = self._snap.state
+            self._snap = _replace(self._snap, state=state, stamp=time.monotonic(), round_trip=rt)
+        if prev is not None:
+            self._report_transitions(prev.status, state.status)
+
+    def _report_transitions(self, a, b) -> None:  # MotorStatus, MotorStatus
+        for name, level, text in (
+                ("amp_fault", "error", "amplifier fault: motor killed"),
+                ("fatal_following_error", "error", "fatal following error: motor killed"),
+                ("neg_limit", "warn", "negative limit switch active"),
+                ("pos_limit", "warn", "positive limit switch active"),
+                ("home_complete", "info", "home complete")):
+            if getattr(b, name) and not getattr(a, name):
+                self._log(level, text)
+        if a.home_search and not b.home_search and not b.home_complete:
+            self._log("error", "home search ended without home complete (limit switch?)")
+
+    def _send_target(self) -> None:
+        with self._lock:
+            target, self._target = self._target, None
+        if target is None:
+            return
+        counts = self.axis.config.to_counts(target)
+        if self._sent_counts is not None and abs(counts - self._sent_counts) < 0.05:
+            return
+        self._sent_counts = self.axis.jog_to(target)
+
+    def _serve_requests(self) -> None:
+        with self._lock:
+            reqs, self._requests = self._requests, []
+        for r in reqs:
+            if r.future.set_running_or_notify_cancel():
+                try:
+                    result = self._do(r.kind)
+                    self._poll()          # the caller sees the state after the request
+                    r.future.set_result(result)
+                except (PmacLinkError, PmacProtocolError) as exc:
+                    r.future.set_exception(RailCommandError(f"PMAC link lost: {exc}"))
+                    raise
+                except PmacError as exc:
+                    r.future.set_exception(exc)
+
+    def _do(self, kind: str) -> str:
+        ax = self.axis
+        with self._lock:
+            self._target, self._sent_counts = None, None
+        if kind == "kill":
+            ax.kill()
+            return "motor killed (torque off)"
+        st = ax.status()
+        if kind == "enable":
+            ax.enable()
+            st = ax.status()
+            if not st.amp_enabled:
+                raise RailCommandError("the card did not enable the motor"
+                                       + (f": {', '.join(st.faults)}" if st.faults else ""))
+            return "torque on, holding position"
+        if st.faults:
+            raise RailCommandError(f"motor fault: {', '.join(st.faults)}; enable torque to clear")
+        if not st.amp_enabled:
+            raise RailCommandError("torque is off (motor killed); call set_torque true first")
+        if kind == "hold":
+            ax.stop()
+            return "holding"
+        ax.home()    # kind == "home"
+        return "home search started"
+
+
+def _replace(snap: DriverSnapshot, **kw: object) -> DriverSnapshot:
+    from dataclasses import replace
+    return replace(snap, **kw)

@@ -1,0 +1,187 @@
+"""pmac_rail_driver: the rail joint of the rail_arm variant, on a Delta Tau Turbo PMAC.
+
+Thin ROS wrapper around :class:`hyperarm_driver.pmac.driver.RailDriver` (which owns the TCP
+link in its own thread): publishes the ``rail`` joint on ``joint_states``, applies ``rail``
+setpoints from ``joint_command``, serves ``rail/home``, ``hold`` and ``set_torque`` and
+reports on ``/diagnostics``. Parameters and behaviour: docs/pmac.md.
+"""
+from __future__ import annotations
+
+import math
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_srvs.srv import SetBool, Trigger
+
+from hyperarm_description import contract
+from hyperarm_description.model import DescriptionError, load_description
+from hyperarm_description.qos import qos_for
+from hyperarm_description.ros_main import run_node
+
+from .pmac.axis import RailAxis, RailConfig
+from .pmac.client import PmacClient
+from .pmac.driver import RailDriver
+from .pmac.errors import PmacError, RailError
+
+NODE_NAME = "pmac_rail_driver"
+_SERVICE_TIMEOUT = 1.0   # s, wait for the worker to run a service request
+
+# name: (default, description, (min, max) or None)
+PARAMETERS: dict[str, tuple[object, str, tuple[float, float] | None]] = {
+    "variant": ("rail_arm", "robot variant; only rail_arm has a rail", None),
+    "description_file": ("", "robot description YAML ('' = the packaged one)", None),
+    "host": ("127.0.0.1", "PMAC IP address", None),
+    "port": (1025, "PMAC TCP port", (1, 65535)),
+    "motor": (0, "PMAC motor number 1..32; 0 = from the description (rail.pmac.motor)",
+              (0, 32)),
+    "counts_per_metre": (0.0, "encoder counts per metre; 0 = from the description "
+                              "(rail.pmac.counts_per_metre); negative flips the direction", None),
+    "rate": (50.0, "status poll and joint_states rate, Hz", (5.0, 500.0)),
+    "timeout": (0.1, "reply timeout of one command, s (link loss detected within "
+                     "timeout + 1/rate)", (0.005, 0.4)),
+    "reconnect_period": (1.0, "delay between reconnection attempts, s", (0.05, 60.0)),
+    "require_homing": (True, "refuse setpoints until the card reports home complete", None),
+    "configure_card": (True, "write jog speed/acceleration (Ixx22, Ixx19, Ixx20, Ixx21) and "
+                             "soft limits (Ixx13, Ixx14) on every (re)connect", None),
+    "diagnostics_period": (0.5, "/diagnostics period, s", (0.1, 10.0)),
+}
+
+
+class PmacRailDriver(Node):
+    """The PMAC rail driver node (see the module docstring and docs/pmac.md)."""
+
+    def __init__(self, **node_kwargs: object) -> None:
+        """``node_kwargs`` go to rclpy's Node (``context``, ``parameter_overrides``, ...)."""
+        node_kwargs.setdefault("namespace", contract.DEFAULT_NAMESPACE)
+        super().__init__(NODE_NAME, **node_kwargs)
+        p = self._declare_parameters()
+        if p["variant"] != "rail_arm":
+            raise SystemExit(f"{NODE_NAME}: variant must be rail_arm (the only one with a "
+                             f"rail), got {p['variant']!r}")
+        try:
+            desc = load_description(p["description_file"] or None, "rail_arm")
+            if desc.rail is None:
+                raise DescriptionError("the rail_arm variant has no rail")
+            config = RailConfig.from_rail(desc.rail, int(p["motor"]),
+                                          float(p["counts_per_metre"]))
+        except (DescriptionError, RailError) as exc:
+            raise SystemExit(f"{NODE_NAME}: {exc}") from exc
+        self._joint = desc.rail.name
+        client = PmacClient(p["host"], int(p["port"]), timeout=float(p["timeout"]),
+                            connect_timeout=max(0.2, min(2.0, float(p["reconnect_period"]))))
+        self._driver = RailDriver(RailAxis(client, config), rate=float(p["rate"]),
+                                  reconnect_period=float(p["reconnect_period"]),
+                                  require_homing=bool(p["require_homing"]),
+                                  configure_card=bool(p["configure_card"]), log=self._on_event)
+        self._last_stamp = 0.0
+        self._js_pub = self.create_publisher(JointState, contract.JOINT_STATES,
+                                             qos_for(contract.JOINT_STATES))
+        self._diag_pub = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
+                                               qos_for(contract.DIAGNOSTICS))
+        self.create_subscription(JointState, contract.JOINT_COMMAND, self._on_command,
+                                 qos_for(contract.JOINT_COMMAND))
+        self.create_service(Trigger, contract.RAIL_HOME, self._on_home)
+        self.create_service(Trigger, contract.HOLD, self._on_hold)
+        self.create_service(SetBool, contract.SET_TORQUE, self._on_torque)
+        self.create_timer(1.0 / float(p["rate"]), self._publish_state)
+        self.create_timer(float(p["diagnostics_period"]), self._publish_diagnostics)
+        self._driver.start()
+        self.get_logger().info(
+            f"{NODE_NAME}: PMAC {client.endpoint} motor {config.motor}, "
+            f"{config.counts_per_metre:g} counts/m, limits [{config.lower:g}, {config.upper:g}] m,"
+            f" {p['rate']:g} Hz, homing {'required' if p['require_homing'] else 'not required'}")
+
+    def _declare_parameters(self) -> dict[str, object]:
+        values: dict[str, object] = {}
+        for name, (default, text, bounds) in PARAMETERS.items():
+            if bounds is not None:
+                text += f" [{bounds[0]:g}..{bounds[1]:g}]"
+            value = self.declare_parameter(name, default, ParameterDescriptor(
+                description=text, read_only=True)).value
+            if bounds is not None and not bounds[0] <= value <= bounds[1]:
+                raise SystemExit(f"{NODE_NAME}: parameter {name}={value} not within "
+                                 f"{bounds[0]:g}..{bounds[1]:g}")
+            if isinstance(value, float) and not math.isfinite(value):
+                raise SystemExit(f"{NODE_NAME}: parameter {name} must be finite")
+            values[name] = value
+        return values
+
+    def _on_event(self, level: str, message: str) -> None:
+        log = self.get_logger()
+        {"info": log.info, "warn": log.warning}.get(level, log.error)(message)
+
+    # -- topics ---------------------------------------------------------------------------
+    def _on_command(self, msg: JointState) -> None:
+        names = list(msg.name)
+        if self._joint not in names:
+            return                     # other drivers' joints
+        if names.count(self._joint) > 1:
+            self.get_logger().error(f"joint_command rejected: {self._joint!r} named twice",
+                                    throttle_duration_sec=1.0)
+            return
+        if len(msg.position) != len(names):
+            self.get_logger().error(
+                f"joint_command rejected: {len(msg.position)} positions for {len(names)} names",
+                throttle_duration_sec=1.0)
+            return
+        try:
+            self._driver.set_target(msg.position[names.index(self._joint)])
+        except RailError as exc:
+            self.get_logger().error(f"rail setpoint rejected, nothing sent: {exc}",
+                                    throttle_duration_sec=1.0)
+
+    def _publish_state(self) -> None:
+        snap = self._driver.snapshot()
+        if not snap.link_up or snap.state is None or snap.stamp == self._last_stamp:
+            return
+        self._last_stamp = snap.stamp
+        msg = JointState()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.name = [self._joint]
+        msg.position = [snap.state.position]
+        msg.velocity = [snap.state.velocity]
+        self._js_pub.publish(msg)
+
+    def _publish_diagnostics(self) -> None:
+        snap = self._driver.snapshot()
+        level, message, kv = snap.diagnostic()
+        status = DiagnosticStatus(level=bytes([level]), name=f"{NODE_NAME}: {self._joint}",
+                                  message=message, hardware_id=f"pmac@{snap.endpoint}#{snap.motor}",
+                                  values=[KeyValue(key=k, value=v) for k, v in kv])
+        out = DiagnosticArray()
+        out.header.stamp = self.get_clock().now().to_msg()
+        out.status = [status]
+        self._diag_pub.publish(out)
+
+    # -- services -------------------------------------------------------------------------
+    def _run(self, kind: str, response):  # Trigger.Response | SetBool.Response
+        try:
+            response.message = self._driver.request(kind, timeout=_SERVICE_TIMEOUT)
+            response.success = True
+        except (PmacError, ValueError) as exc:
+            response.success, response.message = False, f"{kind} refused: {exc}"
+            self.get_logger().warning(response.message)
+        return response
+
+    def _on_home(self, request: Trigger.Request, response: Trigger.Response):
+        return self._run("home", response)
+
+    def _on_hold(self, request: Trigger.Request, response: Trigger.Response):
+        return self._run("hold", response)
+
+    def _on_torque(self, request: SetBool.Request, response: SetBool.Response):
+        return self._run("enable" if request.data else "kill", response)
+
+    def destroy_node(self) -> None:
+        self._driver.stop()
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> None:
+    run_node(PmacRailDriver, args)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,195 @@
+"""PMAC core without sockets or ROS: packet format, reply parsing, status words, scaling,
+soft limits, and the emulator's command interpreter."""
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from hyperarm_description.model import load_description
+from hyperarm_driver.pmac import protocol as proto
+from hyperarm_driver.pmac.axis import MotorStatus, RailAxis, RailConfig, servo_period_from_i10
+from hyperarm_driver.pmac.emulator import PmacEmulator
+from hyperarm_driver.pmac.errors import (PmacCommandError, PmacProtocolError, RailCommandError,
+                                         RailConfigError)
+
+pytestmark = pytest.mark.core
+
+
+@pytest.fixture
+def config() -> RailConfig:
+    return RailConfig.from_rail(load_description(variant="rail_arm").rail)
+
+
+class RecordingPort:
+    """Records the command lines an axis would send; answers with canned replies."""
+
+    def __init__(self, replies: dict[str, list[str]] | None = None) -> None:
+        self.sent: list[str] = []
+        self.replies = replies or {}
+
+    def command(self, command: str) -> list[str]:
+        self.sent.append(command)
+        return self.replies.get(command, [])
+
+
+# -- protocol ---------------------------------------------------------------------------------
+def test_getresponse_packet_layout() -> None:
+    pkt = proto.getresponse_packet("#1P")
+    assert pkt == bytes([0x40, 0xBF, 0, 0, 0, 0, 0, 3]) + b"#1P"
+    h = proto.decode_header(pkt)
+    assert (h.request_type, h.request, h.value, h.index, h.length) == (0x40, 0xBF, 0, 0, 3)
+
+
+def test_other_packets_and_big_endian_length() -> None:
+    assert proto.flush_packet() == bytes([0x40, 0xB3, 0, 0, 0, 0, 0, 0])
+    assert proto.getbuffer_packet() == bytes([0xC0, 0xC5, 0, 0, 0, 0, 0x05, 0x78])  # 1400
+    assert proto.readready_packet()[:2] == bytes([0xC0, 0xC2])
+    pkt = proto.getresponse_packet("I" + "1" * 254)
+    assert pkt[6:8] == (255).to_bytes(2, "big")
+
+
+@pytest.mark.parametrize("bad", ["", "x" * 256, "#1P\r", "#1J=1\x06", "#1P\u00e9", "\x07"])
+def test_unsendable_commands_are_refused(bad: str) -> None:
+    with pytest.raises(PmacProtocolError):
+        proto.getresponse_packet(bad)
+
+
+def test_reply_parsing_lines_ack_and_errors() -> None:
+    assert proto.parse_reply(b"\x06").lines == ()
+    assert proto.parse_reply(b"12.5\r-3\r\x06").lines == ("12.5", "-3")
+    assert proto.parse_reply(b"7\r\n8\r\n\x06").lines == ("7", "8")
+    with pytest.raises(PmacCommandError) as err:
+        proto.parse_reply(b"5\r\x07ERR003\r", "#1P#1Q")
+    assert err.value.code == 3 and err.value.partial == ("5",)
+    assert "data error or unrecognized command" in str(err.value) and "#1P#1Q" in str(err.value)
+    with pytest.raises(PmacCommandError, match="ERR099.*unknown PMAC error"):
+        proto.parse_reply(b"\x07ERR099\r")
+
+
+@pytest.mark.parametrize("garbled", [b"12\r", b"1\x022\r\x06", b"\x07ERR003\rX", b"\xff\x06"])
+def test_garbled_replies_raise_protocol_error(garbled: bytes) -> None:
+    with pytest.raises(PmacProtocolError):
+        proto.parse_reply(garbled)
+
+
+def test_reply_complete() -> None:
+    assert not proto.reply_complete(b"")
+    assert not proto.reply_complete(b"12\r")
+    assert not proto.reply_complete(b"\x07ERR0")
+    assert proto.reply_complete(b"12\r\x06")
+    assert proto.reply_complete(b"1\r\x07ERR003\r")
+
+
+# -- status words -----------------------------------------------------------------------------
+def test_status_decode_of_known_words() -> None:
+    # activated, amp enabled, desired velocity zero | home complete, in position
+    st = MotorStatus.from_hex("882000000401")
+    assert st.activated and st.amp_enabled and st.desired_velocity_zero
+    assert st.home_complete and st.in_position
+    assert not (st.open_loop or st.neg_limit or st.pos_limit or st.amp_fault)
+    st = MotorStatus.from_hex("C4000000000C")   # killed on -limit, amp fault + fatal FE
+    assert st.neg_limit and st.open_loop and st.amp_fault and st.fatal_following_error
+    assert not st.pos_limit and not st.amp_enabled
+    assert st.faults == ["amp_fault", "fatal_following_error"]
+
+
+def test_status_roundtrip_every_flag() -> None:
+    names = [n for n in MotorStatus.__dataclass_fields__ if n not in ("word1", "word2")]
+    for name in names:
+        st = MotorStatus.from_flags(**{name: True})
+        back = MotorStatus.from_hex(st.hex())
+        assert [n for n in names if getattr(back, n)] == [name]
+
+
+@pytest.mark.parametrize("bad", ["", "88200000040", "88200000040G", "8820000004011"])
+def test_bad_status_words(bad: str) -> None:
+    with pytest.raises(PmacProtocolError):
+        MotorStatus.from_hex(bad)
+
+
+# -- rail config and axis ---------------------------------------------------------------------
+def test_config_from_description(config: RailConfig) -> None:
+    rail = load_description(variant="rail_arm").rail
+    assert (config.motor, config.counts_per_metre) == (rail.pmac_motor, rail.counts_per_metre)
+    assert (config.lower, config.upper) == (rail.lower, rail.upper) == (-1.5, 1.5)
+    assert config.to_counts(0.25) == 0.25 * rail.counts_per_metre
+    assert config.to_metres(config.to_counts(-1.234)) == pytest.approx(-1.234)
+
+
+@pytest.mark.parametrize("kw", [dict(motor=0), dict(motor=33), dict(counts_per_metre=0.0),
+                                dict(lower=2.0), dict(max_velocity=0.0),
+                                dict(counts_per_metre=math.nan)])
+def test_config_validation(config: RailConfig, kw: dict) -> None:
+    from dataclasses import asdict
+    with pytest.raises(RailConfigError):
+        RailConfig(**{**asdict(config), **kw})
+
+
+@pytest.mark.parametrize("target", [1.5000001, -1.6, 3.0, math.nan, math.inf, -math.inf, "a"])
+def test_out_of_range_jog_never_sent(config: RailConfig, target) -> None:
+    port = RecordingPort()
+    with pytest.raises(RailCommandError):
+        RailAxis(port, config).jog_to(target)
+    assert port.sent == []
+
+
+def test_jog_formats_counts_within_limits(config: RailConfig) -> None:
+    port = RecordingPort()
+    ax = RailAxis(port, config)
+    assert ax.jog_to(0.25) == 50000.0
+    assert ax.jog_to(1.5) == 300000.0
+    assert ax.jog_to(-1.5) == -300000.0
+    assert port.sent == ["#1J=50000.0", "#1J=300000.0", "#1J=-300000.0"]
+
+
+def test_configure_writes_ivariables(config: RailConfig) -> None:
+    port = RecordingPort({"I10": ["3713991"]})
+    RailAxis(port, config).configure()
+    assert port.sent[0] == "I10"
+    sent = dict(kv.split("=") for kv in port.sent[1].split())
+    # 0.5 m/s * 200000 counts/m = 100 counts/ms; 1 m/s^2 -> 0.2 counts/ms^2
+    assert float(sent["I122"]) == pytest.approx(100.0)
+    assert float(sent["I119"]) == pytest.approx(0.2)
+    assert float(sent["I120"]) == 0 and float(sent["I121"]) == 0
+    assert float(sent["I113"]) == 300000 and float(sent["I114"]) == -300000
+    with pytest.raises(RailCommandError):
+        RailAxis(port, config).configure(speed=0.6)
+
+
+def test_read_scales_counts_and_servo_cycles(config: RailConfig) -> None:
+    period = servo_period_from_i10(3713991)
+    assert period == pytest.approx(0.4427e-3, rel=1e-4)
+    port = RecordingPort({"#1P#1V#1F#1?": ["20000", f"{20000 * period:.6f}", "-40",
+                                           "882000000401"]})
+    st = RailAxis(port, config, servo_period=period).read()
+    assert st.position == pytest.approx(0.1)
+    assert st.velocity == pytest.approx(0.1, rel=1e-4)
+    assert st.following_error == pytest.approx(-0.0002)
+    assert st.status.home_complete
+    port.replies["#1P#1V#1F#1?"] = ["1", "2", "3"]
+    with pytest.raises(PmacProtocolError):
+        RailAxis(port, config).read()
+
+
+# -- emulator interpreter (no sockets) --------------------------------------------------------
+def test_emulator_interpreter_replies() -> None:
+    emu = PmacEmulator(motors=2, start_position=123)
+    assert emu.execute("#1P") == b"123\r\x06"
+    assert emu.execute("#2p #1v") == b"123\r0\r\x06"        # case and blanks ignored
+    assert emu.execute("I122=12.5 I122 I222") == b"12.5\r32\r\x06"
+    assert emu.execute("I10") == b"3713991\r\x06"
+    assert emu.execute("#3?") == b"000000000000\r\x06"       # not an active motor
+    assert emu.execute("I100..103").count(b"\r") == 4
+
+
+@pytest.mark.parametrize("bad", ["#1Q", "#0P", "#33P", "#1J=", "#1J=abc", "I", "#1J*", "HELLO",
+                                 "I9000", "#"])
+def test_emulator_err003(bad: str) -> None:
+    assert PmacEmulator().execute(bad).endswith(b"\x07ERR003\r")
+
+
+def test_emulator_error_stops_the_line() -> None:
+    emu = PmacEmulator()
+    assert emu.execute("#1P #1XX #1K") == b"0\r\x07ERR003\r"
+    assert MotorStatus.from_hex(emu.execute("#1?")[:12].decode()).open_loop

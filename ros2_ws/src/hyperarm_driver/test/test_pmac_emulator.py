@@ -1,0 +1,303 @@
+"""PMAC client, rail axis and driver core against the emulator over loopback TCP."""
+from __future__ import annotations
+
+import socket
+import threading
+import time
+
+import pytest
+
+from hyperarm_description.model import load_description
+from hyperarm_driver.pmac import protocol as proto
+from hyperarm_driver.pmac.axis import RailAxis, RailConfig
+from hyperarm_driver.pmac.client import PmacClient
+from hyperarm_driver.pmac.driver import ERROR, OK, WARN, RailDriver
+from hyperarm_driver.pmac.emulator import PmacEmulator
+from hyperarm_driver.pmac.errors import (PmacCommandError, PmacLinkError, PmacTimeoutError,
+                                         RailCommandError)
+
+pytestmark = pytest.mark.emulator
+
+CPM = 200000.0     # counts per metre of the packaged description
+
+
+@pytest.fixture
+def emu():
+    # power-on 1 cm past the home switch; overtravel switches at ±0.1 m
+    with PmacEmulator(start_position=2000, limits=(-0.1 * CPM, 0.1 * CPM)) as e:
+        yield e
+
+
+@pytest.fixture
+def client(emu):
+    c = PmacClient("127.0.0.1", emu.port, timeout=0.2)
+    yield c
+    c.close()
+
+
+@pytest.fixture
+def axis(client) -> RailAxis:
+    ax = RailAxis(client, RailConfig.from_rail(load_description(variant="rail_arm").rail))
+    ax.configure()
+    client.command("I123=-20")       # home search: 20 counts/ms = 0.1 m/s toward negative
+    return ax
+
+
+def home(axis: RailAxis, wait_for) -> None:
+    axis.enable()
+    axis.home()
+    wait_for(lambda: axis.status().home_complete, 5.0, what="home complete")
+
+
+def settled(axis: RailAxis):
+    st = axis.read()
+    return st if st.status.in_position and not st.status.move_timer else None
+
+
+# -- client -----------------------------------------------------------------------------------
+def test_round_trip_and_multi_line_reply(client, emu) -> None:
+    assert client.command("#1P") == ["2000"]
+    assert client.command("#1P #1V #1F") == ["2000", "0", "0"]
+    assert client.query_float("I10") == 3713991
+    assert client.connects == 1 and client.commands_sent == 3
+    assert 0 < client.last_round_trip < 0.2
+
+
+def test_error_reply_is_an_exception_and_keeps_the_link(client) -> None:
+    with pytest.raises(PmacCommandError) as err:
+        client.command("#1P #1XYZ")
+    assert err.value.code == 3 and err.value.partial == ("2000",)
+    assert "unrecognized command" in str(err.value)
+    assert client.command("#1P") == ["2000"] and client.connects == 1
+
+
+def test_long_reply_is_fetched_with_getbuffer(client, emu) -> None:
+    client.command("I999=7.25")
+    before = emu.requests
+    lines = client.command("I100..999")
+    assert len(lines) == 900 and sum(len(x) + 1 for x in lines) > proto.REPLY_CHUNK
+    assert (lines[0], lines[22], lines[-1]) == ("1", "32", "7.25")   # I100, I122, I999
+    assert emu.requests - before >= 2                    # GETRESPONSE + at least one GETBUFFER
+
+
+def test_non_ascii_command_bytes_get_err004(emu) -> None:
+    with socket.create_connection(("127.0.0.1", emu.port), timeout=2.0) as s:
+        s.sendall(proto.encode_request(proto.VR_DOWNLOAD, proto.Request.GETRESPONSE, b"#1P\xe9"))
+        assert s.recv(100) == b"\x07ERR004\r"
+        s.sendall(proto.flush_packet())
+        assert s.recv(10) == b"@"
+
+
+def test_unanswered_command_times_out_then_reconnects(client, emu) -> None:
+    client.command("#1P")
+    emu.mute = True
+    t0 = time.monotonic()
+    with pytest.raises(PmacTimeoutError):
+        client.command("#1P")
+    assert time.monotonic() - t0 < 0.5 and not client.connected
+    emu.mute = False
+    assert client.command("#1P") == ["2000"] and client.connects == 2
+
+
+def test_dropped_connection_is_a_link_error_then_reconnects(client, emu, wait_for) -> None:
+    client.command("#1P")
+    emu.drop_connections()
+    with pytest.raises(PmacLinkError):
+        client.command("#1P")
+    assert client.command("#1P") == ["2000"] and client.connects == 2
+
+
+def test_refused_connection() -> None:
+    with socket.socket() as s:        # a port with nobody listening
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    c = PmacClient("127.0.0.1", port, timeout=0.1)
+    with pytest.raises(PmacLinkError, match="cannot connect"):
+        c.command("#1P")
+    with pytest.raises(PmacLinkError):
+        PmacClient("127.0.0.1", port, auto_reconnect=False).command("#1P")
+
+
+# -- axis ---------------------------------------------------------------------------------------
+def test_configure_sets_ivariables(axis, emu) -> None:
+    m = emu.motor(1)
+    assert m.ivars[22] == pytest.approx(100.0) and m.ivars[19] == pytest.approx(0.2)
+    assert (m.ivars[13], m.ivars[14]) == (300000.0, -300000.0)
+
+
+def test_homing_jog_and_stop(axis, emu, wait_for) -> None:
+    st = axis.read()
+    assert st.position == pytest.approx(0.01) and not st.status.home_complete
+    home(axis, wait_for)
+    st = wait_for(lambda: settled(axis), 3.0, what="settled after homing")
+    assert st.position == pytest.approx(0.0, abs=1e-6) and st.status.home_complete
+    axis.jog_to(0.05)
+    moving = wait_for(lambda: (s := axis.read()).velocity > 0.01 and s, 2.0, what="moving")
+    assert moving.status.move_timer and moving.following_error > 0
+    st = wait_for(lambda: settled(axis), 3.0, what="at 0.05 m")
+    assert st.position == pytest.approx(0.05, abs=1e-6)
+    axis.jog_to(-0.08)
+    wait_for(lambda: axis.read().position < 0.03, 2.0, what="moving back")
+    axis.stop()
+    st = wait_for(lambda: settled(axis), 2.0, what="stopped")
+    assert -0.08 + 1e-3 < st.position < 0.03 and st.status.amp_enabled
+
+
+def test_kill_and_enable(axis, wait_for) -> None:
+    axis.enable()
+    assert axis.status().amp_enabled
+    axis.kill()
+    st = axis.status()
+    assert st.open_loop and not st.amp_enabled
+    axis.enable()
+    assert axis.status().amp_enabled
+
+
+def test_hardware_limit_switch(axis, emu, wait_for) -> None:
+    home(axis, wait_for)
+    axis.jog_to(0.5)          # within the soft limits, beyond the +0.1 m switch
+    st = wait_for(lambda: (s := axis.read()).status.pos_limit and s, 3.0, what="+limit")
+    st = wait_for(lambda: (s := axis.read()).velocity == 0 and s, 1.0, what="stop at limit")
+    assert st.position == pytest.approx(0.1, abs=1e-4)
+    assert st.status.stopped_on_position_limit and not st.status.neg_limit
+    axis.jog_to(0.3)          # further into the limit: the card does not move
+    time.sleep(0.05)
+    assert axis.read().position == pytest.approx(0.1, abs=1e-4)
+    axis.jog_to(0.05)         # away from it: allowed
+    st = wait_for(lambda: settled(axis), 3.0, what="back off the limit")
+    assert st.position == pytest.approx(0.05, abs=1e-6) and not st.status.pos_limit
+
+
+def test_home_search_ending_on_a_limit_fails(client, emu, wait_for) -> None:
+    ax = RailAxis(client, RailConfig.from_rail(load_description(variant="rail_arm").rail))
+    ax.configure()
+    client.command("I123=20")          # searching away from the switch: hits +limit
+    ax.enable()
+    ax.home()
+    st = wait_for(lambda: (s := ax.status()).pos_limit and not s.home_search and s, 5.0,
+                  what="home search stopped on the limit")
+    assert not st.home_complete and st.stopped_on_position_limit
+
+
+def test_amplifier_fault_kills_and_blocks_enable(axis, emu, wait_for) -> None:
+    home(axis, wait_for)
+    axis.jog_to(0.05)
+    emu.set_amp_fault(1, True)
+    st = axis.status()
+    assert st.amp_fault and not st.amp_enabled and st.faults == ["amp_fault"]
+    axis.enable()                              # fault line still active: stays killed
+    assert not axis.status().amp_enabled
+    emu.set_amp_fault(1, False)
+    axis.enable()
+    st = axis.status()
+    assert st.amp_enabled and not st.amp_fault and st.home_complete
+
+
+def test_following_error_warning_and_fatal(axis, emu, wait_for) -> None:
+    home(axis, wait_for)
+    emu.set_disturbance(1, 1500)               # > Ixx12/16 = 1000 counts, < Ixx11/16 = 2000
+    st = axis.read()
+    assert st.status.warning_following_error and not st.status.fatal_following_error
+    assert st.following_error == pytest.approx(1500 / CPM)
+    emu.set_disturbance(1, 2500)               # > Ixx11/16: fatal, killed
+    st = axis.read()
+    assert st.status.fatal_following_error and not st.status.amp_enabled
+    assert st.following_error == 0.0           # open loop
+    emu.set_disturbance(1, 0)
+    axis.enable()
+    assert not axis.status().fatal_following_error
+
+
+def test_out_of_range_targets_never_reach_the_card(axis, emu) -> None:
+    before = emu.requests
+    for bad in (1.6, -1.51, float("nan"), float("inf")):
+        with pytest.raises(RailCommandError):
+            axis.jog_to(bad)
+    assert emu.requests == before
+
+
+# -- driver core --------------------------------------------------------------------------------
+@pytest.fixture
+def driver(axis):
+    events: list[tuple[str, str]] = []
+    d = RailDriver(axis, rate=100.0, reconnect_period=0.1,
+                   log=lambda level, msg: events.append((level, msg)))
+    d.events = events
+    d.start()
+    yield d
+    d.stop()
+
+
+def test_driver_refuses_motion_until_homed(driver, emu, wait_for) -> None:
+    wait_for(lambda: driver.snapshot().link_up and driver.snapshot().state, 2.0, what="link")
+    with pytest.raises(RailCommandError, match="torque is off"):
+        driver.set_target(0.02)
+    assert driver.request("enable") == "torque on, holding position"
+    with pytest.raises(RailCommandError, match="not homed"):
+        driver.set_target(0.02)
+    with pytest.raises(RailCommandError, match="soft limits"):
+        driver.set_target(2.0)
+    assert driver.snapshot().rejected_setpoints == 3
+    level, msg, _ = driver.snapshot().diagnostic()
+    assert level == WARN and "not homed" in msg
+    assert driver.request("home") == "home search started"
+    wait_for(lambda: driver.snapshot().homed, 5.0, what="homed")
+    wait_for(lambda: driver.snapshot().diagnostic()[0] == OK, 2.0, what="diagnostics OK")
+    driver.set_target(0.03)
+    wait_for(lambda: abs(emu.motor(1).actual - emu.motor(1).ref - 0.03 * CPM) < 0.5, 3.0,
+             what="emulated motor at 0.03 m")
+    assert ("info", "home complete") in driver.events
+
+
+def test_driver_hold_and_kill(driver, emu, wait_for) -> None:
+    wait_for(lambda: driver.snapshot().link_up, 2.0, what="link")
+    with pytest.raises(RailCommandError, match="torque is off"):
+        driver.request("hold")
+    driver.request("enable")
+    assert driver.request("hold") == "holding"
+    assert driver.request("kill") == "motor killed (torque off)"
+    assert not emu.motor(1).closed_loop
+    emu.set_amp_fault(1, True)
+    with pytest.raises(RailCommandError, match="amp_fault"):
+        driver.request("enable")
+    wait_for(lambda: driver.snapshot().diagnostic()[0] == ERROR, 2.0, what="ERROR level")
+
+
+def test_driver_detects_link_loss_fast_and_reconnects(driver, emu, wait_for) -> None:
+    wait_for(lambda: driver.snapshot().link_up, 2.0, what="link")
+    driver.request("enable")
+    emu.motor(1).homed = True                   # skip the home search for this test
+    wait_for(lambda: driver.snapshot().homed, 2.0, what="homed seen")
+    for fault in ("mute", "drop"):
+        if fault == "mute":
+            emu.mute = True                     # card silent: detected by the reply timeout
+        else:
+            emu.refuse = True                   # and reconnection attempts fail for now
+            emu.drop_connections()              # connection closed: detected at once
+        t0 = time.monotonic()
+        wait_for(lambda: not driver.snapshot().link_up, 1.0, what=f"link loss ({fault})")
+        assert time.monotonic() - t0 < 0.5
+        with pytest.raises(RailCommandError, match="link down"):
+            driver.set_target(0.02)
+        assert driver.snapshot().diagnostic()[0] == ERROR
+        emu.mute = emu.refuse = False
+        wait_for(lambda: driver.snapshot().link_up, 2.0, what=f"reconnect after {fault}")
+    assert driver.snapshot().reconnects == 2
+    assert sum(1 for lvl, m in driver.events if lvl == "error" and "link lost" in m) == 2
+
+
+def test_driver_holds_a_motion_left_over_from_before_a_link_loss(driver, emu, wait_for) -> None:
+    wait_for(lambda: driver.snapshot().link_up, 2.0, what="link")
+    driver.request("enable")
+    emu.motor(1).homed = True
+    wait_for(lambda: driver.snapshot().homed, 2.0, what="homed seen")
+    emu.refuse = True
+    driver.set_target(0.09)
+    wait_for(lambda: emu.motor(1).vel > 0, 2.0, what="motion started")
+    emu.drop_connections()
+    wait_for(lambda: not driver.snapshot().link_up, 1.0, what="link loss")
+    emu.refuse = False
+    wait_for(lambda: driver.snapshot().link_up, 2.0, what="reconnect")
+    wait_for(lambda: emu.motor(1).mode == "idle" and emu.motor(1).vel == 0, 2.0, what="held")
+    assert emu.motor(1).actual - emu.motor(1).ref < 0.09 * CPM - 100    # not finished
+    assert any("moving" in m and "held" in m for _, m in driver.events)
