@@ -1,87 +1,267 @@
-"""mock_driver: stands in for the robot's drivers, with no hardware.
+"""mock_driver: stands in for the Dynamixel driver and the PMAC rail driver, with no hardware.
 
-Publishes ``joint_states`` for every joint of the chosen variant and applies position
-setpoints from ``joint_command``. (Foundation version: kinematic joints only.)
+Same topics, services, diagnostics keys and parameters as the real drivers where they apply
+(docs/dynamixel.md, docs/pmac.md), plus a simulated work cell and camera. The simulation
+lives in ``hyperarm_driver.mock`` (no ROS); this node converts messages and keeps time.
+See docs/mock.md.
+
+Time: with ``sim_speed`` 0 (default) the simulation runs in real time and messages carry
+the node clock's time. With ``sim_speed`` > 0 it runs at that multiple of real time,
+publishes ``/clock`` (simulated time, starting at 0) and stamps everything with it; run the
+other nodes with ``use_sim_time:=true``.
 """
 from __future__ import annotations
 
-import rclpy
+import time
+
+import numpy as np
+import pinocchio as pin
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Pose
 from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
+from std_srvs.srv import SetBool, Trigger
 
 from hyperarm_description import contract
 from hyperarm_description.joints import JointStateError
-from hyperarm_description.model import VARIANTS, DescriptionError, load_description
 from hyperarm_description.qos import qos_for
+from hyperarm_description.ros_main import declare_robot_description, run_node
+from hyperarm_interfaces.msg import Detections
+from hyperarm_interfaces.srv import Reboot
 
+from .mock.camera import Camera, Frame, pose_from_xyz_rpy
+from .mock.config import MockError, load_mock_config
+from .mock.diagnostics import BusStats, mock_diagnostics
 from .mock.joint_sim import JointSim
+
+_LEVELS = {"OK": DiagnosticStatus.OK, "WARN": DiagnosticStatus.WARN,
+           "ERROR": DiagnosticStatus.ERROR}
+_MAX_CATCH_UP = 5  # simulation steps per timer tick at most in real time
+
+
+def _stamp(t: float) -> Time:
+    sec = int(np.floor(t))
+    return Time(sec=sec, nanosec=min(int(round((t - sec) * 1e9)), 999_999_999))
+
+
+def _pose(m: np.ndarray) -> Pose:
+    out = Pose()
+    out.position.x, out.position.y, out.position.z = (float(v) for v in m[:3, 3])
+    q = pin.Quaternion(m[:3, :3])
+    out.orientation.x, out.orientation.y, out.orientation.z, out.orientation.w = (
+        float(q.x), float(q.y), float(q.z), float(q.w))
+    return out
 
 
 class MockDriver(Node):
-    def __init__(self) -> None:
-        super().__init__("mock_driver", namespace=contract.DEFAULT_NAMESPACE)
-        self.declare_parameter("variant", "arm", ParameterDescriptor(
-            description=f"robot variant: {' or '.join(VARIANTS)}", read_only=True))
-        self.declare_parameter("description_file", "", ParameterDescriptor(
-            description="robot description YAML ('' = the packaged one)", read_only=True))
-        self.declare_parameter("rate", 100.0, ParameterDescriptor(
-            description="joint_states publish and simulation rate, Hz", read_only=True))
-        variant = self.get_parameter("variant").value
-        rate = float(self.get_parameter("rate").value)
-        if not 1.0 <= rate <= 1000.0:
-            raise SystemExit(f"mock_driver: rate must be within 1..1000 Hz, got {rate}")
+    """Simulated arm (+ rail) and work cell behind the drivers' ROS interface."""
+
+    def __init__(self, **kwargs) -> None:  # kwargs: rclpy Node options (context, overrides)
+        kwargs.setdefault("namespace", contract.DEFAULT_NAMESPACE)
+        super().__init__("mock_driver", **kwargs)
+        desc = declare_robot_description(self)
+        p = self._declare_parameters()
         try:
-            desc = load_description(self.get_parameter("description_file").value or None, variant)
-        except DescriptionError as exc:
+            cfg = load_mock_config(p["workcell_file"] or None)
+            self._sim = JointSim(desc, cfg, effort_timeout=p["command_timeout"],
+                                 require_homing=p["require_homing"])
+        except (MockError, ValueError) as exc:
             raise SystemExit(f"mock_driver: {exc}") from exc
-        self._sim = JointSim(desc)
-        self._dt = 1.0 / rate
+        self._camera = Camera(cfg.camera, pose_from_xyz_rpy(desc.camera.xyz, desc.camera.rpy))
+        self._frame_id = desc.camera.frame
+        self._dt = 1.0 / p["rate"]
+        self._speed = p["sim_speed"]
+        self._diag_period = p["diagnostics_period"]
+        self._shutdown_torque = p["shutdown_torque"]
+        self._stats = BusStats()
+        if not p["torque_on_start"]:
+            self._sim.set_torque(False)
+        # Simulated time 0 maps to the node clock's "now" in real time, to 0 on sim time.
+        self._origin = 0.0 if self._speed > 0.0 else self.get_clock().now().nanoseconds * 1e-9
         self._pub = self.create_publisher(JointState, contract.JOINT_STATES,
                                           qos_for(contract.JOINT_STATES))
+        self._diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
+                                           qos_for(contract.DIAGNOSTICS))
+        self._det = self.create_publisher(Detections, contract.DETECTIONS,
+                                          qos_for(contract.DETECTIONS))
+        self._truth = self.create_publisher(Detections, contract.DETECTIONS_TRUTH,
+                                            qos_for(contract.DETECTIONS_TRUTH))
+        self._clock = None
+        if self._speed > 0.0:
+            self._clock = self.create_publisher(ClockMsg, contract.CLOCK, QoSProfile(
+                depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,
+                durability=DurabilityPolicy.VOLATILE))
         self.create_subscription(JointState, contract.JOINT_COMMAND, self._on_command,
                                  qos_for(contract.JOINT_COMMAND))
-        self.create_timer(self._dt, self._tick)
-        self.get_logger().info(f"mock_driver: {variant}, {len(self._sim.names)} joints at {rate:g} Hz")
+        self.create_service(SetBool, contract.SET_TORQUE, self._on_set_torque)
+        self.create_service(Reboot, contract.REBOOT, self._on_reboot)
+        self.create_service(Trigger, contract.HOLD, self._on_hold)
+        if self._sim.rail is not None:
+            self.create_service(Trigger, contract.RAIL_HOME, self._on_home)
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._last_wall = time.monotonic()
+        self._owed = 0.0
+        self.create_timer(self._dt, self._tick, clock=steady)
+        self.create_timer(self._diag_period / max(self._speed, 1.0), self._publish_diagnostics,
+                          clock=steady)
+        timing = (f"sim time x{self._speed:g}, publishing {contract.CLOCK}" if self._speed > 0.0
+                  else "real time")
+        self.get_logger().info(
+            f"mock_driver: {desc.variant}, {len(self._sim.names)} joints at {p['rate']:g} Hz, "
+            f"{timing}; work cell {cfg.source}; torque {'on' if p['torque_on_start'] else 'off'}")
 
-    def _on_command(self, msg: JointState) -> None:
-        if not msg.position:
-            self.get_logger().warn("joint_command without positions ignored (foundation mock)",
-                                   throttle_duration_sec=5.0)
+    def _declare_parameters(self) -> dict:
+        specs = {
+            "rate": (100.0, "simulation step and joint_states rate, Hz (1..1000)"),
+            "command_timeout": (0.5, "effort watchdog: torque-controlled joints hold their "
+                                     "position when no effort command came for this long, "
+                                     "s (0.05..10)"),
+            "torque_on_start": (True, "enable torque at start (the mock's default: true)"),
+            "shutdown_torque": ("hold", "on shutdown: 'hold' or 'release' (logged only)"),
+            "require_homing": (True, "rail variant: refuse rail setpoints until rail/home "
+                                     "completed"),
+            "diagnostics_period": (1.0, "/diagnostics period, s (0.1..10)"),
+            "workcell_file": ("", "work-cell YAML ('' = the packaged config/workcell.yaml)"),
+            "sim_speed": (0.0, "0 = real time; > 0 = run at this multiple of real time and "
+                               "publish /clock (0.1..100)"),
+        }
+        out = {}
+        for name, (default, text) in specs.items():
+            self.declare_parameter(name, default, ParameterDescriptor(description=text,
+                                                                      read_only=True))
+            out[name] = self.get_parameter(name).value
+        checks = [
+            (1.0 <= out["rate"] <= 1000.0, "rate must be within 1..1000 Hz"),
+            (0.05 <= out["command_timeout"] <= 10.0, "command_timeout must be 0.05..10 s"),
+            (out["shutdown_torque"] in ("hold", "release"),
+             "shutdown_torque must be 'hold' or 'release'"),
+            (0.1 <= out["diagnostics_period"] <= 10.0, "diagnostics_period must be 0.1..10 s"),
+            (out["sim_speed"] == 0.0 or 0.1 <= out["sim_speed"] <= 100.0,
+             "sim_speed must be 0 (real time) or within 0.1..100"),
+        ]
+        for ok, text in checks:
+            if not ok:
+                raise SystemExit(f"mock_driver: {text}")
+        return out
+
+    # -- time and the simulation loop -----------------------------------------------------
+    def _tick(self) -> None:
+        start = time.monotonic()
+        elapsed, self._last_wall = start - self._last_wall, start
+        if self._speed > 0.0:  # the timer runs at `rate` in wall time: `speed` steps a tick
+            self._owed += self._speed
+        else:                  # real time: steps owed by the wall clock, bounded catch-up
+            self._owed = min(self._owed + elapsed / self._dt, _MAX_CATCH_UP)
+        steps = max(int(self._owed + 0.5), 0)
+        self._owed -= steps
+        for _ in range(steps):
+            self._sim.step(self._dt)
+            for frame in self._camera.step(self._sim.time, self._sim.truth):
+                self._publish_frame(frame)
+        if steps == 0:
             return
+        if self._clock is not None:
+            self._clock.publish(ClockMsg(clock=_stamp(self._sim.time)))
+        s = self._sim.state()
+        msg = JointState()
+        msg.header.stamp = _stamp(self._origin + s.stamp)
+        msg.name = self._sim.names
+        msg.position = s.position.tolist()
+        msg.velocity = s.velocity.tolist()
+        msg.effort = s.effort.tolist()
+        self._pub.publish(msg)
+        for event in self._sim.take_events():
+            log = self.get_logger().warn if event.kind in (
+                "watchdog", "dropped", "hardware_error") else self.get_logger().info
+            log(f"{event.kind}: {event.detail}")
+        self._stats.cycles += 1
+        self._stats.cycle_times.append(time.monotonic() - start)
+
+    def _publish_frame(self, frame: Frame) -> None:
+        for pub, poses in ((self._det, frame.detected), (self._truth, frame.truth)):
+            msg = Detections()
+            msg.header.stamp = _stamp(self._origin + frame.stamp)
+            msg.header.frame_id = self._frame_id
+            msg.names = list(frame.names)
+            msg.poses = [_pose(m) for m in poses]
+            pub.publish(msg)
+
+    # -- commands and services --------------------------------------------------------------
+    def _on_command(self, msg: JointState) -> None:
         try:
-            report = self._sim.command(msg.name, msg.position)
-        except JointStateError as exc:
-            self.get_logger().error(f"joint_command rejected: {exc}")
+            report = self._sim.command(list(msg.name), list(msg.position), list(msg.effort))
+        except (JointStateError, MockError) as exc:
+            if self._sim.rail in msg.name:
+                self._stats.rejected_setpoints += 1
+            self.get_logger().error(f"joint_command rejected: {exc}", throttle_duration_sec=1.0)
             return
         if report.clamped:
             self.get_logger().warn(f"joint_command clamped to limits: {list(report.clamped)}",
                                    throttle_duration_sec=1.0)
 
-    def _tick(self) -> None:
-        self._sim.step(self._dt)
-        msg = JointState()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.name = list(self._sim.names)
-        msg.position = self._sim.position.tolist()
-        msg.velocity = self._sim.velocity.tolist()
-        msg.effort = [0.0] * len(self._sim.names)
-        self._pub.publish(msg)
+    def _on_set_torque(self, req: SetBool.Request, res: SetBool.Response) -> SetBool.Response:
+        try:
+            self._sim.set_torque(bool(req.data))
+        except MockError as exc:
+            res.success, res.message = False, f"set_torque {req.data}: {exc}"
+            self.get_logger().error(res.message)
+            return res
+        res.success, res.message = True, f"torque {'on' if req.data else 'off'}"
+        self.get_logger().info(res.message)
+        return res
+
+    def _on_reboot(self, req: Reboot.Request, res: Reboot.Response) -> Reboot.Response:
+        try:
+            res.rebooted = self._sim.reboot(list(req.joints))
+        except (JointStateError, MockError) as exc:
+            res.success, res.message = False, f"reboot: {exc}"
+            self.get_logger().error(res.message)
+            return res
+        res.success = True
+        res.message = (f"rebooted {res.rebooted} (torque off)" if res.rebooted
+                       else "no joint in hardware error: nothing rebooted")
+        self.get_logger().info(res.message)
+        return res
+
+    def _on_hold(self, req: Trigger.Request, res: Trigger.Response) -> Trigger.Response:
+        self._sim.hold()
+        res.success, res.message = True, "holding the present position"
+        return res
+
+    def _on_home(self, req: Trigger.Request, res: Trigger.Response) -> Trigger.Response:
+        try:
+            self._sim.home_rail()
+        except MockError as exc:
+            res.success, res.message = False, f"rail/home: {exc}"
+            self.get_logger().error(res.message)
+            return res
+        res.success, res.message = True, "home search started"
+        return res
+
+    # -- diagnostics ------------------------------------------------------------------------
+    def _publish_diagnostics(self) -> None:
+        arr = DiagnosticArray()
+        arr.header.stamp = _stamp(self._origin + self._sim.time)
+        for d in mock_diagnostics(self._sim, self._stats, self._diag_period, self._speed):
+            st = DiagnosticStatus(name=d.name, hardware_id=d.hardware_id, level=_LEVELS[d.level],
+                                  message=d.message)
+            st.values = [KeyValue(key=k, value=v) for k, v in d.values.items()]
+            arr.status.append(st)
+        self._diag.publish(arr)
+
+    def destroy_node(self) -> None:
+        if hasattr(self, "_sim"):
+            self.get_logger().info(f"shutting down ({self._shutdown_torque})")
+        super().destroy_node()
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = MockDriver()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(MockDriver, args)
 
 
 if __name__ == "__main__":

@@ -1,70 +1,588 @@
-"""Simulated position-controlled joints (no ROS). Units: rad (rail m), s.
+"""The simulated robot: servo dynamics, arm dynamics, gripper and work-cell contact (no ROS).
 
-Each joint moves toward its goal at no more than its velocity limit. Goals are clamped to
-the joint limits before they are stored, so nothing outside the limits is ever tracked.
+Units: rad, rad/s, N·m for the arm and gripper joints; m, m/s, N for the rail; s.
+
+Every servo is in one of four modes, chosen per joint by the last command it got (as the
+real driver does: position only = position control, effort only = torque control, both =
+current-based position with the effort as current limit), or OFF (torque disabled):
+
+- POSITION / CURRENT_POSITION: the goal is followed through a velocity- and
+  acceleration-limited profile (the description's limits) and a first-order lag. The
+  position loop has a finite stiffness (``servo.stiffness``): external forces (the work
+  cell's contacts) deflect the joint by torque/stiffness, and the servo's torque is limited
+  to the stall torque (POSITION) or the commanded current limit (CURRENT_POSITION). When the
+  limit is reached the joint yields further, so the contact force stays bounded. Gravity
+  and inertia are assumed compensated by the servo's integral action (no steady droop), but
+  their torques, from pinocchio's RNEA on the description's link masses, are reported as
+  effort. A POSITION servo held at its stall torque for ``OVERLOAD_TIME`` s raises an
+  overload error and drops its torque, as a Dynamixel does.
+- TORQUE: the commanded effort (clamped to the stall torque) drives the joint through the
+  rigid-body dynamics (pinocchio CRBA/RNEA, semi-implicit Euler with viscous damping),
+  against gravity and the contact forces. Without a new effort command for
+  ``effort_timeout`` s the watchdog switches the joint to holding its position.
+- OFF: no torque; the joint moves under gravity and contacts with viscous friction.
+
+Imperfections: a hidden joint offset drawn per move (repeatability: the encoders, hence
+joint_states, do not see it, but the tool's true pose, the block and the camera do), noise
+and latency on the reported states, latency on commands. Joint goals are clamped to the
+limits before they are stored: no command outside the limits reaches the simulated servos.
 """
 from __future__ import annotations
 
+import math
+from collections import deque
 from dataclasses import dataclass
-from typing import Mapping, Sequence
+from enum import Enum
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
+import pinocchio as pin
 
-from hyperarm_description.joints import check_command
+from hyperarm_description.joints import JointStateError, check_command
 from hyperarm_description.model import RobotDescription
+from hyperarm_description.pinocchio_model import build_model
 
-__all__ = ["JointSim", "CommandReport"]
+from .config import MockConfig, MockError, load_mock_config
+from .world import World, WorldEvent
+
+__all__ = ["ControlMode", "CommandReport", "StateSample", "MockCommandError", "JointSim",
+           "OVERLOAD_TIME", "RAIL_FORCE_LIMIT"]
+
+OVERLOAD_TIME = 2.0        # s at the stall torque before a POSITION servo's overload error
+RAIL_FORCE_LIMIT = 200.0   # N, the rail drive's force limit
+CONTACT_DAMPING = 30.0     # N·s/m, against dynamic (torque-mode) joints
+SUBSTEPS = 4               # dynamic sub-steps per step while any joint is dynamic
+
+
+class MockCommandError(MockError):
+    """A command or request the simulated servos refuse (torque off, hardware error...)."""
+
+
+class ControlMode(str, Enum):
+    POSITION = "position"
+    CURRENT_POSITION = "current_based_position"
+    TORQUE = "current"
+    OFF = "off"
+
+
+_HOLDING = (ControlMode.POSITION, ControlMode.CURRENT_POSITION)
 
 
 @dataclass(frozen=True)
 class CommandReport:
-    """What became of a position command: joints applied and joints clamped to a limit."""
+    """What became of a command: joints applied, joints clamped to a limit, their mode."""
 
     applied: tuple[str, ...]
     clamped: tuple[str, ...]
+    mode: ControlMode = ControlMode.POSITION
+
+
+@dataclass(frozen=True)
+class StateSample:
+    """Joint states as reported (noise and latency applied), in ``JointSim.names`` order."""
+
+    stamp: float
+    position: np.ndarray
+    velocity: np.ndarray
+    effort: np.ndarray
+
+
+def _skew(r: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
 
 
 class JointSim:
-    """Every actuated joint of a description (rail, arm, gripper), position-controlled."""
+    """Every actuated joint of a description (rail, arm, gripper) plus the work cell.
 
-    def __init__(self, desc: RobotDescription, initial: Mapping[str, float] | None = None) -> None:
+    ``names`` lists the joints: the pinocchio chain (rail first, if any) then the gripper.
+    ``position``/``velocity``/``effort`` are the encoder's noiseless values now; use
+    :meth:`state` for what the driver reports.
+    """
+
+    def __init__(self, desc: RobotDescription, cfg: MockConfig | None = None,
+                 initial: Mapping[str, float] | None = None, effort_timeout: float = 0.5,
+                 require_homing: bool = True) -> None:
+        if not (effort_timeout > 0.0 and math.isfinite(effort_timeout)):
+            raise ValueError(f"effort_timeout must be > 0 s, got {effort_timeout}")
+        self.desc = desc
+        self.cfg = cfg if cfg is not None else load_mock_config()
+        self.effort_timeout = float(effort_timeout)
         self.names = desc.all_joint_names
+        self.n = len(self.names)
+        self.nk = self.n - 1                       # chain joints; the gripper is last
+        self.g = self.n - 1
+        self._index = {n: i for i, n in enumerate(self.names)}
         limits = desc.limits_by_name()
         self.lower = np.array([limits[n][0] for n in self.names])
         self.upper = np.array([limits[n][1] for n in self.names])
-        vel = {j.name: j.velocity for j in desc.joints}
-        vel[desc.gripper.name] = desc.gripper.velocity
+        s = self.cfg.servo
+        vel, acc, stall, stiff = [], [], [], []
         if desc.rail:
-            vel[desc.rail.name] = desc.rail.velocity
-        self.vmax = np.array([vel[n] for n in self.names])
-        self._index = {n: i for i, n in enumerate(self.names)}
-        self.position = np.clip(np.zeros(len(self.names)), self.lower, self.upper)
+            vel.append(desc.rail.velocity); acc.append(desc.rail.acceleration)
+            stall.append(RAIL_FORCE_LIMIT); stiff.append(s.rail_stiffness)
+        for j in desc.joints:
+            vel.append(j.velocity); acc.append(j.acceleration)
+            stall.append(j.effort); stiff.append(s.stiffness)
+        vel.append(desc.gripper.velocity); acc.append(s.gripper_acceleration)
+        stall.append(desc.gripper.effort); stiff.append(s.gripper_stiffness)
+        self.vmax, self.amax = np.array(vel), np.array(acc)
+        self.stall, self.stiffness = np.array(stall), np.array(stiff)
+        self.rail = desc.rail.name if desc.rail else None
+        self._arm = np.zeros(self.n, dtype=bool)
+        self._arm[[self._index[j.name] for j in desc.joints]] = True
+
+        self.model = build_model(desc)
+        self.data = self.model.createData()
+        self.tool_id = self.model.getFrameId(desc.tool_frame)
+        self.world = World(self.cfg.world)
+        imp = self.cfg.imperfections
+        self._rng = np.random.default_rng(imp.seed)
+
+        q0 = np.zeros(self.n)
         for name, value in (initial or {}).items():
-            self.position[self._index[name]] = value
-        self.goal = self.position.copy()
-        self.velocity = np.zeros(len(self.names))
+            if name not in self._index:
+                raise JointStateError(f"initial: unknown joint {name!r}")
+            q0[self._index[name]] = value
+        q0 = np.clip(q0, self.lower, self.upper)
+        self.time = 0.0
+        self.mode = [ControlMode.POSITION] * self.n
+        self.goal = q0.copy()
+        self.limit = self.stall.copy()
+        self.tau_cmd = np.zeros(self.n)
+        self._effort_time = np.zeros(self.n)
+        self._prof_p, self._prof_v = q0.copy(), np.zeros(self.n)
+        self._ref, self._ref_v = q0.copy(), np.zeros(self.n)
+        self.position, self.velocity, self.effort = q0.copy(), np.zeros(self.n), np.zeros(self.n)
+        self.offset = np.zeros(self.n)             # hidden (repeatability), arm joints only
+        self._anchor = q0.copy()
+        self._saturated_for = np.zeros(self.n)
+        self.errors: dict[str, str] = {}
+        self.events: list[WorldEvent] = []
+        self.contact_force = np.zeros(3)           # N, on the held block, last step
+        self._pending: deque[tuple[float, Callable[[], None]]] = deque()
+        self._history: deque[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = deque()
+        self.require_homing = bool(require_homing)
+        self.homed = self.rail is None
+        self.homing = False
+        self._tool = np.eye(4)
+        self._update_tool()
+        self._record()
 
-    def command(self, names: Sequence[str], positions: Sequence[float]) -> CommandReport:
-        """Set position goals by name. Raises JointStateError (nothing applied) if invalid."""
-        goals = check_command(names, positions, self.names)
+    # -- commands -----------------------------------------------------------------------
+    def command(self, names: Sequence[str], positions: Sequence[float] = (),
+                efforts: Sequence[float] = ()) -> CommandReport:
+        """Command joints by name (see the module doc for the modes). Validates everything
+        first and raises :class:`JointStateError` / :class:`MockCommandError` with nothing
+        applied. Arm and gripper goals clamp to the limits, efforts to the stall torque; a
+        rail setpoint outside its range, or before homing (``require_homing``), is rejected
+        (as the PMAC driver does). Joints with torque off accept goals but do not move (and
+        ``set_torque(True)`` resets the goals to the present position). Takes effect after
+        the command latency."""
+        if len(positions) == 0 and len(efforts) == 0:
+            raise JointStateError("command has neither positions nor efforts")
+        if len(positions) == 0 and len(names) == 0:
+            raise JointStateError("command names no joints")
+        goals = check_command(names, positions, self.names) if len(positions) else {}
+        torques = check_command(names, efforts, self.names, "effort") if len(efforts) else {}
+        idx = [self._index[n] for n in names]
+        if self.rail in torques:
+            raise MockCommandError(f"{self.rail} is position-controlled: effort commands are not "
+                                   "accepted for it")
+        if self.rail in goals:
+            i = self._index[self.rail]
+            if not self.lower[i] <= goals[self.rail] <= self.upper[i]:
+                raise MockCommandError(
+                    f"{self.rail} setpoint {goals[self.rail]:g} m outside "
+                    f"[{self.lower[i]:g}, {self.upper[i]:g}] m: command rejected")
+            if self.require_homing and not self.homed:
+                raise MockCommandError(f"{self.rail} is not homed: call rail/home first")
         clamped = []
-        for name, value in goals.items():
-            i = self._index[name]
-            limited = float(np.clip(value, self.lower[i], self.upper[i]))
-            if limited != value:
-                clamped.append(name)
-            self.goal[i] = limited
-        return CommandReport(applied=tuple(goals), clamped=tuple(clamped))
+        values = {}
+        for n, i in zip(names, idx):
+            if n in goals:
+                g = float(np.clip(goals[n], self.lower[i], self.upper[i]))
+                if g != goals[n]:
+                    clamped.append(n)
+                goals[n] = g
+            if n in torques:
+                t = torques[n]
+                lim = float(np.clip(abs(t) if n in goals else t, -self.stall[i], self.stall[i]))
+                if abs(lim) != abs(t):
+                    clamped.append(n)
+                values[n] = lim
+        if goals and torques:
+            mode = ControlMode.CURRENT_POSITION
+        elif goals:
+            mode = ControlMode.POSITION
+        else:
+            mode = ControlMode.TORQUE
 
-    def hold(self) -> None:
-        """Stop where the joints are now."""
-        self.goal = self.position.copy()
+        def apply() -> None:
+            for n, i in zip(names, idx):
+                if self.mode[i] is ControlMode.OFF:
+                    continue  # torque went off while the command was in flight
+                if mode is ControlMode.TORQUE:
+                    self.mode[i] = mode
+                    self.tau_cmd[i] = values[n]
+                    self._effort_time[i] = self.time
+                    continue
+                if self.mode[i] not in _HOLDING:
+                    self._restart_profile(i)
+                self.mode[i] = mode
+                self.limit[i] = values[n] if mode is ControlMode.CURRENT_POSITION else self.stall[i]
+                self.goal[i] = goals[n]
+                if self._arm[i] and abs(goals[n] - self._anchor[i]) > self.cfg.imperfections.move_threshold:
+                    self._anchor[i] = goals[n]
+                    sigma = self.cfg.imperfections.repeatability
+                    self.offset[i] = self._rng.normal(0.0, sigma) if sigma > 0.0 else 0.0
 
+        self._schedule(apply)
+        return CommandReport(applied=tuple(names), clamped=tuple(clamped), mode=mode)
+
+    def _schedule(self, fn: Callable[[], None]) -> None:
+        if self.cfg.imperfections.command_latency > 0.0:
+            self._pending.append((self.time + self.cfg.imperfections.command_latency, fn))
+        else:
+            fn()
+
+    def _restart_profile(self, i: int) -> None:
+        self._prof_p[i] = self._ref[i] = self.position[i]
+        self._prof_v[i] = self._ref_v[i] = 0.0
+        self.goal[i] = self.position[i]
+        self.limit[i] = self.stall[i]
+
+    def hold(self) -> list[str]:
+        """Stop every powered joint where it is (position mode, effort commands dropped;
+        torque unchanged). Returns the joints held."""
+        powered = [i for i in range(self.n) if self.mode[i] is not ControlMode.OFF]
+        for i in powered:
+            self._restart_profile(i)
+            self.mode[i] = ControlMode.POSITION
+        return [self.names[i] for i in powered]
+
+    def set_torque(self, enable: bool) -> None:
+        """Torque on (every joint holds where it is, position mode) or off (limp)."""
+        if enable:
+            if self.errors:
+                raise MockCommandError(f"hardware error on {sorted(self.errors)}: reboot first")
+            for i in range(self.n):
+                self._restart_profile(i)
+                self.mode[i] = ControlMode.POSITION
+        else:
+            self.mode = [ControlMode.OFF] * self.n
+            self.tau_cmd[:] = 0.0
+
+    def torque_enabled(self) -> list[bool]:
+        return [m is not ControlMode.OFF for m in self.mode]
+
+    def inject_error(self, name: str, error: str = "overload") -> None:
+        """Fault injection: joint ``name`` reports a hardware error and drops its torque."""
+        i = self._index[name]
+        self.errors[name] = error
+        self.mode[i] = ControlMode.OFF
+        self.tau_cmd[i] = 0.0
+        self.events.append(WorldEvent("hardware_error", f"{name}: {error}"))
+
+    def reboot(self, names: Sequence[str] = ()) -> list[str]:
+        """Reboot servos (empty = those with a hardware error). They come back torque off."""
+        unknown = [n for n in names if n not in self._index]
+        if unknown:
+            raise JointStateError(f"unknown joint(s) {unknown}; known: {self.names}")
+        targets = list(names) if names else sorted(self.errors)
+        for n in targets:
+            self.errors.pop(n, None)
+            self.mode[self._index[n]] = ControlMode.OFF
+            self.tau_cmd[self._index[n]] = 0.0
+        return targets
+
+    def home_rail(self) -> None:
+        """Start the rail's home search: it drives to 0 m (the home position) and is homed
+        when it gets there (``homed``)."""
+        if self.rail is None:
+            raise MockCommandError("this variant has no rail")
+        i = self._index[self.rail]
+        if self.mode[i] is ControlMode.OFF:
+            raise MockCommandError(f"{self.rail} amplifier not enabled: set_torque true first")
+        self._schedule(lambda: self._home(i))
+
+    def _home(self, i: int) -> None:
+        if self.mode[i] not in _HOLDING:
+            self._restart_profile(i)
+        self.mode[i] = ControlMode.POSITION
+        self.goal[i] = 0.0
+        self.homing = True
+
+    # -- simulation ---------------------------------------------------------------------
     def step(self, dt: float) -> None:
         """Advance the simulation by ``dt`` seconds."""
-        if dt <= 0.0:
+        if not dt > 0.0:
             return
-        err = self.goal - self.position
-        move = np.clip(err, -self.vmax * dt, self.vmax * dt)
-        self.position = self.position + move
-        self.velocity = move / dt
+        self.time += dt
+        while self._pending and self._pending[0][0] <= self.time + 1e-12:
+            self._pending.popleft()[1]()
+        self._watchdog()
+        held = np.array([m in _HOLDING for m in self.mode])
+        self._profile(dt, held)
+        nk = self.nk
+        P = held[:nk]
+        D = ~P
+        q = self.position[:nk].copy()
+        q[P] = self._ref[:nk][P]
+        v = self.velocity[:nk].copy()
+        v[P] = self._ref_v[:nk][P]
+        a = np.zeros(nk)
+        a[P] = ((self._ref_v[:nk] - self._prev_ref_v[:nk]) / dt)[P]
+        if D.any():
+            q, v = self._dynamics(dt, q, v, a, P, D)
+        dq, gen = self._contacts(q, P, v=None)
+        tau_id = pin.rnea(self.model, self.data, q + self.offset[:nk], v, a)
+        tau = tau_id - gen
+        dq, tau = self._limit_efforts(q, P, dq, gen, tau_id, tau)
+        effort = np.zeros(nk)
+        effort[P] = tau[P]
+        effort[D] = self._applied_torque(D)
+        qk = np.clip(q + dq, self.lower[:nk], self.upper[:nk])
+        self.velocity[:nk] = v
+        self.position[:nk] = qk
+        self.effort[:nk] = effort
+        self._overload(dt, P, effort)
+        if self.homing:
+            i = self._index[self.rail]
+            if self.mode[i] is ControlMode.OFF:
+                self.homing = False
+            elif abs(self.position[i]) < 1e-6 and self._prof_v[i] == 0.0:
+                self.homing, self.homed = False, True
+                self.events.append(WorldEvent("homed", f"{self.rail} homed at 0 m"))
+        self._update_tool()
+        self.world.update_held(self._tool)
+        self._gripper(dt)
+        self.events.extend(self.world.take_events())
+        self._record()
+
+    def _watchdog(self) -> None:
+        late = [i for i in range(self.n) if self.mode[i] is ControlMode.TORQUE
+                and self.time - self._effort_time[i] > self.effort_timeout]
+        for i in late:
+            self._restart_profile(i)
+            self.mode[i] = ControlMode.POSITION
+        if late:
+            self.events.append(WorldEvent(
+                "watchdog", f"no effort command for {self.effort_timeout:g} s: holding "
+                + ", ".join(self.names[i] for i in late)))
+
+    def _profile(self, dt: float, held: np.ndarray) -> None:
+        """Velocity/acceleration-limited profile towards the goal, then the lag."""
+        self._prev_ref_v = self._ref_v.copy()
+        e = self.goal - self._prof_p
+        v_des = np.clip(np.sign(e) * np.sqrt(2.0 * self.amax * np.abs(e)), -self.vmax, self.vmax)
+        v_new = np.clip(v_des, self._prof_v - self.amax * dt, self._prof_v + self.amax * dt)
+        p_new = self._prof_p + v_new * dt
+        done = (self.goal - p_new) * e <= 0.0
+        p_new = np.where(done, self.goal, p_new)
+        v_new = np.where(done, 0.0, v_new)
+        self._prof_p = np.where(held, p_new, self._prof_p)
+        self._prof_v = np.where(held, v_new, 0.0)
+        lag = self.cfg.servo.lag
+        alpha = 1.0 if lag <= 0.0 else 1.0 - math.exp(-dt / lag)
+        ref = self._ref + alpha * (self._prof_p - self._ref)
+        ref = np.where(np.abs(self._prof_p - ref) < 1e-12, self._prof_p, ref)
+        self._ref_v = np.where(held, (ref - self._ref) / dt, 0.0)
+        self._ref = np.where(held, ref, self._ref)
+
+    def _applied_torque(self, D: np.ndarray) -> np.ndarray:
+        idx = np.flatnonzero(D)
+        return np.array([self.tau_cmd[i] if self.mode[i] is ControlMode.TORQUE else 0.0
+                         for i in idx])
+
+    def _dynamics(self, dt: float, q: np.ndarray, v: np.ndarray, a: np.ndarray,
+                  P: np.ndarray, D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Integrate the torque-mode / limp joints ``D`` (others follow their reference)."""
+        h = dt / SUBSTEPS
+        tau_d = self._applied_torque(D)
+        damping = self.cfg.servo.damping
+        q, v = q.copy(), v.copy()
+        lo, hi = self.lower[:self.nk][D], self.upper[:self.nk][D]
+        for _ in range(SUBSTEPS):
+            _, gen = self._contacts(q, P, v=v)
+            qt = q + self.offset[:self.nk]
+            b = pin.rnea(self.model, self.data, qt, v, a)
+            m = pin.crba(self.model, self.data, qt)
+            m = np.triu(m) + np.triu(m, 1).T
+            mdd = m[np.ix_(D, D)] + h * damping * np.eye(int(D.sum()))
+            rhs = tau_d + gen[D] - b[D] - damping * v[D]
+            vd = v[D] + h * np.linalg.solve(mdd, rhs)
+            qd = q[D] + h * vd
+            at_limit = (qd <= lo) | (qd >= hi)
+            v[D] = np.where(at_limit, 0.0, vd)
+            q[D] = np.clip(qd, lo, hi)
+        return q, v
+
+    def _contacts(self, q: np.ndarray, P: np.ndarray,
+                  v: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """Contact forces on the held block at chain positions ``q`` (encoder values).
+
+        Returns the deflection of the compliant (position-mode) joints and the generalized
+        force of the contacts on every chain joint. Each contact is a penalty spring of the
+        world's stiffness in series with the servos' stiffness (and, with ``v`` given, a
+        damper against dynamic joints)."""
+        nk = self.nk
+        zero = np.zeros(nk)
+        self._contact_jn = None
+        if self.world.state.value != "held":
+            self.contact_force = np.zeros(3)
+            return zero, zero
+        qt = q + self.offset[:nk]
+        pin.framesForwardKinematics(self.model, self.data, qt)
+        tool = self.data.oMf[self.tool_id].homogeneous
+        contacts = self.world.contacts(tool)
+        if not contacts:
+            self.contact_force = np.zeros(3)
+            return zero, zero
+        j6 = pin.computeFrameJacobian(self.model, self.data, qt, self.tool_id,
+                                      pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+        rows = []
+        for c in contacts:
+            jp = j6[:3] - _skew(c.point - tool[:3, 3]) @ j6[3:]
+            rows.append(c.normal @ jp)
+        jn = np.array(rows)
+        p0 = np.array([c.depth for c in contacts])
+        kinv = np.where(P, 1.0 / self.stiffness[:nk], 0.0)
+        k_env = self.cfg.world.contact_stiffness
+        active = np.ones(len(contacts), dtype=bool)
+        f = np.zeros(len(contacts))
+        for _ in range(len(contacts)):
+            ja = jn[active]
+            a_mat = np.eye(int(active.sum())) / k_env + (ja * kinv) @ ja.T
+            f[:] = 0.0
+            f[active] = np.linalg.solve(a_mat, p0[active])
+            if v is not None:
+                f[active] -= CONTACT_DAMPING * (ja @ v)
+            if (f >= 0.0).all():
+                break
+            active &= f > 0.0
+            if not active.any():
+                f[:] = 0.0
+                break
+        f = np.maximum(f, 0.0)
+        self._contact_jn, self._contact_p0, self._contact_f = jn, p0, f
+        self.contact_force = sum((fi * c.normal for fi, c in zip(f, contacts)), np.zeros(3))
+        gen = jn.T @ f
+        return kinv * gen, gen
+
+    def _limit_efforts(self, q: np.ndarray, P: np.ndarray, dq: np.ndarray, gen: np.ndarray,
+                       tau_id: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Servos at their torque limit yield: scale the contact forces down so that no
+        position-mode servo exceeds its limit, and let the saturated joints take up the
+        remaining penetration (the block then stays at the contact surface)."""
+        nk = self.nk
+        lim = self.limit[:nk]
+        over = P & (np.abs(tau) > lim) & (np.abs(tau_id) <= lim) & (gen != 0.0)
+        if not over.any() or self._contact_jn is None:
+            return dq, np.clip(tau, -lim, lim)
+        s_i = np.where(gen > 0.0, (tau_id + lim) / np.where(gen == 0.0, 1.0, gen),
+                       (tau_id - lim) / np.where(gen == 0.0, 1.0, gen))
+        s = float(np.clip(np.min(s_i[over]), 0.0, 1.0))
+        jn, p0, f = self._contact_jn, self._contact_p0, self._contact_f * s
+        kinv = np.where(P, 1.0 / self.stiffness[:nk], 0.0)
+        dq = kinv * (jn.T @ f)
+        residual = p0 - jn @ dq - f / self.cfg.world.contact_stiffness
+        residual = np.where(f > 0.0, residual, 0.0)
+        sat = over
+        extra = np.zeros(nk)
+        extra[sat] = np.linalg.pinv(jn[:, sat]) @ residual
+        self.contact_force = self.contact_force * s
+        tau = np.clip(tau_id - jn.T @ f, -lim, lim)
+        return dq + extra, tau
+
+    def _overload(self, dt: float, P: np.ndarray, effort: np.ndarray) -> None:
+        for i in np.flatnonzero(P):
+            if (self.mode[i] is ControlMode.POSITION
+                    and abs(effort[i]) >= self.stall[i] * (1.0 - 1e-9)):
+                self._saturated_for[i] += dt
+                if self._saturated_for[i] >= OVERLOAD_TIME:
+                    self.inject_error(self.names[i], "overload")
+            else:
+                self._saturated_for[i] = 0.0
+
+    def _update_tool(self) -> None:
+        qt = self.position[:self.nk] + self.offset[:self.nk]
+        pin.framesForwardKinematics(self.model, self.data, qt)
+        self._tool = self.data.oMf[self.tool_id].homogeneous.copy()
+
+    def _contact_angle(self) -> float:
+        """Gripper angle (rad) at which the fingers touch the block."""
+        gr = self.desc.gripper
+        width = self.world.width_between_fingers(self._tool)
+        return gr.lower + min(width / gr.max_opening, 1.0) * (gr.upper - gr.lower)
+
+    def _gripper(self, dt: float) -> None:
+        """The gripper's servo, its contact with the block, and grasp/release/drop."""
+        g = self.g
+        mode = self.mode[g]
+        prev = self.position[g]
+        present = self.world.block_between_fingers(self._tool)
+        qc = self._contact_angle() if present else -math.inf
+        reachable = prev >= qc - 1e-3          # fingers open enough to get around the block
+        effort, contact = 0.0, False
+        if mode in _HOLDING:
+            q = self._ref[g]
+            if present and reachable and q <= qc:
+                contact = True
+                q = qc
+                effort = float(np.clip(self.stiffness[g] * (self._ref[g] - qc),
+                                       -self.limit[g], self.limit[g]))
+            vel = (q - prev) / dt
+        elif mode is ControlMode.TORQUE:
+            effort = self.tau_cmd[g]
+            vel = float(np.clip(effort / self.cfg.servo.damping, -self.vmax[g], self.vmax[g]))
+            q = float(np.clip(prev + vel * dt, self.lower[g], self.upper[g]))
+            if present and reachable and q <= qc and effort < 0.0:
+                contact, q, vel = True, qc, 0.0
+        else:
+            q, vel = prev, 0.0
+            contact = present and reachable and abs(prev - qc) < 1e-3
+        self.position[g], self.velocity[g], self.effort[g] = q, vel, effort
+        grip = abs(effort) if contact else 0.0
+        min_effort = self.cfg.world.grasp.min_effort
+        if self.world.state.value == "held":
+            if not contact:
+                self.world.release(self._tool, "released")
+            elif grip < min_effort:
+                self.world.release(self._tool, "dropped")
+        elif contact and grip >= min_effort:
+            self.world.grasp(self._tool)
+
+    def _record(self) -> None:
+        self._history.append((self.time, self.position.copy(), self.velocity.copy(),
+                              self.effort.copy()))
+        keep = self.cfg.imperfections.state_latency
+        while len(self._history) > 1 and self._history[1][0] <= self.time - keep + 1e-12:
+            self._history.popleft()
+
+    # -- outputs ------------------------------------------------------------------------
+    def state(self) -> StateSample:
+        """Joint states as the driver reports them: ``state_latency`` old, with noise."""
+        t, p, v, e = self._history[0]
+        imp = self.cfg.imperfections
+        if imp.position_noise > 0.0:
+            p = p + self._rng.normal(0.0, imp.position_noise, self.n)
+        if imp.velocity_noise > 0.0:
+            v = v + self._rng.normal(0.0, imp.velocity_noise, self.n)
+        if imp.effort_noise > 0.0:
+            e = e + self._rng.normal(0.0, imp.effort_noise, self.n)
+        return StateSample(t, p.copy(), v.copy(), e.copy())
+
+    def tool_pose(self) -> np.ndarray:
+        """True pose of tool0 (repeatability offsets included) in the root frame."""
+        return self._tool.copy()
+
+    def truth(self) -> dict[str, np.ndarray]:
+        """True poses of what the camera sees: the block and each peg's top, root frame."""
+        out = {"block": self.world.block_pose(self._tool)}
+        for name in self.world.peg_names:
+            out[f"{name}_peg"] = self.world.peg_top(name)
+        return out
+
+    def take_events(self) -> list[WorldEvent]:
+        out, self.events = self.events, []
+        return out
