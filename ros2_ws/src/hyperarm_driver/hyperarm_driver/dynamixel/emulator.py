@@ -72,6 +72,7 @@ class EmulatedServo:
         self.vel = 0.0          # ticks/s
         self.current = 0.0      # raw current units
         self.obstacle: float | None = None   # tick a moving servo cannot pass
+        self.obstacle_side = 1.0
         self.silent_until = 0.0
         self.temperature = 36
         self.voltage = 120      # 0.1 V
@@ -237,10 +238,11 @@ class EmulatedServo:
         if mode != OperatingMode.CURRENT and abs(self.get("goal_position") - self.pos) <= abs(
                 self.vel * dt):
             new = float(self.get("goal_position"))
-        if self.obstacle is not None and (self.pos - self.obstacle) * (new - self.obstacle) < 0:
-            new = self.obstacle
-        if self.obstacle is not None and new == self.obstacle:
-            self.vel = 0.0
+        if self.obstacle is not None:
+            side = self.obstacle_side
+            if side * (new - self.obstacle) <= 0.0:   # would reach or cross it: blocked
+                new = self.obstacle
+                self.vel = 0.0
         self.pos = new
         if mode != OperatingMode.CURRENT and self.vel == 0.0 and self.obstacle is None \
                 and new == self.get("goal_position"):
@@ -392,6 +394,9 @@ class EmulatedBus:
             s = self._available(i, now)
             if s is None:
                 break
+            if self.faults.drop_next.get(i, 0) > 0:   # this servo stays silent
+                self.faults.drop_next[i] -= 1
+                break
             err, data = s.read(addr, length)
             items.append((i, err, data))
         if not items:
@@ -401,7 +406,7 @@ class EmulatedBus:
             # the chain stops at the silent servo: the length field announces all of them
             length_all = 1 + len(ids) * (4 + length)
             full = full[:5] + bytes([length_all & 0xFF, length_all >> 8]) + full[7:]
-        self._emit(ids[0], full, out)
+        self._emit(-1, full, out)  # per-servo drops handled above
 
     # -- control ---------------------------------------------------------------------------
     def control(self, cmd: dict[str, Any]) -> dict[str, Any]:
@@ -431,7 +436,10 @@ class EmulatedBus:
                         setattr(self.faults, k, float(cmd[k]))
             elif op == "obstacle":
                 pos = cmd.get("position")
-                self.servos[int(cmd["id"])].obstacle = None if pos is None else float(pos)
+                s = self.servos[int(cmd["id"])]
+                s.obstacle = None if pos is None else float(pos)
+                if s.obstacle is not None:   # the servo stays on the side it is on now
+                    s.obstacle_side = 1.0 if s.pos >= s.obstacle else -1.0
             elif op == "set":
                 self.servos[int(cmd["id"])].pos = float(cmd["position"])
             elif op == "state":

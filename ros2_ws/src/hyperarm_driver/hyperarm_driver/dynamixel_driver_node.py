@@ -1,0 +1,268 @@
+"""dynamixel_driver: the arm's Dynamixel bus as a ROS 2 node (thin; logic in .dynamixel).
+
+See docs/dynamixel.md for the parameters, topics, services and diagnostics.
+"""
+from __future__ import annotations
+
+import time
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_srvs.srv import SetBool, Trigger
+
+from hyperarm_description import contract
+from hyperarm_description.model import DescriptionError, load_description
+from hyperarm_description.qos import qos_for
+from hyperarm_interfaces.srv import Reboot
+
+from .dynamixel.bus import DynamixelBus
+from .dynamixel.config import bus_config_from_description
+from .dynamixel.control_table import OperatingMode, decode_hardware_error
+from .dynamixel.driver import DynamixelDriver
+from .dynamixel.errors import DynamixelError, StartupError
+
+_SDK_BAUDS = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600,
+              1000000, 1152000, 2000000, 2500000, 3000000, 3500000, 4000000)
+
+
+class DynamixelDriverNode(Node):
+    """Publishes ``joint_states``, applies ``joint_command``; services and diagnostics."""
+
+    def __init__(self, **kwargs) -> None:  # kwargs: rclpy Node options (context, overrides)
+        kwargs.setdefault("namespace", contract.DEFAULT_NAMESPACE)
+        super().__init__("dynamixel_driver", **kwargs)
+        p = self._declare_parameters()
+        try:
+            desc = load_description(p["description_file"] or None)
+            config = bus_config_from_description(desc)
+            bus = DynamixelBus(config, p["port"], p["baud"], fast_sync_read=p["fast_sync_read"])
+            self._drv = DynamixelDriver(bus, command_timeout=p["command_timeout"],
+                                        reconnect_period=p["reconnect_period"])
+        except (DescriptionError, DynamixelError, ValueError) as exc:
+            raise SystemExit(f"dynamixel_driver: {exc}") from exc
+        self._shutdown_torque = p["shutdown_torque"]
+        self._period = 1.0 / p["rate"]
+        self._diag_period = p["diagnostics_period"]
+        self._port, self._baud = p["port"], p["baud"]
+        self._window = [0, 0]   # transactions, failures at the last diagnostics
+        self._cycles = 0
+        self._down_since: float | None = None
+        self._pub = self.create_publisher(JointState, contract.JOINT_STATES,
+                                          qos_for(contract.JOINT_STATES))
+        self._diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
+                                           qos_for(contract.DIAGNOSTICS))
+        self.create_subscription(JointState, contract.JOINT_COMMAND, self._on_command,
+                                 qos_for(contract.JOINT_COMMAND))
+        self.create_service(SetBool, contract.SET_TORQUE, self._on_set_torque)
+        self.create_service(Reboot, contract.REBOOT, self._on_reboot)
+        self.create_service(Trigger, contract.HOLD, self._on_hold)
+        try:
+            self._drv.connect()
+            self.get_logger().info(
+                f"{len(config.joints)} servos on {p['port']} at {p['baud']} baud, "
+                f"{'fast' if bus.fast else 'plain'} sync read, {p['rate']:g} Hz; torque off")
+            if p["torque_on_start"]:
+                self._drv.set_torque(True)
+                self.get_logger().info("torque on (torque_on_start)")
+        except StartupError as exc:
+            raise SystemExit(f"dynamixel_driver: {exc}") from exc
+        except DynamixelError as exc:
+            self.get_logger().error(f"{exc}; retrying every {p['reconnect_period']:g} s")
+            self._down_since = time.monotonic()
+        self.create_timer(self._period, self._tick)
+        self.create_timer(self._diag_period, self._publish_diagnostics)
+
+    def _declare_parameters(self) -> dict:
+        specs = {
+            "port": ("/dev/ttyUSB0", "serial device of the Dynamixel bus"),
+            "baud": (1000000, f"bus baud rate, one of {_SDK_BAUDS}"),
+            "rate": (100.0, "control cycle and joint_states rate, Hz (1..1000)"),
+            "description_file": ("", "robot description YAML ('' = the packaged one)"),
+            "command_timeout": (0.5, "effort watchdog: current-controlled joints hold "
+                                     "their position when no effort command came for "
+                                     "this long, s (0.05..10)"),
+            "torque_on_start": (False, "enable torque after the start-up check"),
+            "shutdown_torque": ("hold", "on shutdown: 'hold' (torque on, hold position) "
+                                        "or 'release' (torque off)"),
+            "fast_sync_read": (True, "use Fast Sync Read when available"),
+            "reconnect_period": (0.5, "delay between reopening attempts of a lost port, s "
+                                      "(0.05..60)"),
+            "diagnostics_period": (1.0, "/diagnostics period, s (0.1..10)"),
+        }
+        out = {}
+        for name, (default, text) in specs.items():
+            self.declare_parameter(name, default, ParameterDescriptor(description=text,
+                                                                      read_only=True))
+            out[name] = self.get_parameter(name).value
+        checks = [
+            (out["baud"] in _SDK_BAUDS, f"baud must be one of {_SDK_BAUDS}"),
+            (1.0 <= out["rate"] <= 1000.0, "rate must be within 1..1000 Hz"),
+            (0.05 <= out["command_timeout"] <= 10.0, "command_timeout must be 0.05..10 s"),
+            (out["shutdown_torque"] in ("hold", "release"),
+             "shutdown_torque must be 'hold' or 'release'"),
+            (0.05 <= out["reconnect_period"] <= 60.0, "reconnect_period must be 0.05..60 s"),
+            (0.1 <= out["diagnostics_period"] <= 10.0, "diagnostics_period must be 0.1..10 s"),
+            (bool(out["port"]), "port must not be empty"),
+        ]
+        for ok, text in checks:
+            if not ok:
+                raise SystemExit(f"dynamixel_driver: {text}")
+        return out
+
+    # -- cycle -------------------------------------------------------------------------------
+    def _tick(self) -> None:
+        was_up = self._drv.connected
+        state = self._drv.cycle()
+        for event in self._drv.pop_events():
+            level = self.get_logger().warn if "lost" in event or "watchdog" in event \
+                else self.get_logger().info
+            level(event)
+        if was_up and not self._drv.connected:
+            self._down_since = time.monotonic()
+            self.get_logger().error(f"Dynamixel port lost: {self._drv.last_error}")
+        if state is None:
+            if not self._drv.connected:
+                self.get_logger().warn(f"port down: {self._drv.last_error}",
+                                       throttle_duration_sec=5.0)
+            else:
+                self.get_logger().warn(f"bus read failed: {self._drv.last_error}",
+                                       throttle_duration_sec=2.0)
+            return
+        self._down_since = None
+        self._cycles += 1
+        msg = JointState()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.name = self._drv.names
+        msg.position = state.position.tolist()
+        msg.velocity = state.velocity.tolist()
+        msg.effort = state.effort.tolist()
+        self._pub.publish(msg)
+        errs = self._drv.hardware_errors()
+        if errs:
+            self.get_logger().error(
+                "hardware error: " + "; ".join(f"{n}: {', '.join(b)}" for n, b in errs.items()),
+                throttle_duration_sec=2.0)
+
+    def _on_command(self, msg: JointState) -> None:
+        try:
+            report = self._drv.command(list(msg.name), list(msg.position), list(msg.effort))
+        except DynamixelError as exc:
+            self.get_logger().error(f"joint_command rejected: {exc}",
+                                    throttle_duration_sec=1.0)
+            return
+        if report.clamped:
+            self.get_logger().warn(f"joint_command clamped to joint limits: {report.clamped}",
+                                   throttle_duration_sec=1.0)
+        if report.effort_clamped:
+            self.get_logger().warn(
+                f"joint_command effort clamped to the servo limit: {report.effort_clamped}",
+                throttle_duration_sec=1.0)
+
+    # -- services ----------------------------------------------------------------------------
+    def _on_set_torque(self, req: SetBool.Request, res: SetBool.Response) -> SetBool.Response:
+        try:
+            self._drv.set_torque(bool(req.data))
+        except DynamixelError as exc:
+            res.success, res.message = False, f"set_torque {req.data}: {exc}"
+            self.get_logger().error(res.message)
+            return res
+        res.success, res.message = True, f"torque {'on' if req.data else 'off'}"
+        self.get_logger().info(res.message)
+        return res
+
+    def _on_reboot(self, req: Reboot.Request, res: Reboot.Response) -> Reboot.Response:
+        try:
+            res.rebooted = self._drv.reboot(list(req.joints))
+        except DynamixelError as exc:
+            res.success, res.message = False, f"reboot: {exc}"
+            self.get_logger().error(res.message)
+            return res
+        res.success = True
+        res.message = (f"rebooted {res.rebooted} (torque off)" if res.rebooted
+                       else "no joint in hardware error: nothing rebooted")
+        self.get_logger().info(res.message)
+        return res
+
+    def _on_hold(self, req: Trigger.Request, res: Trigger.Response) -> Trigger.Response:
+        try:
+            self._drv.hold()
+        except DynamixelError as exc:
+            res.success, res.message = False, f"hold: {exc}"
+            return res
+        res.success, res.message = True, "holding the present position"
+        return res
+
+    # -- diagnostics -------------------------------------------------------------------------
+    def _publish_diagnostics(self) -> None:
+        drv, stats = self._drv, self._drv.bus.stats
+        arr = DiagnosticArray()
+        arr.header.stamp = self.get_clock().now().to_msg()
+        state = drv.state if drv.connected else None
+        for i, j in enumerate(drv.config.joints):
+            st = DiagnosticStatus(name=f"dynamixel_driver: {j.name}", hardware_id=f"dxl-{j.id}")
+            values = {"id": str(j.id), "model": j.model.name,
+                      "mode": OperatingMode.NAMES.get(drv.bus.modes[i], "?"),
+                      "torque": "on" if drv.bus.torque[i] else "off"}
+            if state is None:
+                st.level, st.message = DiagnosticStatus.STALE, "port down"
+            else:
+                bits = int(state.hardware_error[i])
+                names = decode_hardware_error(bits)
+                values.update(temperature_C=f"{state.temperature[i]:.0f}",
+                              voltage_V=f"{state.voltage[i]:.1f}",
+                              hardware_error=", ".join(names) or "none",
+                              hardware_error_bits=str(bits))
+                st.level = DiagnosticStatus.ERROR if bits else DiagnosticStatus.OK
+                st.message = f"hardware error: {', '.join(names)}" if bits else "OK"
+            st.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+            arr.status.append(st)
+        tx, fail = stats.transactions - self._window[0], stats.failures - self._window[1]
+        self._window = [stats.transactions, stats.failures]
+        rate = fail / tx if tx else 0.0
+        times = stats.cycle_times[-1000:]
+        stats.cycle_times.clear()
+        bus = DiagnosticStatus(name="dynamixel_driver: bus", hardware_id=self._port)
+        bus.values = [KeyValue(key=k, value=str(v)) for k, v in {
+            "port": self._port, "baud": self._baud, "connected": drv.connected,
+            "sync_read": "fast" if drv.bus.fast else "plain", "cycles": self._cycles,
+            "cycle_time_ms": f"{1e3 * sum(times) / len(times):.3f}" if times else "n/a",
+            "rate_hz": f"{len(times) / self._diag_period:.1f}",
+            "comm_errors": stats.failures, "error_rate": f"{rate:.4f}",
+            "reconnects": drv.reconnects, "last_error": drv.last_error}.items()]
+        if not drv.connected:
+            bus.level, bus.message = DiagnosticStatus.ERROR, f"port down: {drv.last_error}"
+        elif rate > 0.01:
+            bus.level, bus.message = DiagnosticStatus.WARN, f"bus error rate {rate:.1%}"
+        else:
+            bus.level, bus.message = DiagnosticStatus.OK, "OK"
+        arr.status.append(bus)
+        self._diag.publish(arr)
+
+    def destroy_node(self) -> None:
+        try:
+            self._drv.shutdown(self._shutdown_torque)
+        except AttributeError:
+            pass  # failed in __init__ before the driver existed
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> None:
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = DynamixelDriverNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

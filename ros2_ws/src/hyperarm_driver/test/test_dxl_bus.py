@@ -1,0 +1,284 @@
+"""Emulator tier: the driver core through the real dynamixel-sdk over a pty to dxl_emulator
+(a separate process): start-up, motion, modes, gripper, watchdog, faults, reconnect."""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as hs
+
+from hyperarm_description.model import load_description
+from hyperarm_driver.dynamixel.bus import DynamixelBus
+from hyperarm_driver.dynamixel.config import bus_config_from_description
+from hyperarm_driver.dynamixel.driver import DynamixelDriver
+from hyperarm_driver.dynamixel.errors import CommandError, PortOpenError, StartupError
+from hyperarm_driver.dynamixel.testing import EmulatorProcess
+
+pytestmark = pytest.mark.emulator
+
+DESC = load_description()
+NAMES = [j.name for j in DESC.joints] + [DESC.gripper.name]
+
+
+@pytest.fixture
+def emu(tmp_path):
+    with EmulatorProcess(workdir=tmp_path) as e:
+        yield e
+
+
+def make_driver(emu: EmulatorProcess, **kw) -> DynamixelDriver:
+    bus = DynamixelBus(bus_config_from_description(DESC), emu.link)
+    return DynamixelDriver(bus, **kw)
+
+
+def run_until(drv: DynamixelDriver, cond, timeout: float, what: str, period: float = 0.01):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        st = drv.cycle()
+        if st is not None and cond(st):
+            return st
+        time.sleep(period)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+
+def servo(emu: EmulatorProcess, sid: int) -> dict:
+    return emu.ctl("state")["servos"][str(sid)]
+
+
+def test_startup_configures_every_servo_torque_off(emu):
+    drv = make_driver(emu)
+    drv.connect()
+    assert drv.connected and drv.bus.fast
+    for j in bus_config_from_description(DESC).joints:
+        s = servo(emu, j.id)
+        assert s["torque_enable"] == 0 and s["return_delay_time"] == 0
+        assert (s["min_position_limit"], s["max_position_limit"]) == j.tick_limits
+        assert s["operating_mode"] == (5 if j.name == "gripper" else 3)
+        assert s["profile_velocity"] > 0
+    st = drv.cycle()
+    assert np.allclose(st.position, 0.0) and np.allclose(st.voltage, 12.0)
+
+
+def test_startup_reports_missing_servo_and_wrong_model(tmp_path):
+    with EmulatorProcess("--omit", "3", "--model", "7=XM540-W270", workdir=tmp_path) as e:
+        drv = make_driver(e)
+        with pytest.raises(StartupError) as info:
+            drv.connect()
+    msg = str(info.value)
+    assert "missing: joint3 (ID 3)" in msg
+    assert "joint7 (ID 7) expected XM430-W350, found XM540-W270" in msg
+    assert info.value.missing == ["joint3"]
+    assert info.value.wrong_model == {"joint7": ("XM430-W350", "XM540-W270")}
+    assert not drv.connected
+
+
+def test_open_error_names_the_port(tmp_path):
+    drv = DynamixelDriver(DynamixelBus(bus_config_from_description(DESC),
+                                       str(tmp_path / "no-such-tty")))
+    with pytest.raises(PortOpenError, match="no-such-tty"):
+        drv.connect()
+
+
+def test_motion_in_position_mode_and_plain_sync_read(tmp_path):
+    with EmulatorProcess(workdir=tmp_path) as e:
+        bus = DynamixelBus(bus_config_from_description(DESC), e.link, fast_sync_read=False)
+        drv = DynamixelDriver(bus)
+        drv.connect()
+        assert not bus.fast
+        drv.set_torque(True)
+        drv.command(["joint1", "joint5", "joint9"], [0.4, -0.6, 1.0])
+        st = run_until(drv, lambda s: abs(s.position[0] - 0.4) < 2e-3
+                       and abs(s.position[4] + 0.6) < 2e-3 and abs(s.position[8] - 1.0) < 2e-3,
+                       5.0, "joints to reach their goals")
+        assert np.allclose(st.position[[1, 2, 3, 5, 6, 7]], 0.0, atol=2e-3)
+        assert e.ctl("stats")["instructions"].get("0x82", 0) > 0  # plain SYNC_READ used
+
+
+def test_current_mode_and_watchdog_hold(emu):
+    drv = make_driver(emu, command_timeout=0.3)
+    drv.connect()
+    drv.set_torque(True)
+    drv.command(["joint4"], effort=[0.5])
+    drv.cycle()
+    s = servo(emu, 4)
+    assert s["operating_mode"] == 0 and s["torque_enable"] == 1
+    kt, unit = drv.config.joints[3].model.torque_constant, drv.config.joints[3].model.current_unit
+    assert s["goal_current"] == round(0.5 / kt / unit)
+    st = run_until(drv, lambda s: s.position[3] > 0.05, 3.0, "joint4 to turn under torque")
+    assert st.effort[3] == pytest.approx(0.5, rel=0.02)
+    # no more effort commands: after command_timeout the joint holds in position mode
+    drv.command(["joint4"], effort=[0.5])
+    t_last = time.monotonic()
+    st = run_until(drv, lambda s: servo(emu, 4)["operating_mode"] == 3, 2.0, "watchdog hold")
+    assert time.monotonic() - t_last >= 0.3 - 0.02
+    assert drv.watchdog_trips == 1
+    held = servo(emu, 4)["goal_position"]
+    time.sleep(0.2)
+    drv.cycle()
+    assert servo(emu, 4)["goal_position"] == held
+    assert abs(servo(emu, 4)["present_position"] - held) <= 2
+
+
+def test_current_based_position_and_gripper_grip_force(emu):
+    drv = make_driver(emu)
+    drv.connect()
+    drv.set_torque(True)
+    # joint2 position with a 1.0 N·m limit -> current-based position, goal current = limit
+    drv.command(["joint2"], [0.3], [1.0])
+    drv.cycle()
+    j2 = drv.config.joints[1]
+    s = servo(emu, 2)
+    assert s["operating_mode"] == 5
+    assert s["goal_current"] == round(1.0 / j2.model.torque_constant / j2.model.current_unit)
+    # gripper: open, then close onto an object at 0.4 rad: stalls with the grip current
+    grip = drv.config.joints[-1]
+    drv.command(["gripper"], [1.2])
+    run_until(drv, lambda s: abs(s.position[-1] - 1.2) < 3e-3, 5.0, "gripper open")
+    emu.ctl("obstacle", id=10, position=grip.rad_to_ticks_float(0.4))
+    drv.command(["gripper"], [0.0])
+    st = run_until(drv, lambda s: abs(s.position[-1] - 0.4) < 3e-3 and abs(s.effort[-1]) > 0.5,
+                   5.0, "gripper stalled on the object")
+    assert servo(emu, 10)["operating_mode"] == 5
+    assert abs(st.effort[-1]) == pytest.approx(DESC.gripper.grip_effort, rel=0.02)
+    # an explicit effort sets the closing force
+    drv.command(["gripper"], [0.0], [0.3])
+    st = run_until(drv, lambda s: abs(abs(s.effort[-1]) - 0.3) < 0.01, 2.0, "grip effort 0.3")
+
+
+@pytest.mark.parametrize("bit,name", [(0, "input_voltage"), (2, "overheating"),
+                                      (3, "motor_encoder"), (4, "electrical_shock"),
+                                      (5, "overload")])
+def test_hardware_errors_are_decoded_by_joint_and_smart_reboot(emu, bit, name):
+    drv = make_driver(emu)
+    drv.connect()
+    drv.set_torque(True)
+    emu.ctl("fault", id=6, bits=1 << bit)
+    run_until(drv, lambda s: s.hardware_error[5] != 0, 1.0, "error bit")
+    assert drv.hardware_errors() == {"joint6": [name]}
+    with pytest.raises(Exception, match=f"joint6: {name}"):
+        drv.set_torque(True)
+    assert drv.reboot([]) == ["joint6"]        # smart reboot: only the joint in error
+    st = drv.cycle()
+    assert st.hardware_error.sum() == 0 and drv.hardware_errors() == {}
+    assert servo(emu, 6)["torque_enable"] == 0 and servo(emu, 5)["torque_enable"] == 1
+    assert drv.reboot([]) == []
+    with pytest.raises(CommandError, match="unknown joint"):
+        drv.reboot(["elbow"])
+
+
+def test_crc_corruption_and_dropped_replies_are_retried(emu):
+    drv = make_driver(emu)
+    drv.connect()
+    before = drv.bus.stats.retries
+    emu.ctl("corrupt", count=1)
+    assert drv.cycle() is not None
+    emu.ctl("drop", id=4, count=1)
+    assert drv.cycle() is not None
+    assert drv.bus.stats.retries == before + 2
+    assert drv.bus.stats.failures >= 2
+    # persistent corruption: the cycle fails cleanly (no exception), later cycles recover
+    emu.ctl("rates", corrupt_rate=1.0)
+    assert drv.cycle() is None and drv.connected and "sync read" in drv.last_error
+    emu.ctl("rates", corrupt_rate=0.0)
+    assert drv.cycle() is not None
+
+
+def test_port_loss_detected_and_reconnect_with_torque_off(emu):
+    drv = make_driver(emu, reconnect_period=0.1)
+    drv.connect()
+    drv.set_torque(True)
+    drv.command(["joint1"], [0.2])
+    drv.cycle()
+    emu.ctl("disappear", seconds=0.6)
+    t0 = time.monotonic()
+    while drv.connected:
+        drv.cycle()
+        time.sleep(0.01)
+        assert time.monotonic() - t0 < 0.5, "port loss not detected within 0.5 s"
+    assert "lost" in drv.last_error
+    st = run_until(drv, lambda s: True, 5.0, "reconnect")
+    assert drv.connected and drv.reconnects == 1 and not any(drv.bus.torque)
+    assert all(servo(emu, i)["torque_enable"] == 0 for i in range(1, 11))
+    assert st is not None
+
+
+def test_bad_commands_never_reach_the_wire(emu):
+    drv = make_driver(emu)
+    drv.connect()
+    drv.set_torque(True)
+    emu.ctl("write_log", clear=True)
+    with pytest.raises(CommandError):
+        drv.command(["joint1"], [math.nan])
+    with pytest.raises(CommandError):
+        drv.command(["bogus"], [0.1])
+    rep = drv.command(["joint1", "gripper"], [5.0, -2.0])
+    assert rep.clamped == ["joint1", "gripper"]
+    drv.cycle()
+    log = emu.ctl("write_log")["log"]
+    j1 = [r["value"] for r in log if r["id"] == 1 and r["register"] == "goal_position"]
+    g = [r["value"] for r in log if r["id"] == 10 and r["register"] == "goal_position"]
+    assert j1 and j1[-1] == drv.config.joints[0].tick_limits[1]
+    assert g and g[-1] == drv.config.joints[-1].tick_limits[0]
+    assert all(r["accepted"] for r in log)
+
+
+def _tick_bounds():
+    """Tick range of every servo, computed here from the YAML (independent of the driver)."""
+    out = {}
+    for spec in list(DESC.joints) + [DESC.gripper]:
+        s = spec.servo
+        a = 2048 + (s.direction * spec.lower + s.zero_offset) * 4096 / (2 * math.pi)
+        b = 2048 + (s.direction * spec.upper + s.zero_offset) * 4096 / (2 * math.pi)
+        out[s.id] = (min(a, b) - 1e-6, max(a, b) + 1e-6)
+    return out
+
+
+finite = hs.floats(min_value=-1e6, max_value=1e6, allow_nan=False)
+anyfloat = hs.one_of(finite, hs.sampled_from([math.nan, math.inf, -math.inf, 1e308, -0.0]))
+
+
+@hs.composite
+def commands(draw):
+    names = draw(hs.lists(hs.sampled_from(NAMES + ["rail", "bogus"]), min_size=1, max_size=6,
+                          unique=True))
+    kind = draw(hs.sampled_from(["position", "effort", "both"]))
+    pos = draw(hs.lists(anyfloat, min_size=len(names), max_size=len(names))) \
+        if kind != "effort" else []
+    eff = draw(hs.lists(anyfloat, min_size=len(names), max_size=len(names))) \
+        if kind != "position" else []
+    return names, pos, eff
+
+
+def test_property_no_generated_command_puts_a_goal_outside_limits_on_the_wire(tmp_path):
+    bounds = _tick_bounds()
+    with EmulatorProcess(workdir=tmp_path) as e:
+        drv = make_driver(e)
+        drv.connect()
+        drv.set_torque(True)
+        seen = []
+
+        @settings(max_examples=60, deadline=None,
+                  suppress_health_check=[HealthCheck.function_scoped_fixture,
+                                         HealthCheck.too_slow])
+        @given(commands())
+        def check(cmd):
+            names, pos, eff = cmd
+            try:
+                drv.command(names, pos, eff)
+            except CommandError:
+                pass
+            assert drv.cycle() is not None
+            log = e.ctl("write_log", clear=True)["log"]
+            goals = [r for r in log if r["register"] == "goal_position"]
+            assert goals, "no goal positions on the wire"
+            for r in goals:
+                lo, hi = bounds[r["id"]]
+                assert lo <= r["value"] <= hi, f"goal {r} outside [{lo:.1f}, {hi:.1f}]"
+                assert r["accepted"]
+            seen.append(len(goals))
+
+        check()
+        assert len(seen) >= 20

@@ -1,0 +1,156 @@
+"""Core tier: Protocol 2.0 codec, model table, config conversions, command validation,
+emulated servo rules (all in-process, no rclpy, no pty)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from dynamixel_sdk import Protocol2PacketHandler
+from hypothesis import given, settings
+from hypothesis import strategies as hs
+
+from hyperarm_description.model import load_description
+from hyperarm_driver.dynamixel import protocol2 as p2
+from hyperarm_driver.dynamixel.bus import DynamixelBus
+from hyperarm_driver.dynamixel.config import JointServo, bus_config_from_description
+from hyperarm_driver.dynamixel.control_table import (
+    MODELS, REGISTERS, decode_hardware_error, model_by_name, model_by_number)
+from hyperarm_driver.dynamixel.driver import DynamixelDriver
+from hyperarm_driver.dynamixel.emulator import EmulatedBus, EmulatedServo
+from hyperarm_driver.dynamixel.errors import CommandError, ConfigError, PortOpenError
+
+pytestmark = pytest.mark.core
+
+
+def test_crc_matches_the_sdk_and_a_manual_example():
+    # e-Manual example: PING ID 1 -> FF FF FD 00 01 03 00 01 19 4E
+    assert p2.build_packet(1, p2.INST_PING) == bytes.fromhex("fffffd0001030001194e")
+    ref = Protocol2PacketHandler()
+    data = bytes(range(256)) * 2
+    assert p2.crc16(data) == ref.updateCRC(0, list(data), len(data))
+
+
+@settings(max_examples=200, deadline=None)
+@given(hs.binary(max_size=64))
+def test_stuffing_round_trip_and_reader_decodes(params):
+    pkt = p2.build_packet(7, p2.INST_WRITE, params)
+    body = pkt[7:-2]
+    assert p2.unstuff(body) == bytes([p2.INST_WRITE]) + params
+    # the SDK's stuffing gives the same bytes
+    raw = list(p2.build_packet(7, p2.INST_WRITE, params, stuffing=False))
+    assert bytes(Protocol2PacketHandler().addStuffing(raw))[:-2] == pkt[:-2]
+    out = p2.PacketReader().feed(b"\x00\xff" + pkt)
+    assert out == [p2.Packet(7, p2.INST_WRITE, params)]
+
+
+def test_reader_drops_bad_crc_and_resynchronises():
+    good = p2.build_packet(3, p2.INST_READ, bytes([132, 0, 4, 0]))
+    bad = good[:-1] + bytes([good[-1] ^ 1])
+    r = p2.PacketReader()
+    got = r.feed(bad[:5]) + r.feed(bad[5:] + b"\x12" + good)
+    assert [pk.id for pk in got] == [3] and r.crc_errors == 1
+
+
+def test_model_table_and_error_decoding():
+    for name in ("XM430-W350", "XM430-W210", "XH430-W350", "XM540-W270", "MX-64", "MX-106"):
+        m = model_by_name(name)
+        assert model_by_number(m.number) is m
+        assert 0.0 < m.torque_constant and 0.0 < m.current_unit < 0.01
+    assert model_by_number(29) is None  # MX-28 1.0 is not supported
+    with pytest.raises(ValueError, match="unsupported Dynamixel model 'AX-12'"):
+        model_by_name("AX-12")
+    assert decode_hardware_error(0b110101) == [
+        "input_voltage", "overheating", "electrical_shock", "overload"]
+    assert decode_hardware_error(0b1000) == ["motor_encoder"]
+    assert REGISTERS["goal_position"].address == 116
+    assert REGISTERS["present_position"].address == 132
+    assert set(MODELS) >= {"XM430-W350", "MX-106"}
+
+
+def test_config_from_description_and_conversions():
+    desc = load_description()
+    cfg = bus_config_from_description(desc)
+    assert cfg.names == [f"joint{i}" for i in range(1, 10)] + ["gripper"]
+    assert cfg.ids == list(range(1, 11))
+    assert [j.model.name for j in cfg.joints][:3] == ["MX-106", "MX-106", "MX-64"]
+    grip = cfg.joints[-1]
+    assert grip.mode == "current_based_position" and grip.hold_effort == desc.gripper.grip_effort
+    j = JointServo("j", 1, model_by_name("XM430-W350"), -1, 0.1, -1.0, 1.0, 2.0)
+    for q in (-1.0, -0.3, 0.0, 0.77, 1.0):
+        assert j.ticks_to_rad(j.rad_to_ticks_float(q)) == pytest.approx(q, abs=1e-12)
+    lo, hi = j.tick_limits
+    assert -1.0 <= j.ticks_to_rad(lo) <= 1.0 and -1.0 <= j.ticks_to_rad(hi) <= 1.0
+    assert not -1.0 <= j.ticks_to_rad(lo - 1) <= 1.0
+    assert not -1.0 <= j.ticks_to_rad(hi + 1) <= 1.0
+    with pytest.raises(ConfigError, match="outside one servo turn"):
+        JointServo("k", 2, model_by_name("MX-64"), 1, 0.0, -4.0, 1.0, 1.0)
+    with pytest.raises(ConfigError, match="direction"):
+        JointServo("k", 2, model_by_name("MX-64"), 2, 0.0, -1.0, 1.0, 1.0)
+
+
+def _driver() -> DynamixelDriver:
+    cfg = bus_config_from_description(load_description())
+    return DynamixelDriver(DynamixelBus(cfg, "/nonexistent/ttyDXL"))
+
+
+def test_commands_are_validated_and_clamped_without_a_port():
+    d = _driver()
+    with pytest.raises(CommandError, match="non-finite"):
+        d.command(["joint1", "joint2"], [0.1, math.nan])
+    with pytest.raises(CommandError, match="non-finite"):
+        d.command(["joint1"], effort=[math.inf])
+    with pytest.raises(CommandError, match="no joint of this driver"):
+        d.command(["elbow"], [0.1])
+    with pytest.raises(CommandError, match="duplicate"):
+        d.command(["joint1", "joint1"], [0.1, 0.2])
+    with pytest.raises(CommandError, match="2 positions"):
+        d.command(["joint1"], [0.1, 0.2])
+    assert d.goal_position[0] == 0.0  # nothing applied by the rejected commands
+    rep = d.command(["joint1", "rail", "gripper"], [10.0, 0.3, -1.0])
+    assert rep.clamped == ["joint1", "gripper"]
+    assert d.goal_position[0] == d.upper[0] and d.goal_position[-1] == 0.0
+    rep = d.command(["joint3"], effort=[100.0])
+    assert rep.effort_clamped == ["joint3"] and d.control[2] == "current"
+    d.command(["joint4"], [0.2], [1.5])
+    assert d.control[3] == "current_based_position" and d.goal_effort[3] == 1.5
+
+
+def test_bus_goal_conversion_clamps_into_tick_limits():
+    cfg = bus_config_from_description(load_description())
+    bus = DynamixelBus(cfg, "/nonexistent")
+    q = np.array([100.0, -100.0] + [0.0] * 8)
+    t = bus.goal_ticks(q)
+    assert t[0] == cfg.joints[0].tick_limits[1] and t[1] == cfg.joints[1].tick_limits[0]
+    assert t[2] == 2048
+    c = bus.goal_current(np.array([1e3] + [0.0] * 9))
+    assert c[0] == cfg.joints[0].model.current_limit
+    with pytest.raises(PortOpenError, match="baud rate 12345"):
+        DynamixelBus(cfg, "/dev/null", 12345)
+
+
+def _status(bus: EmulatedBus, pkt: bytes) -> list[p2.Packet]:
+    return p2.PacketReader().feed(b"".join(bus.feed(pkt, now=0.0)))
+
+
+def test_emulated_servo_enforces_firmware_rules():
+    bus = EmulatedBus([EmulatedServo(1, model_by_name("XM430-W350"))])
+    (ping,) = _status(bus, p2.build_packet(1, p2.INST_PING))
+    assert ping.params[1] | ping.params[2] << 8 == 1020
+    # goal outside Min/Max Position Limit: Data Limit Error, not applied
+    _status(bus, p2.build_packet(1, p2.INST_WRITE, bytes([48, 0]) + (3000).to_bytes(4, "little")))
+    (st,) = _status(bus, p2.build_packet(1, p2.INST_WRITE, bytes([116, 0])
+                                         + (3500).to_bytes(4, "little")))
+    assert st.error == p2.ERR_DATA_LIMIT and bus.servos[1].get("goal_position") == 2048
+    # EEPROM with torque on: Access Error
+    _status(bus, p2.build_packet(1, p2.INST_WRITE, bytes([64, 0, 1])))
+    (st,) = _status(bus, p2.build_packet(1, p2.INST_WRITE, bytes([11, 0, 0])))
+    assert st.error == p2.ERR_ACCESS and bus.servos[1].get("operating_mode") == 3
+    # overload: torque off, alert bit in every status, torque on refused
+    bus.servos[1].raise_error(0x20)
+    (st,) = _status(bus, p2.build_packet(1, p2.INST_WRITE, bytes([64, 0, 1])))
+    assert st.error == p2.ERRBIT_ALERT | p2.ERR_RESULT_FAIL
+    assert bus.servos[1].get("torque_enable") == 0
+    # unknown instruction
+    (st,) = _status(bus, p2.build_packet(1, 0x77))
+    assert st.error & 0x7F == p2.ERR_INSTRUCTION
