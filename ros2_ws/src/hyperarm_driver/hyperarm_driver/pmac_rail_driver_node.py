@@ -109,24 +109,24 @@ class PmacRailDriver(Node):
         return values
 
     def _on_event(self, level: str, message: str) -> None:
-        log = self.get_logger()
-        {"info": log.info, "warn": log.warning}.get(level, log.error)(message)
+        # (rclpy fixes one severity per call site: one call per level)
+        if level == "info":
+            self.get_logger().info(message)
+        elif level == "warn":
+            self.get_logger().warning(message)
+        else:
+            self.get_logger().error(message)
 
     # -- topics ---------------------------------------------------------------------------
     def _on_command(self, msg: JointState) -> None:
         names = list(msg.name)
         if self._joint not in names:
             return                     # other drivers' joints
-        if names.count(self._joint) > 1:
-            self.get_logger().error(f"joint_command rejected: {self._joint!r} named twice",
-                                    throttle_duration_sec=1.0)
-            return
-        if len(msg.position) != len(names):
-            self.get_logger().error(
-                f"joint_command rejected: {len(msg.position)} positions for {len(names)} names",
-                throttle_duration_sec=1.0)
-            return
         try:
+            if names.count(self._joint) > 1:
+                self._driver.reject(f"{self._joint!r} named twice in one joint_command")
+            if len(msg.position) != len(names):
+                self._driver.reject(f"{len(msg.position)} positions for {len(names)} names")
             self._driver.set_target(msg.position[names.index(self._joint)])
         except RailError as exc:
             self.get_logger().error(f"rail setpoint rejected, nothing sent: {exc}",

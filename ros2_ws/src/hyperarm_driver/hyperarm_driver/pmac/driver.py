@@ -13,10 +13,11 @@ from __future__ import annotations
 
 import threading
 import time
+import traceback
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, NoReturn
 
 from .axis import RailAxis, RailState
 from .errors import PmacCommandError, PmacError, PmacLinkError, PmacProtocolError, \
@@ -123,7 +124,7 @@ class RailDriver:
         self.reconnect_period = float(reconnect_period)
         self.require_homing = bool(require_homing)
         self.configure_card = bool(configure_card)
-        self._log = log or (lambda level, msg: None)
+        self._logger = log
         self._lock = threading.Lock()
         self._wake = threading.Event()
         self._stop = threading.Event()
@@ -134,6 +135,14 @@ class RailDriver:
         self._snap = DriverSnapshot(False, None, 0.0, float("nan"), 0, 0, "not connected yet",
                                     getattr(self.client, "endpoint", "?"), axis.motor)
         self._ever_connected = False
+
+    def _log(self, level: str, message: str) -> None:
+        if self._logger is None:
+            return
+        try:
+            self._logger(level, message)
+        except Exception:  # noqa: BLE001 - a logging problem must not stop the worker
+            traceback.print_exc()
 
     # -- life cycle -----------------------------------------------------------------------
     def start(self) -> None:
@@ -179,14 +188,18 @@ class RailDriver:
                 raise RailCommandError("homing in progress")
             if self.require_homing and not st.home_complete:
                 raise RailCommandError("rail not homed; call rail/home first")
-        except RailCommandError:
-            with self._lock:
-                self._snap = _replace(self._snap, rejected_setpoints=self._snap.rejected_setpoints + 1)
-            raise
+        except RailCommandError as exc:
+            self.reject(str(exc))
         with self._lock:
             self._target = x
         self._wake.set()
         return x
+
+    def reject(self, reason: str) -> NoReturn:
+        """Count a refused setpoint (shown in diagnostics) and raise RailCommandError."""
+        with self._lock:
+            self._snap = _replace(self._snap, rejected_setpoints=self._snap.rejected_setpoints + 1)
+        raise RailCommandError(reason)
 
     def request(self, kind: str, timeout: float = 2.0) -> str:
         """Run ``home`` / ``hold`` / ``enable`` / ``kill`` on the worker; wait for it.
@@ -229,6 +242,11 @@ class RailDriver:
                 continue
             except PmacCommandError as exc:
                 self._note_error(str(exc), "error")
+            except Exception as exc:  # noqa: BLE001 - a bug: report it, resync, keep running
+                self._log("error", f"internal error in the rail driver: {exc!r}\n"
+                                   f"{traceback.format_exc()}")
+                self._link_lost(exc)
+                continue
             self._wake.wait(max(0.0, next_poll - time.monotonic()))
             self._wake.clear()
 

@@ -1,0 +1,220 @@
+"""pmac_rail_driver in-process (executor) and end to end (installed executables), against the
+PMAC emulator on loopback."""
+from __future__ import annotations
+
+import math
+import re
+import time
+
+import pytest
+
+from hyperarm_description import contract
+from hyperarm_description.qos import qos_for
+from hyperarm_driver.pmac.emulator import PmacEmulator
+
+CPM = 200000.0
+
+
+@pytest.fixture
+def emu():
+    with PmacEmulator(start_position=2000, limits=(-0.2 * CPM, 0.2 * CPM)) as e:
+        e.motor(1).ivars[23] = -20.0           # fast home search toward the switch
+        yield e
+
+
+class Probe:
+    """A test-side node: joint_states/diagnostics recorder, command publisher, service client."""
+
+    def __init__(self, context, executor) -> None:
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from sensor_msgs.msg import JointState
+        from std_srvs.srv import SetBool, Trigger
+
+        self.node = rclpy.create_node("probe", namespace=contract.DEFAULT_NAMESPACE,
+                                      context=context)
+        self.states: list = []
+        self.diags: list = []
+        self.node.create_subscription(JointState, contract.JOINT_STATES, self.states.append,
+                                      qos_for(contract.JOINT_STATES))
+        self.node.create_subscription(DiagnosticArray, contract.DIAGNOSTICS,
+                                      lambda m: self.diags.extend(m.status),
+                                      qos_for(contract.DIAGNOSTICS))
+        self.pub = self.node.create_publisher(JointState, contract.JOINT_COMMAND,
+                                              qos_for(contract.JOINT_COMMAND))
+        self.clients = {"home": self.node.create_client(Trigger, contract.RAIL_HOME),
+                        "hold": self.node.create_client(Trigger, contract.HOLD),
+                        "torque": self.node.create_client(SetBool, contract.SET_TORQUE)}
+        self._types = {"home": Trigger, "hold": Trigger, "torque": SetBool}
+        executor.add_node(self.node)
+
+    def call(self, name: str, wait_for, data: bool | None = None):
+        cli = self.clients[name]
+        wait_for(cli.service_is_ready, 10.0, what=f"service {cli.srv_name}")
+        req = self._types[name].Request()
+        if data is not None:
+            req.data = data
+        fut = cli.call_async(req)
+        wait_for(fut.done, 5.0, what=f"answer of {cli.srv_name}")
+        return fut.result()
+
+    def command(self, names, positions) -> None:
+        from sensor_msgs.msg import JointState
+        self.pub.publish(JointState(name=list(names), position=[float(p) for p in positions]))
+
+    def rail(self) -> float | None:
+        for m in reversed(self.states):
+            if "rail" in m.name:
+                return m.position[list(m.name).index("rail")]
+        return None
+
+    def diag(self) -> dict | None:
+        if not self.diags:
+            return None
+        d = self.diags[-1]
+        return {"level": d.level[0], "message": d.message, **{kv.key: kv.value for kv in d.values}}
+
+
+def make_node(rclpy_context, executor, **params):
+    from rclpy.parameter import Parameter
+
+    from hyperarm_driver.pmac_rail_driver_node import PmacRailDriver
+
+    node = PmacRailDriver(context=rclpy_context, parameter_overrides=[
+        Parameter(k, value=v) for k, v in params.items()])
+    executor.add_node(node)
+    return node
+
+
+@pytest.mark.node
+def test_node_homing_setpoints_and_services(rclpy_context, executor, emu, wait_for) -> None:
+    make_node(rclpy_context, executor, port=emu.port, rate=50.0, diagnostics_period=0.1)
+    probe = Probe(rclpy_context, executor)
+    wait_for(lambda: probe.rail() is not None, 10.0, what="rail on joint_states")
+    assert probe.rail() == pytest.approx(0.01)
+    m = probe.states[-1]
+    assert list(m.name) == ["rail"] and len(m.velocity) == 1 and len(m.effort) == 0
+    wait_for(lambda: (d := probe.diag()) and d["link"] == "up", 5.0, what="diagnostics")
+    d = probe.diag()
+    assert d["level"] == 1 and "torque off" in d["message"] and d["homed"] == "false"
+
+    # refused before torque and homing: nothing sent, the motor does not move
+    probe.command(["rail"], [0.05])
+    r = probe.call("home", wait_for)
+    assert not r.success and "torque" in r.message
+    assert probe.call("torque", wait_for, data=True).success
+    probe.command(["rail"], [0.05])
+    r = probe.call("home", wait_for)
+    assert r.success, r.message
+    wait_for(lambda: (d := probe.diag()) and d["homed"] == "true" and d["level"] == 0, 5.0,
+             what="homed, level OK")
+    assert emu.motor(1).mode == "idle"         # the early setpoints were never sent
+    wait_for(lambda: abs(probe.rail()) < 1e-6, 2.0, what="rail at 0 after homing")
+    assert int(probe.diag()["rejected_setpoints"]) == 2
+
+    # a mixed command: only the rail entry is applied, other joints ignored silently
+    probe.command(["joint1", "rail", "gripper"], [0.3, 0.04, 0.01])
+    wait_for(lambda: abs(probe.rail() - 0.04) < 1e-6, 3.0, what="rail at 0.04 m")
+    probe.command(["joint1"], [0.5])           # no rail: ignored
+    # out of range / non-finite / malformed: rejected, nothing sent
+    requests = emu.requests
+    for i, (names, pos) in enumerate(((["rail"], [1.7]), (["rail"], [math.nan]),
+                                      (["rail"], [-math.inf]), (["rail", "rail"], [0.1, 0.1]),
+                                      (["joint1", "rail"], [0.1]))):
+        probe.command(names, pos)    # (one at a time: joint_command keeps only the newest)
+        wait_for(lambda: int(probe.diag()["rejected_setpoints"]) == 3 + i, 2.0,
+                 what=f"rejection of {names} {pos}")
+    time.sleep(0.1)
+    assert emu.motor(1).mode == "idle" and emu.motor(1).target == pytest.approx(0.04 * CPM)
+    assert emu.requests > requests               # (polling went on meanwhile)
+
+    # hold during a move stops short of the target
+    probe.command(["rail"], [-0.15])
+    wait_for(lambda: probe.rail() < 0.0, 3.0, what="moving toward -0.15")
+    assert probe.call("hold", wait_for).success
+    wait_for(lambda: emu.motor(1).mode == "idle", 2.0, what="held")
+    assert probe.rail() > -0.15 + 0.01
+
+    # torque off: killed, WARN, setpoints refused
+    r = probe.call("torque", wait_for, data=False)
+    assert r.success and "killed" in r.message
+    wait_for(lambda: (d := probe.diag()) and d["amp_enabled"] == "false" and d["level"] == 1,
+             2.0, what="killed in diagnostics")
+    assert not probe.call("hold", wait_for).success
+
+
+@pytest.mark.node
+def test_node_reports_faults(rclpy_context, executor, emu, wait_for) -> None:
+    make_node(rclpy_context, executor, port=emu.port, diagnostics_period=0.1,
+              require_homing=False)
+    probe = Probe(rclpy_context, executor)
+    wait_for(lambda: (d := probe.diag()) and d["link"] == "up", 10.0, what="link up")
+    assert probe.call("torque", wait_for, data=True).success
+    probe.command(["rail"], [0.01])              # homing not required here
+    wait_for(lambda: probe.rail() is not None and abs(probe.rail() - 0.01) < 1e-6, 3.0,
+             what="rail moved without homing")
+    emu.set_disturbance(1, 2500)                 # fatal following error
+    wait_for(lambda: (d := probe.diag()) and d["fatal_following_error"] == "true", 2.0,
+             what="fatal following error reported")
+    assert probe.diag()["level"] == 2 and "following error" in probe.diag()["message"]
+    emu.set_disturbance(1, 0)
+    emu.set_amp_fault(1, True)
+    r = probe.call("torque", wait_for, data=True)
+    assert not r.success and "amp_fault" in r.message
+    wait_for(lambda: (d := probe.diag()) and d["amp_fault"] == "true" and d["level"] == 2,
+             2.0, what="amp fault reported")
+    emu.set_amp_fault(1, False)
+    assert probe.call("torque", wait_for, data=True).success
+    probe.command(["rail"], [0.3])               # beyond the emulator's +0.2 m switch
+    wait_for(lambda: (d := probe.diag()) and d["pos_limit"] == "true", 3.0,
+             what="positive limit switch reported")
+    assert probe.diag()["level"] == 1 and "positive limit" in probe.diag()["message"]
+
+
+@pytest.mark.node
+def test_node_link_loss_and_reconnect(rclpy_context, executor, emu, wait_for) -> None:
+    make_node(rclpy_context, executor, port=emu.port, diagnostics_period=0.1,
+              reconnect_period=0.1)
+    probe = Probe(rclpy_context, executor)
+    wait_for(lambda: (d := probe.diag()) and d["link"] == "up", 10.0, what="link up")
+    emu.refuse = True
+    emu.drop_connections()
+    t0 = time.monotonic()
+    wait_for(lambda: probe.diag()["link"] == "down", 2.0, what="link down in diagnostics")
+    assert time.monotonic() - t0 < 0.5 + 0.1 + 0.1   # detection + diagnostics period + slack
+    assert probe.diag()["level"] == 2
+    n = len(probe.states)
+    r = probe.call("hold", wait_for)
+    assert not r.success and "link down" in r.message
+    time.sleep(0.2)
+    assert len(probe.states) == n                  # no stale joint_states while down
+    emu.refuse = False
+    wait_for(lambda: probe.diag()["link"] == "up", 3.0, what="link up again")
+    wait_for(lambda: len(probe.states) > n, 2.0, what="joint_states again")
+    assert probe.diag()["reconnects"] == "1"
+
+
+@pytest.mark.node
+@pytest.mark.parametrize("params", [dict(rate=1000.0), dict(timeout=0.5), dict(motor=33),
+                                    dict(variant="arm"), dict(counts_per_metre=math.nan)])
+def test_node_rejects_bad_parameters(rclpy_context, params) -> None:
+    from rclpy.parameter import Parameter
+
+    from hyperarm_driver.pmac_rail_driver_node import PmacRailDriver
+
+    with pytest.raises(SystemExit, match="pmac_rail_driver"):
+        PmacRailDriver(context=rclpy_context, parameter_overrides=[
+            Parameter(k, value=v) for k, v in params.items()])
+
+
+@pytest.mark.e2e
+def test_installed_emulator_and_driver(launch, rclpy_context, executor, wait_for) -> None:
+    emu = launch("hyperarm_driver", "pmac_emulator", "--port", "0", "--start-position", "2000")
+    port = wait_for(lambda: re.search(r"127\.0\.0\.1:(\d+)", emu.output()), 10.0,
+                    what="emulator port").group(1)
+    drv = launch("hyperarm_driver", "pmac_rail_driver", params={"port": int(port)})
+    probe = Probe(rclpy_context, executor)
+    wait_for(lambda: probe.rail() is not None, 20.0, what="rail on joint_states")
+    assert probe.rail() == pytest.approx(0.01)
+    assert probe.call("torque", wait_for, data=True).success
+    wait_for(lambda: "connected to PMAC" in drv.output(), 5.0, what="driver log")
