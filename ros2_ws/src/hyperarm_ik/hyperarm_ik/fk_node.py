@@ -11,6 +11,7 @@ from hyperarm_description.joints import JointStateCache, JointStateError
 from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import declare_robot_description, run_node
 
+from .errors import IKError
 from .kinematics import Kinematics
 from .ros_conversions import matrix_to_pose
 
@@ -38,10 +39,15 @@ class FkNode(Node):
         except JointStateError as exc:
             self.get_logger().warn(f"joint_states: {exc}", throttle_duration_sec=5.0)
             return
+        try:
+            pose = matrix_to_pose(self._kin.forward(np.asarray(q)))
+        except IKError as exc:
+            self.get_logger().warn(f"joint_states: {exc}", throttle_duration_sec=5.0)
+            return
         out = PoseStamped()
         out.header.stamp = msg.header.stamp
         out.header.frame_id = self._kin.desc.root_frame
-        out.pose = matrix_to_pose(self._kin.forward(np.asarray(q)))
+        out.pose = pose
         self._pub.publish(out)
 
 

@@ -4,8 +4,9 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 from geometry_msgs.msg import Pose
+from sensor_msgs.msg import JointState
 
-__all__ = ["matrix_to_pose", "pose_to_matrix"]
+__all__ = ["matrix_to_pose", "pose_to_matrix", "joint_state"]
 
 
 def matrix_to_pose(t: np.ndarray) -> Pose:
@@ -26,3 +27,11 @@ def pose_to_matrix(p: Pose) -> np.ndarray:
     t[:3, :3] = q.toRotationMatrix()
     t[:3, 3] = (p.position.x, p.position.y, p.position.z)
     return t
+
+
+def joint_state(names, positions) -> JointState:
+    """sensor_msgs/JointState with ``names`` and ``positions`` (rad, rail m); no stamp."""
+    out = JointState()
+    out.name = list(names)
+    out.position = [float(v) for v in positions]
+    return out

@@ -51,9 +51,13 @@ class AugmentedSolver(WlnSolver):
         self._f_star = np.array([float(shoulder), float(elbow), 0.0])
         self._rail_dir = kin.rail_direction / np.linalg.norm(kin.rail_direction)
 
-    def _solve(self, p, r, q0, position_only, ptol, otol, deadline):
+    def _rail_target(self, p: np.ndarray) -> float:
+        """d* (m): the target's projection on the rail minus rail_offset, within travel."""
         d = float(np.dot(p - self.kin.shoulder_origin, self._rail_dir)) - self.rail_offset
-        self._f_star[2] = min(max(d, self.kin.lower[self._i_rail]), self.kin.upper[self._i_rail])
+        return min(max(d, self.kin.lower[self._i_rail]), self.kin.upper[self._i_rail])
+
+    def _solve(self, p, r, q0, position_only, ptol, otol, deadline):
+        self._f_star[2] = self._rail_target(p)
         return super()._solve(p, r, q0, position_only, ptol, otol, deadline)
 
     def _direction(self, q, j, e):

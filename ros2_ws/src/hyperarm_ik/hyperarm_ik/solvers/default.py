@@ -108,7 +108,8 @@ class DefaultSolver(Solver):
         lo, hi, rmin = self._lo, self._hi, self._rmin
         soft_rmin = self._soft_rmin
         max_step2 = self.max_step * self.max_step
-        need_z = self.limit_gain > 0.0 or self.preferred is not None
+        need_limit_z = self.limit_gain > 0.0
+        always_z = self.preferred is not None and self.preferred_gain > 0.0
         eye = self._eye3 if position_only else self._eye6
         best_q, best_cost = q, np.inf
         window_cost = np.inf
@@ -144,7 +145,7 @@ class DefaultSolver(Solver):
                     return best_q, best_cost, it, None
             lam = c * float(e @ e) + self.lambda0
             z = None
-            if need_z and not (qmin >= -soft_rmin and qmax <= soft_rmin):
+            if always_z or (need_limit_z and not (qmin >= -soft_rmin and qmax <= soft_rmin)):
                 z = self._z(q)
             winv = None
             for _ in range(2):  # second pass only if the clip bound a joint

@@ -9,8 +9,10 @@
 
 Interpretations (see docs/ik.md):
 - "Distance" is the position distance |p0 - p| (m) for position_only requests; for full
-  pose requests it is |p0 - p| + rho * angle(R0, R) with rho = 0.1 m/rad (1 deg ~ 1.7 mm),
-  and step 5 requires both tolerances.
+  pose requests it is sqrt(|p0 - p|^2 + (rho * angle(R0, R))^2) with rho = 0.1 m/rad
+  (1 deg ~ 1.7 mm), and step 5 requires both tolerances. (The plain sum |dp| + rho*angle
+  has a kink at dp = 0 where no single-joint move improves the orientation: the search
+  stalls there; the root-sum-square does not.)
 - "Without exceeding the limits": a move is clipped at the limit (a joint already on its
   limit cannot move further), so every returned configuration is within limits.
 - The solver gives up when dtheta < 1e-9 rad (no joint move improves) or at the timeout.
@@ -65,7 +67,7 @@ class HeuristicSolver(Solver):
                 oerr = math.acos(min(1.0, max(-1.0, c)))
                 perr = float(np.linalg.norm(dp))
             if cost is None:
-                cost = perr + self.rho * oerr
+                cost = math.hypot(perr, self.rho * oerr)
             if perr <= ptol and oerr <= otol:
                 return q, it - 1, ""
             if time.perf_counter() > deadline:
@@ -111,4 +113,4 @@ class HeuristicSolver(Solver):
         t = c[:, 0] * tr + s[:, 0] * (w @ vee) + (1.0 - c[:, 0]) * wmw
         t = np.where(rev[idx], t, tr)  # the rail does not rotate tool0
         ang = np.arccos(np.clip((t - 1.0) * 0.5, -1.0, 1.0))
-        return costs + self.rho * ang
+        return np.hypot(costs, self.rho * ang)

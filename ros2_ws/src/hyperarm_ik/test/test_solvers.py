@@ -1,0 +1,281 @@
+"""Every IK solver: success paths, failure paths, honesty of the result, input checks."""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from hyperarm_ik.errors import (IKError, InvalidOptionError, InvalidSeedError,
+                                InvalidTargetError, UnknownSolverError,
+                                UnsupportedVariantError)
+from hyperarm_ik.kinematics import Kinematics, rotation_angle
+from hyperarm_ik.solvers import SOLVERS, make_solver, solver_names
+from hyperarm_ik.solvers.heuristic import HeuristicSolver
+from hyperarm_ik.solvers.wln import limit_gradient
+
+pytestmark = pytest.mark.core
+
+ARM = Kinematics()
+RAIL = Kinematics(variant="rail_arm")
+KINS = {"arm": ARM, "rail_arm": RAIL}
+CASES = [(v, n) for v in KINS for n in solver_names(v)]
+
+
+def _target(kin, q):
+    t = kin.forward(q)
+    return t[:3, 3].copy(), t[:3, :3].copy()
+
+
+def _check_honest(kin, res, p, r, ptol, otol, position_only=False):
+    """The result's errors and success follow from its joints."""
+    t = kin.forward(res.q)
+    perr = float(np.linalg.norm(t[:3, 3] - p))
+    oerr = rotation_angle(r, t[:3, :3])
+    assert res.position_error == pytest.approx(perr, abs=1e-12)
+    assert res.orientation_error == pytest.approx(oerr, abs=1e-9)
+    within = kin.within_limits(res.q)
+    assert res.violations == kin.limit_violations(res.q)
+    expected = perr <= ptol and (position_only or oerr <= otol) and within
+    assert res.success == expected
+    assert ("not solved" in res.message) == (not res.success)
+
+
+def _consistent_with_constraints(q):
+    """q with alpha = joint2 = 0, beta = joint4 + joint5 = 0, and the augmented solver's
+    rail_offset chosen so that d* equals q's rail value (Jia eq. 4 all satisfied)."""
+    q = q.copy()
+    names = RAIL.joint_names
+    q[names.index("joint2")] = 0.0
+    q[names.index("joint5")] = -q[names.index("joint4")]
+    p, _ = _target(RAIL, q)
+    offset = float(p[0] - RAIL.shoulder_origin[0]) - q[0]  # the arm's own reach along x
+    return q, {"rail_offset": offset}
+
+
+@pytest.mark.parametrize("variant,name", CASES)
+def test_solver_reaches_a_nearby_target(variant, name):
+    kin = KINS[variant]
+    rng = np.random.default_rng(10)
+    q_true = rng.uniform(kin.lower, kin.upper) * 0.6
+    options = {}
+    if name == "augmented":  # a pose consistent with the configuration constraints
+        q_true, options = _consistent_with_constraints(q_true)
+    p, r = _target(kin, q_true)
+    seed = q_true + rng.normal(0.0, 0.03, kin.nq)
+    solver = make_solver(name, kin, **options)
+    res = solver.solve(p, r, seed, position_tolerance=1e-3, orientation_tolerance=1e-2,
+                       timeout=5.0)
+    assert res.success, res.message
+    assert res.position_error <= 1e-3 and res.orientation_error <= 1e-2
+    _check_honest(kin, res, p, r, 1e-3, 1e-2)
+
+
+@pytest.mark.parametrize("variant,name", CASES)
+def test_out_of_reach_target_fails_honestly(variant, name):
+    kin = KINS[variant]
+    p = kin.shoulder_origin + np.array([0.0, 0.3, kin.reach + 0.2])
+    solver = make_solver(name, kin)
+    res = solver.solve(p, np.eye(3), None, position_tolerance=1e-3, orientation_tolerance=1e-2,
+                       timeout=0.3)
+    assert not res.success
+    assert res.position_error >= 0.2 - 1e-9
+    assert "not solved" in res.message
+    _check_honest(kin, res, p, np.eye(3), 1e-3, 1e-2)
+
+
+def test_default_says_out_of_reach_at_once_with_a_best_effort():
+    solver = make_solver("default", ARM)
+    p = np.array([0.9, 0.2, 0.3])
+    res = solver.solve(p, np.eye(3), None, timeout=1.0)
+    assert res.reachable is False and "out of reach" in res.message
+    assert res.solve_time < 0.5  # decided by the reach bound, not by the 1 s timeout
+    # best effort: the arm points at the target (closest point at most the excess away)
+    assert res.position_error <= ARM.reach_excess(p) + 0.05
+    assert ARM.within_limits(res.q)
+
+
+def test_pinv_reports_joint_limit_violations():
+    q_true = np.zeros(9)
+    q_true[[1, 3, 5]] = [0.4, math.radians(170), -0.6]  # joint4 beyond its 150 deg limit
+    p, r = _target(ARM, q_true)
+    res = make_solver("pinv", ARM).solve(p, r, q_true + 0.01, position_tolerance=1e-4,
+                                         orientation_tolerance=1e-3)
+    assert res.position_error <= 1e-4  # it converged ...
+    assert "joint4" in res.violations  # ... outside the limits
+    assert not res.success and "outside joint limits: joint4" in res.message
+
+
+@pytest.mark.parametrize("name", ["default", "heuristic", "wln"])
+def test_limit_respecting_solvers_never_return_violations(name):
+    q_true = np.zeros(9)
+    q_true[[1, 3, 5]] = [0.4, math.radians(170), -0.6]
+    p, r = _target(ARM, q_true)
+    seed = q_true.copy()  # even a seed outside the limits
+    res = make_solver(name, ARM).solve(p, r, seed, position_tolerance=1e-3,
+                                       orientation_tolerance=1e-2, timeout=0.5)
+    assert res.violations == [] and ARM.within_limits(res.q)
+    _check_honest(ARM, res, p, r, 1e-3, 1e-2)
+
+
+@pytest.mark.parametrize("name", ["heuristic", "default", "pinv"])
+def test_sub_second_timeout_is_honoured(name):
+    # a reachable pose at a tolerance below floating-point resolution: it keeps searching
+    p, r = _target(ARM, np.full(9, 0.3))
+    res = make_solver(name, ARM).solve(p, r, None, position_tolerance=1e-300,
+                                       orientation_tolerance=1e-300, timeout=0.05)
+    assert not res.success
+    assert res.solve_time < 0.05 + 0.1
+
+
+def test_default_solves_random_targets_cold_from_the_ready_pose():
+    rng = np.random.default_rng(3)
+    solver = make_solver("default", ARM)
+    for _ in range(25):
+        p, r = _target(ARM, rng.uniform(ARM.lower, ARM.upper))
+        res = solver.solve(p, r, None, position_tolerance=1e-5, orientation_tolerance=1e-4,
+                           timeout=1.0)
+        assert res.success, res.message
+        _check_honest(ARM, res, p, r, 1e-5, 1e-4)
+
+
+def test_default_solves_random_targets_on_the_rail():
+    rng = np.random.default_rng(4)
+    solver = make_solver("default", RAIL)
+    for _ in range(15):
+        p, r = _target(RAIL, rng.uniform(RAIL.lower, RAIL.upper))
+        res = solver.solve(p, r, None, position_tolerance=1e-4, orientation_tolerance=1e-3,
+                           timeout=1.0)
+        assert res.success, res.message
+
+
+def test_position_only_reports_the_orientation_error_too():
+    rng = np.random.default_rng(5)
+    p, r = _target(ARM, rng.uniform(ARM.lower, ARM.upper))
+    res = make_solver("default", ARM).solve(p, None, None, position_only=True,
+                                            position_tolerance=1e-5)
+    assert res.success and res.position_error <= 1e-5
+    _check_honest(ARM, res, p, np.eye(3), 1e-5, 1e-3, position_only=True)
+    assert res.orientation_error > 1e-3  # free orientation: identity is not implied
+
+
+def test_warm_started_tracking_has_no_joint_jumps():
+    solver = make_solver("default", ARM)
+    q = np.zeros(9)
+    q[[1, 3, 5]] = [0.5, -0.8, 0.6]
+    p0, r = _target(ARM, q)
+    seed = q
+    for s in np.linspace(0.0, 0.1, 60):
+        res = solver.solve(p0 + np.array([0.0, s, -0.5 * s]), r, seed,
+                           position_tolerance=1e-5, orientation_tolerance=1e-4)
+        assert res.success, res.message
+        assert np.abs(res.q - seed).max() < 0.05
+        seed = res.q
+
+
+def test_preferred_posture_is_used_in_the_redundancy():
+    q_pref = np.array([0.3, 0.4, -0.3, -0.5, 0.2, 0.6, -0.2, 0.3, 0.1])
+    p, _ = _target(ARM, q_pref + np.array([0.1, -0.1, 0.1, 0, 0, 0, 0, 0, 0]))
+    plain = make_solver("default", ARM).solve(p, None, None, position_only=True,
+                                              position_tolerance=1e-5)
+    pref = make_solver("default", ARM, preferred=q_pref, preferred_gain=0.3).solve(
+        p, None, None, position_only=True, position_tolerance=1e-5)
+    assert plain.success and pref.success
+    assert np.linalg.norm(pref.q - q_pref) < 0.5 * np.linalg.norm(plain.q - q_pref)
+
+
+def test_heuristic_candidate_moves_match_forward_kinematics():
+    for kin in (ARM, RAIL):
+        solver = HeuristicSolver(kin)
+        rng = np.random.default_rng(6)
+        q = rng.uniform(kin.lower, kin.upper) * 0.8
+        p, r = _target(kin, rng.uniform(kin.lower, kin.upper))
+        idx = np.concatenate((np.arange(kin.nq), np.arange(kin.nq)))
+        delta = np.concatenate((np.full(kin.nq, 0.3), np.full(kin.nq, -0.2)))
+        pq, rq, j = kin.pose_jacobian_view(q)
+        costs = solver._candidate_costs(p, r, pq.copy(), rq.copy(), j, idx, delta,
+                                        kin.revolute, False)
+        for k in range(2 * kin.nq):
+            qk = q.copy()
+            qk[idx[k]] += delta[k]
+            t = kin.forward(qk)
+            expected = math.hypot(np.linalg.norm(p - t[:3, 3]),
+                                  solver.rho * rotation_angle(r, t[:3, :3]))
+            assert costs[k] == pytest.approx(expected, abs=1e-9)
+
+
+def test_wln_gradient_is_the_derivative_of_chans_criterion():
+    lo, hi = ARM.lower, ARM.upper
+
+    def h(q):
+        return np.sum((hi - lo) ** 2 / (4.0 * (hi - q) * (q - lo)))
+
+    q = np.linspace(-2.0, 2.3, 9)
+    eps = 1e-7
+    num = np.array([(h(q + eps * np.eye(9)[i]) - h(q - eps * np.eye(9)[i])) / (2 * eps)
+                    for i in range(9)])
+    np.testing.assert_allclose(limit_gradient(q, lo, hi), num, rtol=1e-5)
+
+
+def test_augmented_pulls_the_configuration_functions_to_their_targets():
+    q_true = np.array([0.3, 0.2, 0.0, 0.3, 0.4, -0.4, 0.5, -0.3, 0.4, 0.1])
+    q_true, options = _consistent_with_constraints(q_true)
+    solver = make_solver("augmented", RAIL, **options)
+    p, r = _target(RAIL, q_true)
+    seed = q_true + np.random.default_rng(7).normal(0, 0.08, 10)  # constraints violated
+    names = RAIL.joint_names
+    assert abs(seed[names.index("joint2")]) > 0.01
+    res = solver.solve(p, r, seed, position_tolerance=1e-5, orientation_tolerance=1e-4)
+    assert res.success, res.message
+    assert abs(res.q[names.index("joint2")]) < 1e-3
+    assert abs(res.q[names.index("joint4")] + res.q[names.index("joint5")]) < 1e-3
+    assert abs(res.q[0] - q_true[0]) < 1e-3
+
+
+# --- validation -----------------------------------------------------------------------------
+def test_unknown_solver_lists_the_valid_names():
+    with pytest.raises(UnknownSolverError, match="valid: default, pinv"):
+        make_solver("trac_ik", ARM)
+    assert isinstance(UnknownSolverError("x"), IKError)
+
+
+def test_augmented_needs_the_rail():
+    with pytest.raises(UnsupportedVariantError, match="rail_arm"):
+        make_solver("augmented", ARM)
+    assert "augmented" not in solver_names("arm") and "augmented" in solver_names("rail_arm")
+
+
+@pytest.mark.parametrize("name", sorted(set(SOLVERS) - {"augmented"}))
+def test_malformed_requests_are_refused_with_a_precise_error(name):
+    s = make_solver(name, ARM)
+    p = np.array([0.3, 0.1, 0.2])
+    with pytest.raises(InvalidTargetError, match="not finite"):
+        s.solve(np.array([0.3, np.nan, 0.2]), np.eye(3))
+    with pytest.raises(InvalidTargetError, match="needs 3 values"):
+        s.solve(np.zeros(4), np.eye(3))
+    with pytest.raises(InvalidTargetError, match="proper rotation"):
+        s.solve(p, np.diag([1.0, 1.0, -1.0]))
+    with pytest.raises(InvalidTargetError, match="proper rotation"):
+        s.solve(p, np.eye(3) * 1.1)
+    with pytest.raises(InvalidTargetError, match="rotation is not finite"):
+        s.solve(p, np.full((3, 3), np.inf))
+    with pytest.raises(InvalidTargetError, match="required unless position_only"):
+        s.solve(p, None)
+    with pytest.raises(InvalidSeedError, match="seed needs 9 values"):
+        s.solve(p, np.eye(3), np.zeros(10))
+    with pytest.raises(InvalidSeedError, match="joint3"):
+        s.solve(p, np.eye(3), np.array([0, 0, np.inf, 0, 0, 0, 0, 0, 0.0]))
+    for kw in ({"position_tolerance": 0.0}, {"orientation_tolerance": -1.0},
+               {"timeout": float("nan")}):
+        with pytest.raises(InvalidOptionError, match=next(iter(kw))):
+            s.solve(p, np.eye(3), **kw)
+
+
+def test_solver_options_are_validated():
+    with pytest.raises(InvalidOptionError, match="max_iterations"):
+        make_solver("pinv", ARM, max_iterations=0)
+    with pytest.raises(InvalidOptionError, match="orientation_scale"):
+        make_solver("default", ARM, orientation_scale=-1.0)
+    with pytest.raises(InvalidOptionError, match="preferred posture"):
+        make_solver("default", ARM, preferred=np.zeros(3))
