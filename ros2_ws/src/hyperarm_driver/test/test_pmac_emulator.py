@@ -301,3 +301,19 @@ def test_driver_holds_a_motion_left_over_from_before_a_link_loss(driver, emu, wa
     wait_for(lambda: emu.motor(1).mode == "idle" and emu.motor(1).vel == 0, 2.0, what="held")
     assert emu.motor(1).actual - emu.motor(1).ref < 0.09 * CPM - 100    # not finished
     assert any("moving" in m and "held" in m for _, m in driver.events)
+
+
+def test_home_offset_ixx26_in_sixteenths_of_a_count(axis, client, emu, wait_for) -> None:
+    client.command("I126=6400")               # 400 counts beyond the switch is the zero
+    home(axis, wait_for)
+    st = wait_for(lambda: settled(axis), 3.0, what="settled after homing")
+    assert st.position == pytest.approx(0.0, abs=1e-6)
+    assert emu.motor(1).actual == pytest.approx(400.0)     # physical: switch at 0 + 400
+
+
+def test_emulator_command_line_help() -> None:
+    import subprocess
+    import sys
+    out = subprocess.run([sys.executable, "-m", "hyperarm_driver.pmac.emulator", "--help"],
+                         capture_output=True, text=True, timeout=30)
+    assert out.returncode == 0 and "--port" in out.stdout and "127.0.0.1" in out.stdout

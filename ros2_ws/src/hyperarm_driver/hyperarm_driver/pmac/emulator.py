@@ -5,7 +5,7 @@ Simulated, per motor (counts and seconds inside; the card's units on the wire):
 - jog motion with a trapezoidal profile: ``J=`` (to position), ``J+``/``J-`` (continuous),
   ``J/`` (stop and hold; closes the loop), ``K`` (kill), speed Ixx22 (counts/ms),
   acceleration Ixx19 (counts/ms²) limited by Ixx20 (ms) when non-zero; soft limits Ixx13/Ixx14;
-- home search ``HM`` (speed and direction Ixx23 counts/ms, offset Ixx26 counts, home switch at
+- home search ``HM`` (speed and direction Ixx23 counts/ms, offset Ixx26 1/16 count, switch at
   a physical position) and ``HMZ`` (zero here);
 - hardware overtravel switches at physical positions: motion into them stops at once;
 - following error = servo lag x velocity + an injectable disturbance; fatal (Ixx11, 1/16
@@ -208,7 +208,8 @@ class MotorSim:
             new, self.vel = goal, 0.0
         prev, self.pos = self.pos, new
         if self.mode == "home_search" and (prev - self.home_at) * (new - self.home_at) <= 0:
-            self.ref = self.home_at + self.ivars[26]   # trigger captured: zero = trigger+offset
+            # trigger captured: motor zero = trigger + Ixx26 (units of 1/16 count)
+            self.ref = self.home_at + self.ivars[26] / 16.0
             self.mode, self.target = "home_return", self.ref
         elif self.pos >= self.pos_limit_at and self.vel > 0 or \
                 self.pos <= self.neg_limit_at and self.vel < 0:
@@ -549,12 +550,17 @@ def main(argv: list[str] | None = None) -> int:
                     metavar=("NEG", "POS"),
                     help="physical overtravel switch positions, counts "
                          "(default -320000 320000 = ±1.6 m at 200000 counts/m)")
+    ap.add_argument("--home-speed", type=float, default=-32.0, metavar="COUNTS_PER_MS",
+                    help="Ixx23 of every motor: home search speed, sign = direction "
+                         "(default -32: toward the negative end)")
     ap.add_argument("--drop-every", type=float, default=0.0, metavar="S",
                     help="drop all client connections every S seconds (0 = never)")
     args = ap.parse_args(argv)
     try:
         emu = PmacEmulator(args.port, args.motors, args.start_position, args.home_switch,
                            tuple(args.limits))
+        for m in emu.motors.values():
+            m.ivars[23] = args.home_speed
         emu.start()
     except (ValueError, OSError) as exc:
         print(f"pmac_emulator: {exc}", file=sys.stderr)
