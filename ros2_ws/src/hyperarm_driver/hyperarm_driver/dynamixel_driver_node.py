@@ -118,9 +118,10 @@ class DynamixelDriverNode(Node):
         was_up = self._drv.connected
         state = self._drv.cycle()
         for event in self._drv.pop_events():
-            level = self.get_logger().warn if "lost" in event or "watchdog" in event \
-                else self.get_logger().info
-            level(event)
+            if "lost" in event or "watchdog" in event:
+                self.get_logger().warn(event)
+            else:
+                self.get_logger().info(event)
         if was_up and not self._drv.connected:
             self._down_since = time.monotonic()
             self.get_logger().error(f"Dynamixel port lost: {self._drv.last_error}")

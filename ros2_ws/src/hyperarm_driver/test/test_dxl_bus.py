@@ -44,6 +44,19 @@ def run_until(drv: DynamixelDriver, cond, timeout: float, what: str, period: flo
     raise AssertionError(f"timed out after {timeout} s waiting for {what}")
 
 
+def wait_log(emu: EmulatorProcess, cond, timeout: float = 2.0) -> list:
+    """The emulator's goal-write log once ``cond(log)`` holds (a sync write has no reply, so
+    its bytes may still be in the pty when we ask)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        log = emu.ctl("write_log")["log"]
+        if cond(log):
+            return log
+        if time.monotonic() > deadline:
+            raise AssertionError(f"emulator write log never matched: {log[-20:]}")
+        time.sleep(0.01)
+
+
 def servo(emu: EmulatorProcess, sid: int) -> dict:
     return emu.ctl("state")["servos"][str(sid)]
 
@@ -217,7 +230,8 @@ def test_bad_commands_never_reach_the_wire(emu):
     rep = drv.command(["joint1", "gripper"], [5.0, -2.0])
     assert rep.clamped == ["joint1", "gripper"]
     drv.cycle()
-    log = emu.ctl("write_log")["log"]
+    hi1 = drv.config.joints[0].tick_limits[1]
+    log = wait_log(emu, lambda log: any(r["id"] == 1 and r["value"] == hi1 for r in log))
     j1 = [r["value"] for r in log if r["id"] == 1 and r["register"] == "goal_position"]
     g = [r["value"] for r in log if r["id"] == 10 and r["register"] == "goal_position"]
     assert j1 and j1[-1] == drv.config.joints[0].tick_limits[1]
@@ -271,8 +285,11 @@ def test_property_no_generated_command_puts_a_goal_outside_limits_on_the_wire(tm
             except CommandError:
                 pass
             assert drv.cycle() is not None
-            log = e.ctl("write_log", clear=True)["log"]
-            goals = [r for r in log if r["register"] == "goal_position"]
+            goals: list = []
+            deadline = time.monotonic() + 2.0   # the sync write may still be in the pty
+            while not goals and time.monotonic() < deadline:
+                log = e.ctl("write_log", clear=True)["log"]
+                goals = [r for r in log if r["register"] == "goal_position"]
             assert goals, "no goal positions on the wire"
             for r in goals:
                 lo, hi = bounds[r["id"]]
