@@ -317,3 +317,19 @@ def test_emulator_command_line_help() -> None:
     out = subprocess.run([sys.executable, "-m", "hyperarm_driver.pmac.emulator", "--help"],
                          capture_output=True, text=True, timeout=30)
     assert out.returncode == 0 and "--port" in out.stdout and "127.0.0.1" in out.stdout
+
+
+def test_serial_client_on_a_pty(emu) -> None:
+    from hyperarm_driver.pmac.client import PmacSerialClient
+    with PmacSerialClient(emu.serve_pty(), timeout=0.3) as c:
+        assert c.command("#1P #1V") == ["2000", "0"]
+        with pytest.raises(PmacCommandError) as err:
+            c.command("#1P #1XYZ")
+        assert err.value.code == 3 and err.value.partial == ("2000",)
+        rail = RailAxis(c, RailConfig.from_rail(load_description(variant="rail_arm").rail))
+        assert rail.read().position == pytest.approx(0.01)
+        emu.mute = True
+        with pytest.raises(PmacTimeoutError):
+            c.command("#1P")
+        emu.mute = False
+        assert c.command("#1P") == ["2000"]       # reopened

@@ -235,11 +235,16 @@ class PmacSerialClient(_Base):
 
     def close(self) -> None:
         with self._lock:
-            if self._ser is not None:
-                try:
-                    self._ser.close()
-                finally:
-                    self._ser = None
+            self._close_quietly()
+
+    def _close_quietly(self) -> None:
+        if self._ser is not None:
+            try:
+                self._ser.close()
+            except OSError:
+                pass
+            finally:
+                self._ser = None
 
     def command(self, command: str) -> list[str]:
         data = proto.check_command(command) + b"\r"
@@ -257,13 +262,16 @@ class PmacSerialClient(_Base):
                     self._ser.timeout = max(0.0, deadline - time.monotonic())
                     buf += self._ser.read(max(1, self._ser.in_waiting))
             except PmacTimeoutError:
-                self._ser.close()
-                self._ser = None
+                self._close_quietly()
                 raise
             except OSError as exc:
-                self._ser = None
+                self._close_quietly()
                 raise PmacLinkError(f"PMAC serial link {self.endpoint} lost: {exc}") from exc
             self.commands_sent += 1
-            reply = proto.parse_reply(bytes(buf), command)
+            try:
+                reply = proto.parse_reply(bytes(buf), command)
+            except PmacProtocolError:
+                self._close_quietly()     # resynchronise on the next call
+                raise
             self.last_round_trip = time.perf_counter() - t0
             return list(reply.lines)

@@ -21,7 +21,7 @@ from typing import Callable, NoReturn
 
 from .axis import RailAxis, RailState
 from .errors import PmacCommandError, PmacError, PmacLinkError, PmacProtocolError, \
-    RailCommandError
+    RailCommandError, RailError
 
 __all__ = ["RailDriver", "DriverSnapshot", "REQUESTS", "OK", "WARN", "ERROR"]
 
@@ -240,7 +240,7 @@ class RailDriver:
             except (PmacLinkError, PmacProtocolError) as exc:
                 self._link_lost(exc)
                 continue
-            except PmacCommandError as exc:
+            except (PmacCommandError, RailError) as exc:
                 self._note_error(str(exc), "error")
             except Exception as exc:  # noqa: BLE001 - a bug: report it, resync, keep running
                 self._log("error", f"internal error in the rail driver: {exc!r}\n"

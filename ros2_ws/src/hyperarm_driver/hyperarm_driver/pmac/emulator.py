@@ -14,7 +14,8 @@ Simulated, per motor (counts and seconds inside; the card's units on the wire):
   24-bit status words), ``Innn`` / ``Innn=v`` / ``Innn..mmm``, ``VER``, ``TYPE``;
 - ``<BELL>ERR003<CR>`` for unknown or malformed commands, ``ERR004`` for non-ASCII bytes;
 - link faults for tests: :meth:`PmacEmulator.drop_connections`, ``mute`` (no answers),
-  ``refuse`` (connections closed at once).
+  ``refuse`` (connections closed at once);
+- optionally the RS-232 protocol on a pseudo-terminal (:meth:`PmacEmulator.serve_pty`).
 
 Command line: ``pmac_emulator --port 0`` prints ``pmac_emulator: listening on 127.0.0.1:PORT``.
 Only 127.0.0.1 is ever bound.
@@ -454,6 +455,52 @@ class PmacEmulator:
             mot.ivars[k % 100] = v
         else:
             self.globals[k] = v
+
+    # -- serial (RS-232 on a pseudo-terminal) -----------------------------------------------
+    def serve_pty(self) -> str:
+        """Also answer the serial protocol (command + CR in; lines + ACK, or BELL ERRnnn CR
+        out, as with I3=2, I6=1) on a new pseudo-terminal; returns its path."""
+        import os
+        import pty
+        import tty
+        master, slave = pty.openpty()
+        tty.setraw(slave)
+        path = os.ttyname(slave)
+        t = threading.Thread(target=self._serve_serial, args=(master, slave), daemon=True,
+                             name="pmac-emu-pty")
+        self._running.set()
+        t.start()
+        self._threads.append(t)
+        return path
+
+    def _serve_serial(self, master: int, slave: int) -> None:
+        import os
+        import select
+        line = b""
+        try:
+            while self._running.is_set():
+                if not select.select([master], [], [], 0.1)[0]:
+                    continue
+                for byte in os.read(master, 1024):
+                    if byte != proto.CR:
+                        line += bytes([byte])
+                        continue
+                    self.requests += 1
+                    if self.mute:
+                        line = b""
+                        continue
+                    try:
+                        text = line.decode("ascii")
+                        reply = self.execute(text) if text.isprintable() else b"\x07ERR004\r"
+                    except UnicodeDecodeError:
+                        reply = b"\x07ERR004\r"
+                    line = b""
+                    os.write(master, reply)
+        except OSError:
+            return
+        finally:
+            os.close(master)
+            os.close(slave)
 
     # -- network --------------------------------------------------------------------------
     def _accept_loop(self) -> None:
