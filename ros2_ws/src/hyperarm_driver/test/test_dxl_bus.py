@@ -197,6 +197,29 @@ def test_crc_corruption_and_dropped_replies_are_retried(emu):
     assert drv.cycle() is None and drv.connected and "sync read" in drv.last_error
     emu.ctl("rates", corrupt_rate=0.0)
     assert drv.cycle() is not None
+    # slow replies (later than the SDK's packet timeout): cycle fails, port stays up
+    # (0.25 s: later than all three attempts, ~37 ms each, so no late reply is taken)
+    emu.ctl("rates", reply_delay=0.25)
+    assert drv.cycle() is None and drv.connected and "no status packet" in drv.last_error
+    emu.ctl("rates", reply_delay=0.0)
+    time.sleep(0.3)   # let the late replies arrive; the SDK flushes them before the next one
+    assert drv.cycle() is not None
+
+
+@pytest.mark.parametrize("policy,torque", [("hold", 1), ("release", 0)])
+def test_shutdown_policy(emu, policy, torque):
+    drv = make_driver(emu)
+    drv.connect()
+    drv.set_torque(True)
+    drv.command(["joint5"], effort=[0.3])
+    drv.cycle()
+    assert servo(emu, 5)["operating_mode"] == 0
+    drv.shutdown(policy)
+    assert not drv.connected
+    states = emu.ctl("state")["servos"]
+    assert all(states[str(i)]["torque_enable"] == torque for i in range(1, 11))
+    if policy == "hold":   # the torque-controlled joint holds its position again
+        assert states["5"]["operating_mode"] == 3
 
 
 def test_port_loss_detected_and_reconnect_with_torque_off(emu):

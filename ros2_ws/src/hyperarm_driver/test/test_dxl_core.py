@@ -154,3 +154,40 @@ def test_emulated_servo_enforces_firmware_rules():
     # unknown instruction
     (st,) = _status(bus, p2.build_packet(1, 0x77))
     assert st.error & 0x7F == p2.ERR_INSTRUCTION
+
+
+def test_emulated_bus_instructions_byte_exact():
+    bus = EmulatedBus([EmulatedServo(1, model_by_name("MX-64")),
+                       EmulatedServo(2, model_by_name("XM540-W270"))])
+    # broadcast ping: both answer, in ID order, with their model numbers
+    got = _status(bus, p2.build_packet(p2.BROADCAST_ID, p2.INST_PING))
+    assert [(pk.id, pk.params[1] | pk.params[2] << 8) for pk in got] == [(1, 311), (2, 1120)]
+    # SYNC WRITE goal positions, then SYNC READ and BULK READ them back
+    _status(bus, p2.build_packet(p2.BROADCAST_ID, p2.INST_SYNC_WRITE, bytes([116, 0, 4, 0])
+                                 + bytes([1]) + (1000).to_bytes(4, "little")
+                                 + bytes([2]) + (3000).to_bytes(4, "little")))
+    got = _status(bus, p2.build_packet(p2.BROADCAST_ID, p2.INST_SYNC_READ,
+                                       bytes([116, 0, 4, 0, 1, 2])))
+    assert [int.from_bytes(pk.params[1:], "little") for pk in got] == [1000, 3000]
+    got = _status(bus, p2.build_packet(p2.BROADCAST_ID, p2.INST_BULK_READ,
+                                       bytes([2, 116, 0, 4, 0, 1, 0, 0, 2, 0])))
+    assert [(pk.id, int.from_bytes(pk.params[1:], "little")) for pk in got] == [(2, 3000),
+                                                                               (1, 311)]
+    # FAST SYNC READ: one packet, ID 0xFE, segments ERR ID DATA CRC, running CRC
+    (raw,) = bus.feed(p2.build_packet(p2.BROADCAST_ID, p2.INST_FAST_SYNC_READ,
+                                      bytes([116, 0, 4, 0, 1, 2])), now=0.0)
+    assert raw[4] == 0xFE and raw[7] == 0x55 and len(raw) == 8 + 2 * (4 + 4)
+    assert raw[9] == 1 and int.from_bytes(raw[10:14], "little") == 1000
+    assert raw[14] | raw[15] << 8 == p2.crc16(raw[:14])
+    assert raw[17] == 2 and raw[-2] | raw[-1] << 8 == p2.crc16(raw[:-2])
+    # an instruction with a bad CRC gets no answer at all
+    bad = bytearray(p2.build_packet(1, p2.INST_PING))
+    bad[-1] ^= 0xFF
+    assert bus.feed(bytes(bad), now=0.0) == [] and bus.reader.crc_errors == 1
+    # REBOOT: status first, then RAM reset (error cleared, torque off) and silent 50 ms
+    bus.servos[1].raise_error(0x08)
+    (st,) = _status(bus, p2.build_packet(1, p2.INST_REBOOT))
+    assert st.error == p2.ERRBIT_ALERT
+    assert bus.servos[1].get("hardware_error_status") == 0
+    assert bus.feed(p2.build_packet(1, p2.INST_PING), now=0.0) == []
+    assert len(bus.feed(p2.build_packet(1, p2.INST_PING), now=1.0)) == 1

@@ -165,6 +165,7 @@ def test_node_port_loss_reported_and_reconnects_torque_off(executor, rclpy_conte
 
 
 @pytest.mark.e2e
+@pytest.mark.slow
 def test_e2e_installed_executables_and_release_on_ctrl_c(launch, tmp_path, wait_for,
                                                          executor, rclpy_context):
     link, ctl = str(tmp_path / "ttyDXL"), str(tmp_path / "ctl")

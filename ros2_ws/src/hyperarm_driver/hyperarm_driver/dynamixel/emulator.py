@@ -347,7 +347,7 @@ class EmulatedBus:
         elif inst == p2.INST_REBOOT:
             s = self._available(pkt.id, now)
             if s and not broadcast:
-                self._emit(s.id, p2.build_status(s.id, 0), out)
+                self._emit(s.id, p2.build_status(s.id, s.status_error()), out)
                 s.reboot(now)
         elif inst in (p2.INST_SYNC_READ, p2.INST_FAST_SYNC_READ) and broadcast and len(prm) >= 5:
             addr, length = prm[0] | prm[1] << 8, prm[2] | prm[3] << 8

@@ -149,10 +149,12 @@ def build_fast_sync_status(items: list[tuple[int, int, bytes]]) -> bytes:
         raise ProtocolError("fast sync status needs at least one servo")
     length = 1 + sum(4 + len(d) for _, _, d in items)
     out = bytearray(HEADER + bytes([BROADCAST_ID, length & 0xFF, length >> 8, INST_STATUS]))
+    crc = crc16(out)
     for dxl_id, error, data in items:
-        out += bytes([error & 0xFF, dxl_id]) + bytes(data)
-        crc = crc16(out)
-        out += bytes([crc & 0xFF, crc >> 8])
+        seg = bytes([error & 0xFF, dxl_id]) + bytes(data)
+        crc = crc16(seg, crc)
+        out += seg + bytes([crc & 0xFF, crc >> 8])
+        crc = crc16(out[-2:], crc)
     return bytes(out)
 
 
