@@ -129,25 +129,18 @@ def test_sub_second_timeout_is_honoured(name):
     assert res.solve_time < 0.05 + 0.1
 
 
-def test_default_solves_random_targets_cold_from_the_ready_pose():
+@pytest.mark.parametrize("variant,count,ptol,otol", [("arm", 25, 1e-5, 1e-4),
+                                                      ("rail_arm", 15, 1e-4, 1e-3)])
+def test_default_solves_random_targets_cold_from_the_ready_pose(variant, count, ptol, otol):
+    kin = KINS[variant]
     rng = np.random.default_rng(3)
-    solver = make_solver("default", ARM)
-    for _ in range(25):
-        p, r = _target(ARM, rng.uniform(ARM.lower, ARM.upper))
-        res = solver.solve(p, r, None, position_tolerance=1e-5, orientation_tolerance=1e-4,
+    solver = make_solver("default", kin)
+    for _ in range(count):
+        p, r = _target(kin, rng.uniform(kin.lower, kin.upper))
+        res = solver.solve(p, r, None, position_tolerance=ptol, orientation_tolerance=otol,
                            timeout=1.0)
         assert res.success, res.message
-        _check_honest(ARM, res, p, r, 1e-5, 1e-4)
-
-
-def test_default_solves_random_targets_on_the_rail():
-    rng = np.random.default_rng(4)
-    solver = make_solver("default", RAIL)
-    for _ in range(15):
-        p, r = _target(RAIL, rng.uniform(RAIL.lower, RAIL.upper))
-        res = solver.solve(p, r, None, position_tolerance=1e-4, orientation_tolerance=1e-3,
-                           timeout=1.0)
-        assert res.success, res.message
+        _check_honest(kin, res, p, r, ptol, otol)
 
 
 def test_position_only_reports_the_orientation_error_too():

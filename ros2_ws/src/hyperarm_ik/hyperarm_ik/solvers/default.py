@@ -29,6 +29,7 @@ import time
 
 import eigenpy
 import numpy as np
+import pinocchio as pin
 from pinocchio import log3
 
 from ..errors import InvalidOptionError
@@ -36,17 +37,19 @@ from .base import OUT_OF_REACH, Solver
 
 __all__ = ["DefaultSolver"]
 
+_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
 
 class DefaultSolver(Solver):
     """Fast, limit-respecting, redundancy-aware IK with restarts (the service's default)."""
 
     name = "default"
 
-    def __init__(self, kin, max_iterations: int = 60, orientation_scale: float = 0.6,
-                 damping: float = 1e-8, max_step: float = 0.6, stall: int = 8,
+    def __init__(self, kin, max_iterations: int = 60, orientation_scale: float = 0.5,
+                 damping: float = 1e-8, max_step: float = 1.5, stall: int = 8,
                  limit_margin: float = 0.08, limit_gain: float = 0.5,
                  preferred: np.ndarray | None = None, preferred_gain: float = 0.0,
-                 gain: float = 0.1, seed: int = 0) -> None:
+                 gain: float = 0.03, seed: int = 0) -> None:
         super().__init__(kin, max_iterations)
         for name, v in (("orientation_scale", orientation_scale), ("max_step", max_step)):
             if not np.isfinite(v) or v <= 0.0:
@@ -103,7 +106,9 @@ class DefaultSolver(Solver):
         orientation error) evaluated at q_best when the tolerances were met, else None.
         """
         kin = self.kin
+        model, data, fid = kin.model, kin.data, kin.tool_id
         s = self.s
+        scaled = s != 1.0
         c = self.gain
         lo, hi, rmin = self._lo, self._hi, self._rmin
         soft_rmin = self._soft_rmin
@@ -115,10 +120,13 @@ class DefaultSolver(Solver):
         window_cost = np.inf
         llt = eigenpy.LLT
         concat = np.concatenate
+        jacobian = pin.computeFrameJacobian
+        oMf = data.oMf
         qmin, qmax = q.min(), q.max()
         for it in range(1, max_iter + 1):
-            pq, rq, j = kin.pose_jacobian_view(q)
-            ep = p - pq
+            j = jacobian(model, data, q, fid, _LWA)
+            m = oMf[fid]
+            ep = p - m.translation
             perr = math.sqrt(ep @ ep)
             if position_only:
                 cost = perr
@@ -126,15 +134,20 @@ class DefaultSolver(Solver):
                     return q, cost, it - 1, None
                 e = ep
                 jt = j[:3]
+                e2 = perr * perr
             else:
-                eo = log3(r @ rq.T)
+                eo = log3(r @ m.rotation.T)
                 oerr = math.sqrt(eo @ eo)
                 cost = perr + s * oerr
                 if perr <= ptol and oerr <= otol:
                     return q, cost, it - 1, (perr, oerr)
-                e = concat((ep, eo * s))
-                j[3:] *= s
+                if scaled:
+                    e = concat((ep, eo * s))
+                    j[3:] *= s
+                else:
+                    e = concat((ep, eo))
                 jt = j
+                e2 = perr * perr + s * s * oerr * oerr
             if cost < best_cost:
                 best_q, best_cost = q, cost
             if it % self.stall == 0:
@@ -143,7 +156,7 @@ class DefaultSolver(Solver):
                 window_cost = best_cost
                 if time.perf_counter() > deadline:
                     return best_q, best_cost, it, None
-            lam = c * float(e @ e) + self.lambda0
+            lam = c * e2 + self.lambda0
             z = None
             if always_z or (need_limit_z and not (qmin >= -soft_rmin and qmax <= soft_rmin)):
                 z = self._z(q)
@@ -184,7 +197,7 @@ class DefaultSolver(Solver):
             q = np.minimum(np.maximum(q0, self._lo), self._hi)
         excess = kin.reach_excess(p)
         if excess > 0.0:
-            qb, _, it, _ = self._attempt(p, r, q, True, ptol, otol, deadline, 30)
+            qb, _, it, _ = self._attempt(p, r, q, True, ptol, otol, deadline, 15)
             return qb, it, (f"{OUT_OF_REACH}: the target is {excess:.3f} m beyond the "
                             f"{kin.reach:.3f} m reach of the arm; returning the closest "
                             f"configuration found")
