@@ -41,7 +41,8 @@ class DynamixelDriverNode(Node):
             config = bus_config_from_description(desc)
             bus = DynamixelBus(config, p["port"], p["baud"], fast_sync_read=p["fast_sync_read"])
             self._drv = DynamixelDriver(bus, command_timeout=p["command_timeout"],
-                                        reconnect_period=p["reconnect_period"])
+                                        reconnect_period=p["reconnect_period"],
+                                        other_joints=(contract.RAIL_JOINT,))
         except (DescriptionError, DynamixelError, ValueError) as exc:
             raise SystemExit(f"dynamixel_driver: {exc}") from exc
         self._shutdown_torque = p["shutdown_torque"]

@@ -91,7 +91,7 @@ def test_config_from_description_and_conversions():
 
 def _driver() -> DynamixelDriver:
     cfg = bus_config_from_description(load_description())
-    return DynamixelDriver(DynamixelBus(cfg, "/nonexistent/ttyDXL"))
+    return DynamixelDriver(DynamixelBus(cfg, "/nonexistent/ttyDXL"), other_joints=["rail"])
 
 
 def test_commands_are_validated_and_clamped_without_a_port():
@@ -100,8 +100,9 @@ def test_commands_are_validated_and_clamped_without_a_port():
         d.command(["joint1", "joint2"], [0.1, math.nan])
     with pytest.raises(CommandError, match="non-finite"):
         d.command(["joint1"], effort=[math.inf])
-    with pytest.raises(CommandError, match="no joint of this driver"):
-        d.command(["elbow"], [0.1])
+    with pytest.raises(CommandError, match=r"unknown joint\(s\) \['elbow'\]"):
+        d.command(["joint1", "elbow"], [0.1, 0.2])
+    assert d.command(["rail"], [0.5]).clamped == []   # another driver's joint: ignored
     with pytest.raises(CommandError, match="duplicate"):
         d.command(["joint1", "joint1"], [0.1, 0.2])
     with pytest.raises(CommandError, match="2 positions"):

@@ -44,13 +44,16 @@ class DynamixelDriver:
     """Bus + per-joint goals + safety. Arrays are in ``config.joints`` order."""
 
     def __init__(self, bus: DynamixelBus, *, command_timeout: float = 0.5,
-                 reconnect_period: float = 0.5) -> None:
+                 reconnect_period: float = 0.5, other_joints: Sequence[str] = ()) -> None:
+        """``other_joints``: names of joints driven by other drivers (e.g. ``rail``), ignored
+        in commands; any other name not on this bus makes a command invalid."""
         if not 0.0 < command_timeout <= 60.0:
             raise ValueError(f"command_timeout must be in (0, 60] s, got {command_timeout}")
         if not 0.0 < reconnect_period <= 60.0:
             raise ValueError(f"reconnect_period must be in (0, 60] s, got {reconnect_period}")
         self.bus = bus
         self.config: BusConfig = bus.config
+        self.other_joints = frozenset(other_joints) - set(bus.config.names)
         self.command_timeout = command_timeout
         self.reconnect_period = reconnect_period
         n = len(self.config.joints)
@@ -127,12 +130,12 @@ class DynamixelDriver:
     # -- commands ----------------------------------------------------------------------------
     def command(self, names: Sequence[str], position: Sequence[float] = (),
                 effort: Sequence[float] = (), now: float | None = None) -> CommandReport:
-        """Apply a by-name command (joints not on this bus are ignored).
+        """Apply a by-name command (names in ``other_joints`` are ignored).
 
         position only -> position control; effort only -> current control (torque, N·m);
         both -> current-based position with |effort| as the torque limit. Raises
-        CommandError (nothing applied) on length mismatch, duplicates, NaN/inf or when no
-        name is one of this bus's joints.
+        CommandError (nothing applied) on length mismatch, duplicates, NaN/inf or an
+        unknown joint name. A command for other drivers' joints only changes nothing.
         """
         now = time.monotonic() if now is None else now
         n = len(names)
@@ -144,14 +147,16 @@ class DynamixelDriver:
         if len(set(names)) != n:
             raise CommandError(f"duplicate joint names in command: {list(names)}")
         idx: list[tuple[int, int]] = []
+        unknown = []
         for k, name in enumerate(names):
             try:
                 idx.append((k, self.config.index(name)))
             except KeyError:
-                continue
-        if not idx:
-            raise CommandError(f"no joint of this driver in command {list(names)}; "
-                               f"known: {self.names}")
+                if name not in self.other_joints:
+                    unknown.append(name)
+        if unknown:
+            raise CommandError(f"unknown joint(s) {unknown}; known: "
+                               f"{self.names + sorted(self.other_joints)}")
         bad = [names[k] for k, _ in idx
                if (position and not math.isfinite(float(position[k])))
                or (effort and not math.isfinite(float(effort[k])))]
