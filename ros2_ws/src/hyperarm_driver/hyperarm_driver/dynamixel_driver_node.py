@@ -235,8 +235,12 @@ class DynamixelDriverNode(Node):
             "rate_hz": f"{len(times) / self._diag_period:.1f}",
             "comm_errors": stats.failures, "error_rate": f"{rate:.4f}",
             "reconnects": drv.reconnects, "last_error": drv.last_error}.items()]
+        silent = drv.silent_for()
         if not drv.connected:
             bus.level, bus.message = DiagnosticStatus.ERROR, f"port down: {drv.last_error}"
+        elif silent > 0.5:
+            bus.level = DiagnosticStatus.ERROR
+            bus.message = f"no valid reply from the servos for {silent:.1f} s: {drv.last_error}"
         elif rate > 0.01:
             bus.level, bus.message = DiagnosticStatus.WARN, f"bus error rate {rate:.1%}"
         else:

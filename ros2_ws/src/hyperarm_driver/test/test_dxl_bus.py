@@ -322,3 +322,17 @@ def test_property_no_generated_command_puts_a_goal_outside_limits_on_the_wire(tm
 
         check()
         assert len(seen) >= 20
+
+
+def test_silent_bus_is_detected_without_losing_the_port(emu):
+    drv = make_driver(emu)
+    drv.connect()
+    assert drv.cycle() is not None and drv.silent_for() < 0.2
+    emu.ctl("rates", drop_rate=1.0)    # servos powered off: the port works, nobody answers
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 0.7:
+        assert drv.cycle() is None
+    assert drv.connected and drv.silent_for() > 0.5
+    assert "no status packet" in drv.last_error
+    emu.ctl("rates", drop_rate=0.0)
+    assert drv.cycle() is not None and drv.silent_for() < 0.2

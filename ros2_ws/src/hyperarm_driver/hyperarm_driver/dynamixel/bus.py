@@ -50,7 +50,7 @@ _READ_ADDRS, _READ_OFF, READ_LEN = _layout(READ_BLOCK)
 _WRITE_ADDRS, _WRITE_OFF, WRITE_LEN = _layout(WRITE_BLOCK)
 READ_DATA_ADDR = INDIRECT_DATA_1
 WRITE_DATA_ADDR = INDIRECT_DATA_1 + READ_LEN
-_PORT_ERRORS = (OSError, termios.error, TypeError, AttributeError)
+_PORT_ERRORS = (OSError, termios.error)  # serial.SerialException is an OSError
 
 
 @dataclass

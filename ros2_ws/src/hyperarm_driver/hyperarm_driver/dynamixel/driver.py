@@ -71,6 +71,7 @@ class DynamixelDriver:
         self.missing: list[str] = []
         self.last_error = ""
         self.reconnects = 0
+        self.last_ok = -math.inf
         self._next_attempt = 0.0
         self._have_goal = False
         self.watchdog_trips = 0
@@ -107,6 +108,7 @@ class DynamixelDriver:
                 self.missing = exc.missing
             raise
         self.connected = True
+        self.last_ok = time.monotonic()
         self.missing = []
         self.state = self.bus.read_state()
         self._reset_goals_to_present()
@@ -219,17 +221,22 @@ class DynamixelDriver:
                         "torque off")
         t0 = time.perf_counter()
         try:
-            try:
-                self.state = self.bus.read_state()
-            except CommError as exc:
-                self.last_error = str(exc)
-                return None
+            self.state = self.bus.read_state()
+            self.last_ok = now
             self._apply(now)
         except PortLostError as exc:
             self._lost(exc, now)
             return None
+        except CommError as exc:   # retried already: skip this cycle, try again next one
+            self.last_error = str(exc)
+            return None
         self.bus.stats.cycle_times.append(time.perf_counter() - t0)
         return self.state
+
+    def silent_for(self, now: float | None = None) -> float:
+        """Seconds since the last successful sync read (0 while the port is down)."""
+        now = time.monotonic() if now is None else now
+        return max(0.0, now - self.last_ok) if self.connected else 0.0
 
     def _apply(self, now: float) -> None:
         """Watchdog, mode switches, limit guard, then the sync write of goals."""
