@@ -96,7 +96,8 @@ _KNOWN = {
     "imperfections": frozenset({"repeatability", "move_threshold", "position_noise",
                                 "velocity_noise", "effort_noise", "state_latency",
                                 "command_latency", "seed"}),
-    "world": frozenset({"table_height", "contact_stiffness", "pegs", "block", "grasp"}),
+    "world": frozenset({"table_height", "contact_stiffness", "friction", "pegs", "block",
+                        "grasp"}),
     "camera": frozenset({"rate", "position_noise", "orientation_noise", "latency", "seed"}),
 }
 
@@ -176,10 +177,12 @@ class GraspConfig:
 
 @dataclass(frozen=True)
 class WorldConfig:
-    """The work cell: table height (m), contact stiffness (N/m), pegs, block, grasping."""
+    """The work cell: table height (m), contact stiffness (N/m), Coulomb friction
+    coefficient of the block on the peg tops and the table, pegs, block, grasping."""
 
     table_height: float
     contact_stiffness: float
+    friction: float
     pegs: tuple[PegConfig, ...]
     block: BlockConfig
     grasp: GraspConfig
@@ -278,6 +281,7 @@ def _world(raw: Mapping[str, Any]) -> WorldConfig:
                         min_effort=_num(rg, "min_effort", f"{w}.grasp", 0.3, positive=True))
     return WorldConfig(table_height=_num(raw, "table_height", w),
                        contact_stiffness=_num(raw, "contact_stiffness", w, 5000.0, positive=True),
+                       friction=_num(raw, "friction", w, 0.5, nonneg=True),
                        pegs=tuple(pegs), block=block, grasp=grasp)
 
 

@@ -161,6 +161,8 @@ class JointSim:
         self.contact_force = np.zeros(3)           # N, on the held block, last step
         self._pending: deque[tuple[float, Callable[[], None]]] = deque()
         self._history: deque[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = deque()
+        self._anchors: dict[str, np.ndarray] = {}   # friction anchors (xy, m) by contact
+        self._contact_rows_used = None
         self.require_homing = bool(require_homing)
         self.homed = self.rail is None
         self.homing = False
@@ -335,7 +337,7 @@ class JointSim:
         if D.any():
             q, v = self._dynamics(dt, q, v, a, P, D)
         dq, gen = self._contacts(q, P, v=None)
-        tau_id = pin.rnea(self.model, self.data, q + self.offset[:nk], v, a)
+        tau_id = pin.rnea(self.model, self.data, q + dq + self.offset[:nk], v, a)
         tau = tau_id - gen
         dq, tau = self._limit_efforts(q, P, dq, gen, tau_id, tau)
         effort = np.zeros(nk)
@@ -374,12 +376,22 @@ class JointSim:
         """Velocity/acceleration-limited profile towards the goal, then the lag."""
         self._prev_ref_v = self._ref_v.copy()
         e = self.goal - self._prof_p
-        v_des = np.clip(np.sign(e) * np.sqrt(2.0 * self.amax * np.abs(e)), -self.vmax, self.vmax)
-        v_new = np.clip(v_des, self._prof_v - self.amax * dt, self._prof_v + self.amax * dt)
+        # Fastest speed v = m·a·dt from which braking at amax in steps of dt (v, v - a·dt,
+        # ..., while > 0) covers exactly |e|: with n = floor(m), |e| = dt·(v(n+1) - a·dt·T_n)
+        # where T_n = n(n+1)/2; n follows from T_n <= |e|/(a·dt²) < T_(n+1).
+        adt = self.amax * dt
+        big_e = np.abs(e) / (adt * dt)
+        n = np.floor((np.sqrt(1.0 + 8.0 * big_e) - 1.0) / 2.0)
+        v_stop = adt * (big_e + n * (n + 1.0) / 2.0) / (n + 1.0)
+        v_des = np.clip(np.sign(e) * v_stop, -self.vmax, self.vmax)
+        v_new = np.clip(v_des, self._prof_v - adt, self._prof_v + adt)
+        # on the braking curve: follow it exactly (it decelerates at amax, step by step)
+        braking = (v_new * e > 0.0) & (np.abs(v_des) < np.abs(v_new))
+        v_new = np.where(braking, v_des, v_new)
         p_new = self._prof_p + v_new * dt
         done = (self.goal - p_new) * e <= 0.0
         p_new = np.where(done, self.goal, p_new)
-        v_new = np.where(done, 0.0, v_new)
+        v_new = np.where(done, e / dt, v_new)
         self._prof_p = np.where(held, p_new, self._prof_p)
         self._prof_v = np.where(held, v_new, 0.0)
         lag = self.cfg.servo.lag
@@ -424,80 +436,161 @@ class JointSim:
         Returns the deflection of the compliant (position-mode) joints and the generalized
         force of the contacts on every chain joint. Each contact is a penalty spring of the
         world's stiffness in series with the servos' stiffness (and, with ``v`` given, a
-        damper against dynamic joints)."""
+        damper against dynamic joints); on horizontal surfaces (peg top, table) tangential
+        springs anchored where the block touched down give Coulomb friction (``friction``):
+        the block sticks while the tangential force is inside the cone, else slides."""
         nk = self.nk
         zero = np.zeros(nk)
-        self._contact_jn = None
+        self._contact_rows_used = None
         if self.world.state.value != "held":
             self.contact_force = np.zeros(3)
+            self._anchors.clear()
             return zero, zero
-        qt = q + self.offset[:nk]
+        kinv = np.where(P, 1.0 / self.stiffness[:nk], 0.0)
+        # Quasi-static: linearize at q, solve, re-linearize once at the deflected joints.
+        q_lin, solved = q, None
+        for _ in range(2 if v is None else 1):
+            rows = self._contact_rows(q_lin)
+            if rows is None:
+                break
+            contacts, jr, p0, owner, tangential, points = rows
+            p0 = p0 + jr @ (q_lin - q)             # the interference at the undeflected q
+            f = self._solve_contacts(jr, p0, owner, tangential, kinv, v)
+            solved = contacts, jr, p0, f, owner, tangential, points, q_lin
+            q_lin = q + kinv * (jr.T @ f)
+        if solved is None:
+            self.contact_force = np.zeros(3)
+            self._anchors.clear()
+            return zero, zero
+        contacts, jr, p0, f, owner, tangential, points, q_used = solved
+        self._contact_rows_used = jr, p0, f
+        dq = kinv * (jr.T @ f)
+        if v is None:   # move friction anchors of sliding contacts along with the block
+            moved = jr @ (q + dq - q_used)        # points were taken at q_used
+            kinds = set()
+            for ci, c in enumerate(contacts):
+                kinds.add(c.kind)
+                if c.kind in self._anchors:
+                    t = np.flatnonzero((owner == ci) & tangential)
+                    point = points[ci][:2] + moved[t]
+                    self._anchors[c.kind] = point + f[t] / self.cfg.world.contact_stiffness
+            for kind in list(self._anchors):
+                if kind not in kinds:
+                    del self._anchors[kind]
+        self.contact_force = sum((f[i] * self._row_dirs[i] for i in range(len(f))), np.zeros(3))
+        return dq, jr.T @ f
+
+    def _contact_rows(self, q: np.ndarray):
+        """Contact rows of the held block at chain positions ``q``: the contacts, the
+        Jacobian rows (m/rad) of each constrained direction, their interferences (m), the
+        contact each row belongs to, which rows are tangential, and the contact points."""
+        qt = q + self.offset[:self.nk]
         pin.framesForwardKinematics(self.model, self.data, qt)
         tool = self.data.oMf[self.tool_id].homogeneous
         contacts = self.world.contacts(tool)
         if not contacts:
-            self.contact_force = np.zeros(3)
-            return zero, zero
+            return None
         j6 = pin.computeFrameJacobian(self.model, self.data, qt, self.tool_id,
                                       pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
-        rows = []
-        for c in contacts:
+        rows, p0, owner, tangential, dirs, points = [], [], [], [], [], []
+        for ci, c in enumerate(contacts):
             jp = j6[:3] - _skew(c.point - tool[:3, 3]) @ j6[3:]
-            rows.append(c.normal @ jp)
-        jn = np.array(rows)
-        p0 = np.array([c.depth for c in contacts])
-        kinv = np.where(P, 1.0 / self.stiffness[:nk], 0.0)
+            rows.append(c.normal @ jp); p0.append(c.depth); owner.append(ci)
+            tangential.append(False); dirs.append(c.normal); points.append(c.point)
+            if c.frictional:
+                anchor = self._anchors.setdefault(c.kind, c.point[:2].copy())
+                for axis in (0, 1):
+                    d = np.eye(3)[axis]
+                    rows.append(d @ jp); p0.append(anchor[axis] - c.point[axis])
+                    owner.append(ci); tangential.append(True); dirs.append(d)
+        self._row_dirs = dirs
+        return (contacts, np.array(rows), np.array(p0), np.array(owner),
+                np.array(tangential), points)
+
+    def _solve_contacts(self, jr: np.ndarray, p0: np.ndarray, owner: np.ndarray,
+                        tangential: np.ndarray, kinv: np.ndarray,
+                        v: np.ndarray | None) -> np.ndarray:
+        """Forces (N) of the contact rows: penalty springs in series with the servo springs,
+        (I/k_env + J K⁻¹ Jᵀ) f = p0 over the active rows; a contact whose normal force would
+        pull is dropped; tangential forces outside the friction cone are set on its edge
+        (sliding) and the other rows re-solved with them fixed."""
         k_env = self.cfg.world.contact_stiffness
-        active = np.ones(len(contacts), dtype=bool)
-        f = np.zeros(len(contacts))
-        for _ in range(len(contacts)):
-            ja = jn[active]
-            a_mat = np.eye(int(active.sum())) / k_env + (ja * kinv) @ ja.T
-            f[:] = 0.0
-            f[active] = np.linalg.solve(a_mat, p0[active])
-            if v is not None:
-                f[active] -= CONTACT_DAMPING * (ja @ v)
-            if (f >= 0.0).all():
+        mu = self.cfg.world.friction
+        m = len(p0)
+        a_full = np.eye(m) / k_env + (jr * kinv) @ jr.T
+        damp = CONTACT_DAMPING * (jr @ v) if v is not None else np.zeros(m)
+        active = np.ones(m, dtype=bool)
+        fixed = np.zeros(m, dtype=bool)
+        f = np.zeros(m)
+        for _ in range(2 * int(owner.max()) + 4):
+            free = active & ~fixed
+            f[~active] = 0.0
+            rhs = p0[free] - a_full[np.ix_(free, fixed)] @ f[fixed]
+            f[free] = np.linalg.solve(a_full[np.ix_(free, free)], rhs) - damp[free]
+            pulling = [int(owner[i]) for i in np.flatnonzero(active & ~tangential & (f < 0.0))]
+            if pulling:
+                for ci in pulling:
+                    active &= owner != ci
+                fixed &= active
+                continue
+            changed = False
+            for ci in set(owner[active & tangential].tolist()):
+                t = np.flatnonzero((owner == ci) & tangential)
+                fn = f[np.flatnonzero((owner == ci) & ~tangential)[0]]
+                ft = f[t]
+                norm = float(np.linalg.norm(ft))
+                if norm > mu * fn * (1.0 + 1e-9):
+                    f[t] = ft * (mu * fn / norm)
+                    if not fixed[t].all():
+                        fixed[t] = True
+                        changed = True
+            if not changed:
                 break
-            active &= f > 0.0
-            if not active.any():
-                f[:] = 0.0
-                break
-        f = np.maximum(f, 0.0)
-        self._contact_jn, self._contact_p0, self._contact_f = jn, p0, f
-        self.contact_force = sum((fi * c.normal for fi, c in zip(f, contacts)), np.zeros(3))
-        gen = jn.T @ f
-        return kinv * gen, gen
+        f[~active] = 0.0
+        return f
 
     def _limit_efforts(self, q: np.ndarray, P: np.ndarray, dq: np.ndarray, gen: np.ndarray,
                        tau_id: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Servos at their torque limit yield: scale the contact forces down so that no
-        position-mode servo exceeds its limit, and let the saturated joints take up the
-        remaining penetration (the block then stays at the contact surface)."""
+        """Servos that would exceed their torque limit against a contact yield: they give
+        their limit torque and move freely, the others stay springs. Solves, for the
+        contact forces f and the saturated joints' motion dq_s,
+
+            (I/k_env + J_u K_u⁻¹ J_uᵀ) f + J_s dq_s = p0,   J_sᵀ f = tau_id_s - tau_limit_s
+
+        (adding joints that saturate in turn), so the block stays on the surface with a
+        contact force bounded by the servos' limits."""
         nk = self.nk
         lim = self.limit[:nk]
         over = P & (np.abs(tau) > lim) & (np.abs(tau_id) <= lim) & (gen != 0.0)
-        if not over.any() or self._contact_jn is None:
+        if not over.any() or self._contact_rows_used is None:
             return dq, np.clip(tau, -lim, lim)
-        s_i = np.where(gen > 0.0, (tau_id + lim) / np.where(gen == 0.0, 1.0, gen),
-                       (tau_id - lim) / np.where(gen == 0.0, 1.0, gen))
-        s = float(np.clip(np.min(s_i[over]), 0.0, 1.0))
-        jn, p0, f = self._contact_jn, self._contact_p0, self._contact_f * s
-        kinv = np.where(P, 1.0 / self.stiffness[:nk], 0.0)
-        dq = kinv * (jn.T @ f)
-        residual = p0 - jn @ dq - f / self.cfg.world.contact_stiffness
-        residual = np.where(f > 0.0, residual, 0.0)
-        sat = over
-        extra = np.zeros(nk)
-        extra[sat] = np.linalg.pinv(jn[:, sat]) @ residual
-        self.contact_force = self.contact_force * s
-        tau = np.clip(tau_id - jn.T @ f, -lim, lim)
-        return dq + extra, tau
+        jr, p0, _ = self._contact_rows_used
+        m = len(p0)
+        sign = np.sign(tau)
+        for _ in range(nk):
+            kinv_u = np.where(P & ~over, 1.0 / self.stiffness[:nk], 0.0)
+            js = jr[:, over]
+            ns = js.shape[1]
+            lhs = np.block([[np.eye(m) / self.cfg.world.contact_stiffness
+                             + (jr * kinv_u) @ jr.T, js], [js.T, np.zeros((ns, ns))]])
+            rhs = np.r_[p0, tau_id[over] - sign[over] * lim[over]]
+            sol = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+            f, dq_s = sol[:m], sol[m:]
+            tau_new = tau_id - jr.T @ f
+            newly = P & ~over & (np.abs(tau_new) > lim) & (np.abs(tau_id) <= lim)
+            if not newly.any():
+                break
+            sign = np.where(newly, np.sign(tau_new), sign)
+            over |= newly
+        dq = kinv_u * (jr.T @ f)
+        dq[over] = dq_s
+        self.contact_force = sum((f[i] * self._row_dirs[i] for i in range(m)), np.zeros(3))
+        return dq, np.clip(tau_new, -lim, lim)
 
     def _overload(self, dt: float, P: np.ndarray, effort: np.ndarray) -> None:
         for i in np.flatnonzero(P):
             if (self.mode[i] is ControlMode.POSITION
-                    and abs(effort[i]) >= self.stall[i] * (1.0 - 1e-9)):
+                    and abs(effort[i]) >= self.limit[i] * (1.0 - 1e-9)):
                 self._saturated_for[i] += dt
                 if self._saturated_for[i] >= OVERLOAD_TIME:
                     self.inject_error(self.names[i], "overload")
@@ -547,8 +640,8 @@ class JointSim:
         if self.world.state.value == "held":
             if not contact:
                 self.world.release(self._tool, "released")
-            elif grip < min_effort:
-                self.world.release(self._tool, "dropped")
+            elif grip < min_effort:   # slipped: let go on purpose if it is opening
+                self.world.release(self._tool, "released" if self.goal[g] >= qc else "dropped")
         elif contact and grip >= min_effort:
             self.world.grasp(self._tool)
 

@@ -8,7 +8,9 @@ by the gripper (then rigidly attached to tool0 by the grasp transform). While he
 - the table (the block's bottom cannot go below ``table_height``);
 - a peg's top, when the block's bottom is at or below the top, it is not threaded on the
   peg and the peg's top disc touches the block's bottom face outside the hole, i.e. the hole
-  is misaligned by more than the radial clearance (the peg pushes back up);
+  is misaligned by more than the radial clearance (the peg pushes back up; a block brought
+  down beside the peg but overlapping it is pushed up the same way: side collisions of an
+  unthreaded block are not modelled otherwise);
 - a peg's side, when the block is threaded on it (the hole's wall stops the block moving
   more than the clearance off the peg's axis).
 
@@ -48,12 +50,15 @@ class BlockState(str, Enum):
 @dataclass(frozen=True)
 class Contact:
     """A penetrating contact on the held block: ``normal`` (unit, the direction the world
-    pushes the block), ``depth`` (m, > 0 = penetrating), ``point`` (m, on the block)."""
+    pushes the block), ``depth`` (m, > 0 = penetrating), ``point`` (m, on the block: the
+    centre of its bottom face for the horizontal surfaces), ``frictional`` (a horizontal
+    surface: the block sticks to it up to the friction cone)."""
 
     kind: str
     normal: np.ndarray
     depth: float
     point: np.ndarray
+    frictional: bool = False
 
 
 @dataclass(frozen=True)
@@ -117,8 +122,9 @@ class World:
         return bool(d <= self.cfg.grasp.capture_radius)
 
     def width_between_fingers(self, tool_pose: np.ndarray) -> float:
-        """Width (m) of the block along tool0's y axis, the fingers' closing direction."""
-        y = tool_pose[:3, 1]
+        """Width (m) of the block along tool0's z axis, the fingers' closing direction (the
+        finger joint turns about tool0's x axis; the hand points along tool0's -y)."""
+        y = tool_pose[:3, 2]
         rot = self.block_pose(tool_pose)[:3, :3]
         return float(sum(abs(float(y @ rot[:, i])) * self.cfg.block.size[i] for i in range(3)))
 
@@ -150,7 +156,8 @@ class World:
         up = np.array([0.0, 0.0, 1.0])
         depth = self.cfg.table_height - bottom
         if depth > 0.0:
-            out.append(Contact("table", up, depth, np.array([centre[0], centre[1], bottom])))
+            out.append(Contact("table", up, depth, np.array([centre[0], centre[1], bottom]),
+                               frictional=True))
         for name, p in self._pegs.items():
             top = self.cfg.table_height + p.height
             if name == self.peg:
@@ -163,9 +170,9 @@ class World:
                                        np.array([centre[0], centre[1], z])))
                 continue
             depth = top - bottom
-            if 0.0 < depth <= 2.0 * self._half[2] and self._touches_top(name, pose):
+            if 0.0 < depth <= p.height and self._touches_top(name, pose):
                 out.append(Contact(f"peg_top:{name}", up, depth,
-                                   np.array([p.xy[0], p.xy[1], bottom])))
+                                   np.array([centre[0], centre[1], bottom]), frictional=True))
         return out
 
     def update_held(self, tool_pose: np.ndarray) -> None:

@@ -1,0 +1,224 @@
+"""Core tier: the simulated work cell with the simulated arm: grasp/release/drop, contact
+with the destination peg (compliance: expected force and joint efforts), insertion only when
+aligned within the clearance. No ROS."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from hyperarm_description.model import load_description
+from hyperarm_driver.mock.config import load_mock_config
+from hyperarm_driver.mock.joint_sim import JointSim
+from hyperarm_driver.mock.scenario import DOWN, Scenario
+from hyperarm_driver.mock.world import BlockState, World
+
+pytestmark = pytest.mark.core
+
+OPEN, GRIP = 1.3, 0.6      # rad, N·m
+
+
+@pytest.fixture(scope="module")
+def desc():
+    return load_description()
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    c = load_mock_config()
+    return dataclasses.replace(c, imperfections=dataclasses.replace(
+        c.imperfections, repeatability=0.0, seed=1))
+
+
+def sites(cfg):
+    w = cfg.world
+    half = w.block.size[2] / 2.0
+    src, dst = w.peg("source"), w.peg("destination")
+    return {
+        "src_block": np.array([*src.xy, w.table_height + half]),
+        "src_above": np.array([*src.xy, w.table_height + src.height + half + 0.02]),
+        "dst_above": np.array([*dst.xy, w.table_height + dst.height + half + 0.02]),
+        "dst_base": np.array([*dst.xy, w.table_height + half]),
+        "dst_top": w.table_height + dst.height,
+        "half": half,
+    }
+
+
+def picked(desc, cfg) -> tuple[Scenario, dict]:
+    """The block grasped on the source peg and lifted above it."""
+    sim = JointSim(desc, cfg)
+    sc, s = Scenario(sim), sites(cfg)
+    sc.grip(OPEN, seconds=0.8)
+    sc.move_tool(s["src_above"], 2.0)
+    sc.move_tool(s["src_block"], 1.5)
+    assert sim.world.state is BlockState.ON_PEG
+    sc.grip(0.0, GRIP, seconds=0.8)
+    assert sim.world.state is BlockState.HELD
+    sc.move_tool(s["src_above"], 1.5)
+    return sc, s
+
+
+def test_grasp_lift_insert_aligned_and_release(desc, cfg):
+    sc, s = picked(desc, cfg)
+    sim = sc.sim
+    kinds = [e.kind for e in sim.take_events()]
+    assert kinds == ["grasped", "unthreaded"]
+    assert sim.effort[-1] == pytest.approx(-GRIP)              # closing at the current limit
+    assert sc.block_xyz() == pytest.approx(s["src_above"], abs=1e-6)   # carried by the tool
+    sc.move_tool(s["dst_above"], 2.0)
+    sc.move_tool(s["dst_base"], 2.0)      # straight down: aligned, slides down the peg
+    assert [e.kind for e in sim.take_events()] == ["threaded"]
+    assert sc.block_xyz() == pytest.approx(s["dst_base"], abs=1e-4)
+    sc.grip(OPEN, seconds=0.8)
+    assert [e.kind for e in sim.take_events()] == ["released"]
+    assert sim.world.on_peg("destination")
+    assert sim.world.block_pose()[:3, 3] == pytest.approx(s["dst_base"], abs=1e-4)
+
+
+def test_misaligned_block_stops_on_peg_top_with_expected_force_and_efforts(desc, cfg):
+    """Pressing the block 5 mm into the top of the peg, misaligned: the peg pushes back
+    with the contact stiffness, the servos yield by torque/stiffness, and their efforts
+    balance gravity and the contact force (J^T F)."""
+    sc, s = picked(desc, cfg)
+    sim = sc.sim
+    clearance = cfg.world.clearance("destination")
+    off = np.array([2.5 * clearance, 0.0, 0.0])
+    sc.move_tool(s["dst_above"] + off, 2.0)
+    press = s["dst_above"] + off
+    press[2] = s["dst_top"] + s["half"] - 0.005               # 5 mm below the peg top
+    q_cmd = sc.move_tool(press, 2.0)
+    block = sc.block_xyz()
+    bottom = block[2] - s["half"]
+    force = sim.contact_force
+    k_env = cfg.world.contact_stiffness
+    assert sim.world.peg is None and sim.world.state is BlockState.HELD
+    assert force[2] > 0.5                                     # N, the peg pushes up
+    assert np.linalg.norm(force[:2]) <= cfg.world.friction * force[2] * (1 + 1e-9)
+    assert bottom == pytest.approx(s["dst_top"] - force[2] / k_env, abs=1e-5)   # at the top
+    assert bottom > s["dst_top"] - 0.002
+    # Servo springs: the joints are deflected by K^-1 J^T F from their goals...
+    model, data, fid = sim.model, sim.model.createData(), sim.tool_id
+    q_meas = sim.position[:9]
+    pin.framesForwardKinematics(model, data, q_meas)
+    j = pin.computeFrameJacobian(model, data, q_meas, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+    r = np.array([block[0], block[1], bottom]) - data.oMf[fid].translation
+    jp = j[:3] - pin.skew(r) @ j[3:]
+    generalized = jp.T @ force
+    assert np.abs(generalized).max() > 0.05                   # N·m: a real load on the joints
+    tol = 0.02 * np.abs(generalized).max()
+    assert (q_meas - q_cmd) * cfg.servo.stiffness == pytest.approx(generalized, abs=tol)
+    # ...and their efforts hold gravity and push back against the peg.
+    gravity = pin.computeGeneralizedGravity(model, data, q_meas)
+    assert sim.effort[:9] == pytest.approx(gravity - generalized, abs=tol)
+    # Let go here and the block lands beside the peg, not on it.
+    sc.grip(OPEN, seconds=0.8)
+    assert sim.world.state is BlockState.ON_TABLE and not sim.world.on_peg("destination")
+
+
+def test_insertion_succeeds_once_aligned_within_clearance(desc, cfg):
+    sc, s = picked(desc, cfg)
+    sim = sc.sim
+    clearance = cfg.world.clearance("destination")
+    press = s["dst_above"].copy()
+    press[2] = s["dst_top"] + s["half"] - 0.005
+    for dx in (2.0 * clearance, 1.3 * clearance):             # misaligned: stays on top
+        sc.move_tool(press + [dx, 0.0, 0.0], 1.0)
+        assert sim.world.peg is None and sim.contact_force[2] > 0.0
+        assert sc.block_xyz()[2] - s["half"] > s["dst_top"] - 1e-3
+    sc.move_tool(press + [0.7 * clearance, 0.0, 0.0], 1.0)    # within the clearance
+    assert sim.world.peg == "destination"
+    assert sc.block_xyz()[2] == pytest.approx(press[2], abs=1e-4)   # slid down, no force
+    assert np.linalg.norm(sim.contact_force) < 1e-6          # N
+    sc.move_tool(s["dst_base"], 2.0)
+    sc.grip(OPEN, seconds=0.8)
+    assert sim.world.on_peg("destination")
+
+
+def test_current_limit_bounds_the_pressing_force(desc, cfg):
+    """Current-based position: servos give at most their limit, so pressing deeper into
+    the peg's top gives less force than in position mode, and the block stays on top."""
+    results = {}
+    for limited in (False, True):
+        sc, s = picked(desc, cfg)
+        press = s["dst_above"] + [0.006, 0.0, 0.0]
+        sc.move_tool(press, 1.5)
+        limit = np.abs(sc.sim.effort[:9]) + 0.2 if limited else None   # gravity + 0.2 N·m
+        press[2] = s["dst_top"] + s["half"] - 0.03            # 3 cm into the peg
+        sc.move_tool(press, 2.0, effort=limit)
+        force = sc.sim.contact_force[2]
+        bottom = sc.block_xyz()[2] - s["half"]
+        # on top, not through it (within 0.05 mm: the contact is linearized at the goals)
+        assert bottom == pytest.approx(s["dst_top"] - force / cfg.world.contact_stiffness,
+                                       abs=5e-5)
+        assert sc.sim.world.peg is None
+        if limited:
+            effort = np.abs(sc.sim.effort[:9])
+            assert np.all(effort <= limit + 1e-9)
+            assert np.any(effort >= limit - 1e-9)             # some servo yields at its limit
+        results[limited] = force
+    assert 0.0 < results[True] < 0.97 * results[False]
+
+
+def test_weak_grip_drops_the_block(desc, cfg):
+    sc, s = picked(desc, cfg)
+    sim = sc.sim
+    mid = np.array([0.35, 0.0, s["src_above"][2]])
+    sc.move_tool(mid, 2.0)
+    sim.take_events()
+    sc.grip(0.0, 0.1, seconds=0.3)        # the current limit falls under the needed grip
+    events = sim.take_events()
+    assert [e.kind for e in events] == ["dropped"]
+    assert sim.world.state is BlockState.ON_TABLE
+    assert sim.world.block_pose()[:3, 3] == pytest.approx(
+        [0.35, 0.0, cfg.world.table_height + s["half"]], abs=1e-4)
+
+
+def test_no_grasp_when_too_weak_or_nothing_between_fingers(desc, cfg):
+    sim = JointSim(desc, cfg)
+    sc, s = Scenario(sim), sites(cfg)
+    sc.grip(OPEN, seconds=0.8)
+    sc.grip(0.0, GRIP, seconds=1.0)       # nothing between the fingers: closes fully
+    assert sim.position[-1] == pytest.approx(0.0, abs=1e-6)
+    assert sim.world.state is BlockState.ON_PEG and sim.take_events() == []
+    sc.grip(OPEN, seconds=0.8)
+    sc.move_tool(s["src_above"], 2.0)
+    sc.move_tool(s["src_block"], 1.5)
+    sc.grip(0.0, 0.1, seconds=0.8)        # below grasp.min_effort: slips
+    assert sim.world.state is BlockState.ON_PEG
+    sc.move_tool(s["src_above"], 1.0)
+    assert sim.world.block_pose()[:3, 3] == pytest.approx(s["src_block"])
+
+
+def test_world_contact_geometry(cfg):
+    """World alone: the peg's top meets the block only outside the hole; threaded, its side
+    holds the block within the clearance."""
+    w = World(cfg.world)
+    s = sites(cfg)
+    tool = np.eye(4)
+    tool[:3, :3] = DOWN
+    tool[:3, 3] = s["src_block"]
+    w.grasp(tool)
+    assert w.peg == "source"
+    tool[:3, 3] = s["src_above"]
+    w.update_held(tool)                                             # lifted off the source
+    assert w.peg is None
+    top = s["dst_top"]
+    clearance = cfg.world.clearance("destination")
+
+    def at(dx, depth):
+        t = tool.copy()
+        t[:3, 3] = s["dst_base"] + [dx, 0.0, 0.0]
+        t[2, 3] = top + s["half"] - depth
+        return t
+
+    assert w.contacts(at(0.5 * clearance, 0.002)) == []            # in the hole
+    (c,) = w.contacts(at(1.5 * clearance, 0.002))
+    assert c.kind == "peg_top:destination" and c.depth == pytest.approx(0.002)
+    assert w.contacts(at(0.05, 0.002)) == []                        # beside the peg
+    w.update_held(at(0.5 * clearance, 0.002))
+    assert w.peg == "destination"
+    (c,) = w.contacts(at(clearance + 0.001, 0.01))
+    assert c.kind == "peg_side:destination" and c.depth == pytest.approx(0.001)
+    assert c.normal == pytest.approx([-1.0, 0.0, 0.0])
