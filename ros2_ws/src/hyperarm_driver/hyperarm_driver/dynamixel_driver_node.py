@@ -19,7 +19,7 @@ from hyperarm_description.model import DescriptionError, load_description
 from hyperarm_description.qos import qos_for
 from hyperarm_interfaces.srv import Reboot
 
-from .dynamixel.bus import DynamixelBus
+from .dynamixel.bus import DynamixelBus, ftdi_latency_timer
 from .dynamixel.config import bus_config_from_description
 from .dynamixel.control_table import OperatingMode, decode_hardware_error
 from .dynamixel.driver import DynamixelDriver
@@ -61,6 +61,11 @@ class DynamixelDriverNode(Node):
         self.create_service(SetBool, contract.SET_TORQUE, self._on_set_torque)
         self.create_service(Reboot, contract.REBOOT, self._on_reboot)
         self.create_service(Trigger, contract.HOLD, self._on_hold)
+        latency = ftdi_latency_timer(p["port"])
+        if latency is not None and latency > 1:
+            self.get_logger().warn(
+                f"{p['port']}: FTDI latency_timer is {latency} ms, each bus transaction will "
+                "wait that long; set it to 1 (docs/dynamixel.md, udev rule)")
         try:
             self._drv.connect()
             self.get_logger().info(

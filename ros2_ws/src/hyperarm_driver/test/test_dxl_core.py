@@ -12,7 +12,7 @@ from hypothesis import strategies as hs
 
 from hyperarm_description.model import load_description
 from hyperarm_driver.dynamixel import protocol2 as p2
-from hyperarm_driver.dynamixel.bus import DynamixelBus
+from hyperarm_driver.dynamixel.bus import DynamixelBus, ftdi_latency_timer
 from hyperarm_driver.dynamixel.config import JointServo, bus_config_from_description
 from hyperarm_driver.dynamixel.control_table import (
     MODELS, REGISTERS, decode_hardware_error, model_by_name, model_by_number)
@@ -192,3 +192,14 @@ def test_emulated_bus_instructions_byte_exact():
     assert bus.servos[1].get("hardware_error_status") == 0
     assert bus.feed(p2.build_packet(1, p2.INST_PING), now=0.0) == []
     assert len(bus.feed(p2.build_packet(1, p2.INST_PING), now=1.0)) == 1
+
+
+def test_ftdi_latency_timer_is_read_through_symlinks(tmp_path):
+    sysfs = tmp_path / "sys"
+    (sysfs / "ttyUSB0").mkdir(parents=True)
+    (sysfs / "ttyUSB0" / "latency_timer").write_text("16\n")
+    dev = tmp_path / "ttyUSB0"
+    dev.touch()
+    (tmp_path / "dynamixel").symlink_to(dev)
+    assert ftdi_latency_timer(str(tmp_path / "dynamixel"), str(sysfs)) == 16
+    assert ftdi_latency_timer("/dev/pts/0", str(sysfs)) is None

@@ -10,9 +10,11 @@ Every SDK call is wrapped: port failures raise :class:`PortLostError`, failed tr
 from __future__ import annotations
 
 import logging
+import os
 import termios
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
@@ -25,7 +27,8 @@ from .control_table import (CENTER_TICK, INDIRECT_ADDRESS_1, INDIRECT_DATA_1, RA
                             decode_hardware_error, model_by_number)
 from .errors import CommError, PortLostError, PortOpenError, StartupError
 
-__all__ = ["BusState", "BusStats", "DynamixelBus", "READ_BLOCK", "WRITE_BLOCK"]
+__all__ = ["BusState", "BusStats", "DynamixelBus", "READ_BLOCK", "WRITE_BLOCK",
+           "ftdi_latency_timer"]
 
 _log = logging.getLogger(__name__)
 
@@ -77,6 +80,16 @@ class BusStats:
     retries: int = 0
     last_error: str = ""
     cycle_times: list[float] = field(default_factory=list)
+
+
+def ftdi_latency_timer(port: str, sysfs: str = "/sys/bus/usb-serial/devices") -> int | None:
+    """The FTDI latency timer (ms) of ``port`` (symlinks followed), or None if the port is
+    not a USB-serial device (pty, native UART) or the value cannot be read."""
+    name = os.path.basename(os.path.realpath(port))
+    try:
+        return int(Path(sysfs, name, "latency_timer").read_text().strip())
+    except (OSError, ValueError):
+        return None
 
 
 def _signed(value: int, size: int) -> int:
