@@ -230,7 +230,7 @@ class DynamixelDriverNode(Node):
         tx, fail = stats.transactions - self._window[0], stats.failures - self._window[1]
         self._window = [stats.transactions, stats.failures]
         rate = fail / tx if tx else 0.0
-        times = stats.cycle_times[-1000:]
+        times = list(stats.cycle_times)
         stats.cycle_times.clear()
         bus = DiagnosticStatus(name="dynamixel_driver: bus", hardware_id=self._port)
         bus.values = [KeyValue(key=k, value=str(v)) for k, v in {

@@ -13,6 +13,7 @@ import logging
 import os
 import termios
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
@@ -79,7 +80,7 @@ class BusStats:
     failures: int = 0
     retries: int = 0
     last_error: str = ""
-    cycle_times: list[float] = field(default_factory=list)
+    cycle_times: deque[float] = field(default_factory=lambda: deque(maxlen=10000))  # s
 
 
 def ftdi_latency_timer(port: str, sysfs: str = "/sys/bus/usb-serial/devices") -> int | None:
