@@ -139,6 +139,7 @@ class Kinematics:
         q = np.zeros(self.nq)
         pin.forwardKinematics(self.model, self.data, q)
         self.shoulder_origin = self.data.oMi[first_arm].translation.copy()
+        self._shoulder_list = self.shoulder_origin.tolist()
         if self.variant == "rail_arm":
             q[0] = 1.0
             pin.forwardKinematics(self.model, self.data, q)
@@ -150,7 +151,7 @@ class Kinematics:
     def reach_excess(self, p: np.ndarray) -> float:
         """How far (m) ``p`` lies beyond the reach bound; > 0 means certainly unreachable."""
         if self.rail_direction is None:
-            d = float(np.linalg.norm(p - self.shoulder_origin))
+            d = math.dist(p.tolist(), self._shoulder_list)
         else:
             u = self.rail_direction
             s = float(np.dot(p - self.shoulder_origin, u) / np.dot(u, u))

@@ -147,18 +147,23 @@ class Solver:
         solver evaluated by FK at exactly this q; otherwise they are computed here."""
         q = np.asarray(q, dtype=float)
         kin = self.kin
-        if not math.isfinite(sum(q.tolist())):
+        lst = q.tolist()
+        if not math.isfinite(sum(lst)):
             q = np.zeros(kin.nq)
+            lst = q.tolist()
             errs = None
             note = (note + "; " if note else "") + "solver diverged to non-finite joints"
-        if not (q.min() >= -math.pi and q.max() <= math.pi):
+        qmin, qmax = min(lst), max(lst)
+        if not (qmin >= -math.pi and qmax <= math.pi):
             q = kin.wrap(q)
+            lst = q.tolist()
+            qmin, qmax = min(lst), max(lst)
             errs = None
         if errs is None:
             perr, oerr = self.errors(q, p, r)
         else:
             perr, oerr = errs
-        if q.min() >= -kin.safe_range and q.max() <= kin.safe_range:
+        if qmin >= -kin.safe_range and qmax <= kin.safe_range:
             violations = []
         else:
             violations = kin.limit_violations(q)

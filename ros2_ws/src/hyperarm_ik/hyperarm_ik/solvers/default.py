@@ -122,7 +122,8 @@ class DefaultSolver(Solver):
         concat = np.concatenate
         jacobian = pin.computeFrameJacobian
         oMf = data.oMf
-        qmin, qmax = q.min(), q.max()
+        lst = q.tolist()
+        qmin, qmax = min(lst), max(lst)
         for it in range(1, max_iter + 1):
             j = jacobian(model, data, q, fid, _LWA)
             m = oMf[fid]
@@ -174,14 +175,16 @@ class DefaultSolver(Solver):
                 if n2 > max_step2:
                     dq *= math.sqrt(max_step2 / n2)
                 qn = q + dq
-                qmin, qmax = qn.min(), qn.max()
+                lst = qn.tolist()
+                qmin, qmax = min(lst), max(lst)
                 if qmin >= -rmin and qmax <= rmin:
                     break  # inside the smallest |limit|: no per-joint test needed
                 blocked = (qn < lo) | (qn > hi)
                 if not blocked.any():
                     break
                 qn = np.minimum(np.maximum(qn, lo), hi)
-                qmin, qmax = qn.min(), qn.max()
+                lst = qn.tolist()
+                qmin, qmax = min(lst), max(lst)
                 if winv is not None:
                     break
                 winv = np.where(blocked, 0.0, 1.0)
@@ -193,7 +196,8 @@ class DefaultSolver(Solver):
     def _solve(self, p, r, q0, position_only, ptol, otol, deadline):
         kin = self.kin
         q = q0
-        if not (q.min() >= -self._rmin and q.max() <= self._rmin):
+        lst = q.tolist()
+        if not (min(lst) >= -self._rmin and max(lst) <= self._rmin):
             q = np.minimum(np.maximum(q0, self._lo), self._hi)
         excess = kin.reach_excess(p)
         if excess > 0.0:
