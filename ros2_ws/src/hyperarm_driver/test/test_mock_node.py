@@ -1,0 +1,192 @@
+"""Node tier: mock_driver in-process with an executor (topics, services, bad input, watchdog,
+camera, sim time, rail variant)."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from hyperarm_description import contract
+from hyperarm_description.qos import qos_for
+
+pytestmark = pytest.mark.node
+
+ARM = [f"joint{i}" for i in range(1, 10)]
+
+
+class Probe:
+    """Test-side node: records joint_states, diagnostics, detections, /clock; sends commands
+    and calls services."""
+
+    def __init__(self, context, executor, namespace: str = contract.DEFAULT_NAMESPACE) -> None:
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from rosgraph_msgs.msg import Clock
+        from sensor_msgs.msg import JointState
+        from std_srvs.srv import SetBool, Trigger
+
+        from hyperarm_interfaces.msg import Detections
+        from hyperarm_interfaces.srv import Reboot
+
+        self.node = rclpy.create_node("probe", namespace=namespace, context=context)
+        self.states: list = []
+        self.diags: list = []
+        self.detections: list = []
+        self.truth: list = []
+        self.clock: list = []
+        n = self.node
+        n.create_subscription(JointState, contract.JOINT_STATES,
+                              lambda m: self.states.append((time.monotonic(), m)),
+                              qos_for(contract.JOINT_STATES))
+        n.create_subscription(DiagnosticArray, contract.DIAGNOSTICS,
+                              lambda m: self.diags.extend(m.status), qos_for(contract.DIAGNOSTICS))
+        n.create_subscription(Detections, contract.DETECTIONS, self.detections.append,
+                              qos_for(contract.DETECTIONS))
+        n.create_subscription(Detections, contract.DETECTIONS_TRUTH, self.truth.append,
+                              qos_for(contract.DETECTIONS_TRUTH))
+        n.create_subscription(Clock, contract.CLOCK,
+                              lambda m: self.clock.append((time.monotonic(), m)),
+                              QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
+        self.pub = n.create_publisher(JointState, contract.JOINT_COMMAND,
+                                      qos_for(contract.JOINT_COMMAND))
+        self.types = {contract.SET_TORQUE: SetBool, contract.HOLD: Trigger,
+                      contract.REBOOT: Reboot, contract.RAIL_HOME: Trigger}
+        self.clients = {name: n.create_client(t, name) for name, t in self.types.items()}
+        self.JointState = JointState
+        executor.add_node(n)
+
+    def call(self, name: str, wait_for, **fields):
+        cli = self.clients[name]
+        wait_for(cli.service_is_ready, 10.0, what=f"service {cli.srv_name}")
+        req = self.types[name].Request()
+        for k, v in fields.items():
+            setattr(req, k, v)
+        fut = cli.call_async(req)
+        wait_for(fut.done, 5.0, what=f"answer of {cli.srv_name}")
+        return fut.result()
+
+    def send(self, names, position=(), effort=()):
+        deadline = time.monotonic() + 10.0         # the first message must not precede discovery
+        while self.pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        self.pub.publish(self.JointState(name=list(names), position=list(position),
+                                         effort=list(effort)))
+
+    def position(self, joint: str) -> float:
+        msg = self.states[-1][1]
+        return msg.position[list(msg.name).index(joint)]
+
+    def diag(self, name: str) -> dict:
+        for st in reversed(self.diags):
+            if st.name == name:
+                return {kv.key: kv.value for kv in st.values}
+        return {}
+
+
+def start(rclpy_context, executor, **params):
+    from rclpy.parameter import Parameter
+
+    from hyperarm_driver.mock_driver_node import MockDriver
+
+    overrides = [Parameter(k, value=v) for k, v in params.items()]
+    node = MockDriver(context=rclpy_context, parameter_overrides=overrides)
+    executor.add_node(node)
+    return node
+
+
+def test_topics_services_and_bad_input(rclpy_context, executor, wait_for):
+    start(rclpy_context, executor, rate=200.0, diagnostics_period=0.2)
+    p = Probe(rclpy_context, executor)
+    wait_for(lambda: len(p.states) > 20, 10.0, what="joint_states")
+    msg = p.states[-1][1]
+    assert list(msg.name) == ARM + ["gripper"]
+    assert len(msg.position) == len(msg.velocity) == len(msg.effort) == 10
+    stamps = [m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for _, m in p.states[-20:]]
+    assert np.all(np.diff(stamps) > 0.0)
+
+    def at(joint, value):
+        return abs(p.position(joint) - value) < 1e-6
+
+    p.send(["joint1"], [0.4])
+    wait_for(lambda: at("joint1", 0.4), 5.0, what="joint1 at 0.4")
+    for bad in ((["joint1"], [float("nan")]), (["joint1", "elbow"], [0.1, 0.2]),
+                (["joint1"], [0.1, 0.2])):
+        p.send(*bad)
+    p.send(["joint3"], [99.0])                     # clamped to the upper limit
+    wait_for(lambda: abs(p.position("joint3") - 2.617993878) < 1e-6, 5.0, what="joint3 at limit")
+    assert at("joint1", 0.4)                      # the bad commands changed nothing
+
+    off = p.call(contract.SET_TORQUE, wait_for, data=False)
+    assert off.success and off.message == "torque off"
+    wait_for(lambda: p.diag("mock_driver: joint1").get("torque") == "off", 5.0,
+             what="torque off in diagnostics")
+    assert p.call(contract.HOLD, wait_for).success
+    r = p.call(contract.REBOOT, wait_for, joints=[])
+    assert r.success and list(r.rebooted) == []
+    r = p.call(contract.REBOOT, wait_for, joints=["joint42"])
+    assert not r.success and "joint42" in r.message
+    assert p.call(contract.SET_TORQUE, wait_for, data=True).success
+    bus = p.diag("mock_driver: bus")
+    assert bus["connected"] == "True" and int(bus["cycles"]) > 0
+    servo = p.diag("mock_driver: joint1")
+    assert servo["id"] == "1" and servo["model"] == "MX-106" and servo["hardware_error"] == "none"
+
+
+def test_effort_watchdog_and_torque_mode(rclpy_context, executor, wait_for):
+    start(rclpy_context, executor, command_timeout=0.2, diagnostics_period=0.1)
+    p = Probe(rclpy_context, executor)
+    wait_for(lambda: p.diag("mock_driver: joint2"), 10.0, what="diagnostics")
+    p.send(["joint2"], effort=[0.0])              # no torque: joint 2 falls
+    wait_for(lambda: p.diag("mock_driver: joint2")["mode"] == "current", 5.0,
+             what="joint2 in current (torque) mode")
+    wait_for(lambda: p.diag("mock_driver: joint2")["mode"] == "position", 5.0,
+             what="the watchdog to switch joint2 back to position")
+    held = p.position("joint2")
+    assert abs(held) > 0.01                       # it had fallen
+    time.sleep(0.3)
+    assert p.position("joint2") == pytest.approx(held, abs=1e-6)
+
+
+def test_camera_detections_and_ground_truth(rclpy_context, executor, wait_for):
+    start(rclpy_context, executor)
+    p = Probe(rclpy_context, executor)
+    wait_for(lambda: len(p.detections) >= 3 and len(p.truth) >= 3, 10.0, what="detections")
+    d, t = p.detections[-1], p.truth[-1]
+    assert d.header.frame_id == t.header.frame_id == contract.CAMERA_FRAME
+    assert list(d.names) == list(t.names) == ["block", "source_peg", "destination_peg"]
+    dp = np.array([d.poses[0].position.x, d.poses[0].position.y, d.poses[0].position.z])
+    tp = np.array([t.poses[0].position.x, t.poses[0].position.y, t.poses[0].position.z])
+    assert 0.0 < np.linalg.norm(dp - tp) < 0.02   # noisy (2 mm per axis), but close
+    assert tp[0] == pytest.approx(0.6 - (-0.185))  # the block 0.785 m below the camera
+
+
+def test_sim_time_runs_faster_and_publishes_clock(rclpy_context, executor, wait_for):
+    start(rclpy_context, executor, sim_speed=4.0)
+    p = Probe(rclpy_context, executor)
+    wait_for(lambda: len(p.clock) > 10, 10.0, what="/clock")
+    wall0, c0 = p.clock[-1]
+    time.sleep(1.0)
+    wall1, c1 = p.clock[-1]
+    sim = (c1.clock.sec - c0.clock.sec) + 1e-9 * (c1.clock.nanosec - c0.clock.nanosec)
+    ratio = sim / (wall1 - wall0)
+    assert 1.5 < ratio <= 4.0 * 1.05              # faster than real time, at most sim_speed
+    stamp = p.states[-1][1].header.stamp
+    assert stamp.sec < 100                        # stamped with simulated time from 0
+
+
+def test_rail_variant_homing(rclpy_context, executor, wait_for):
+    start(rclpy_context, executor, variant="rail_arm", diagnostics_period=0.1)
+    p = Probe(rclpy_context, executor)
+    wait_for(lambda: p.states, 10.0, what="joint_states")
+    assert list(p.states[-1][1].name)[0] == "rail"
+    p.send(["rail"], [0.3])                        # refused: not homed
+    assert p.diag("mock_driver: rail").get("homed", "false") == "false"
+    r = p.call(contract.RAIL_HOME, wait_for)
+    assert r.success
+    wait_for(lambda: p.diag("mock_driver: rail").get("homed") == "true", 5.0, what="homed")
+    assert p.position("rail") == 0.0
+    p.send(["rail"], [0.3])
+    wait_for(lambda: abs(p.position("rail") - 0.3) < 1e-6, 5.0, what="rail at 0.3 m")
+    assert int(p.diag("mock_driver: rail")["rejected_setpoints"]) == 1
