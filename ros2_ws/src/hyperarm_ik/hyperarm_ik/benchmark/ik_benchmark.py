@@ -454,6 +454,7 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
 
     t_start = time.perf_counter()
+    load_start = os.getloadavg()[0]
     kin = Kinematics()
     rng = np.random.default_rng(args.seed)
     random_set = random_targets(kin, args.count, rng)
@@ -576,7 +577,7 @@ def main(argv: list[str] | None = None) -> None:
     elapsed = time.perf_counter() - t_start
     machine = (f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
                f"Python {platform.python_version()}, pinocchio {pin.__version__}, "
-               f"load average {os.getloadavg()[0]:.2f} at the end")
+               f"load average {load_start:.2f} at the start, {os.getloadavg()[0]:.2f} at the end")
     text = "\n".join(
         [f"Measured {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())} on {machine}; "
          f"benchmark wall time {elapsed:.0f} s; command: `ik_benchmark "
