@@ -21,6 +21,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Pose
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -85,17 +86,21 @@ class MockDriver(Node):
         self._origin = 0.0 if self._speed > 0.0 else self.get_clock().now().nanoseconds * 1e-9
         self._pub = self.create_publisher(JointState, contract.JOINT_STATES,
                                           qos_for(contract.JOINT_STATES))
+        # No QoS-event handlers on the low-rate outputs: each one costs every executor
+        # wake-up (joint_states / joint_command keep them, for incompatible-QoS warnings).
+        quiet = PublisherEventCallbacks(use_default_callbacks=False)
         self._diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
-                                           qos_for(contract.DIAGNOSTICS))
+                                           qos_for(contract.DIAGNOSTICS), event_callbacks=quiet)
         self._det = self.create_publisher(Detections, contract.DETECTIONS,
-                                          qos_for(contract.DETECTIONS))
+                                          qos_for(contract.DETECTIONS), event_callbacks=quiet)
         self._truth = self.create_publisher(Detections, contract.DETECTIONS_TRUTH,
-                                            qos_for(contract.DETECTIONS_TRUTH))
+                                            qos_for(contract.DETECTIONS_TRUTH),
+                                            event_callbacks=quiet)
         self._clock = None
         if self._speed > 0.0:
             self._clock = self.create_publisher(ClockMsg, contract.CLOCK, QoSProfile(
                 depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,
-                durability=DurabilityPolicy.VOLATILE))
+                durability=DurabilityPolicy.VOLATILE), event_callbacks=quiet)
         self.create_subscription(JointState, contract.JOINT_COMMAND, self._on_command,
                                  qos_for(contract.JOINT_COMMAND))
         self.create_service(SetBool, contract.SET_TORQUE, self._on_set_torque)

@@ -375,6 +375,10 @@ class JointSim:
     def _profile(self, dt: float, held: np.ndarray) -> None:
         """Velocity/acceleration-limited profile towards the goal, then the lag."""
         self._prev_ref_v = self._ref_v.copy()
+        if (not self._prof_v.any() and not self._ref_v.any()
+                and np.array_equal(self._prof_p, self.goal)
+                and np.array_equal(self._ref, self._prof_p)):
+            return                                  # every joint settled on its goal
         e = self.goal - self._prof_p
         # Fastest speed v = m·a·dt from which braking at amax in steps of dt (v, v - a·dt,
         # ..., while > 0) covers exactly |e|: with n = floor(m), |e| = dt·(v(n+1) - a·dt·T_n)
@@ -588,14 +592,17 @@ class JointSim:
         return dq, np.clip(tau_new, -lim, lim)
 
     def _overload(self, dt: float, P: np.ndarray, effort: np.ndarray) -> None:
-        for i in np.flatnonzero(P):
-            if (self.mode[i] is ControlMode.POSITION
-                    and abs(effort[i]) >= self.limit[i] * (1.0 - 1e-9)):
-                self._saturated_for[i] += dt
-                if self._saturated_for[i] >= OVERLOAD_TIME:
-                    self.inject_error(self.names[i], "overload")
-            else:
-                self._saturated_for[i] = 0.0
+        """A POSITION servo at its torque limit for OVERLOAD_TIME s: overload error."""
+        nk = self.nk
+        stalled = P & (np.abs(effort) >= self.limit[:nk] * (1.0 - 1e-9))
+        if not stalled.any():
+            self._saturated_for[:] = 0.0
+            return
+        stalled &= np.array([m is ControlMode.POSITION for m in self.mode[:nk]])
+        self._saturated_for[:nk] = np.where(stalled, self._saturated_for[:nk] + dt, 0.0)
+        for i in np.flatnonzero(self._saturated_for[:nk] >= OVERLOAD_TIME):
+            self.inject_error(self.names[i], "overload")
+            self._saturated_for[i] = 0.0
 
     def _update_tool(self) -> None:
         qt = self.position[:self.nk] + self.offset[:self.nk]
