@@ -217,7 +217,7 @@ def test_repeatability_offset_is_hidden_from_joint_states(desc):
     rms = math.sqrt(np.mean(np.square(errors)))
     # worse than the hole's 2 mm radial clearance: a blind drop onto the peg mostly fails
     assert rms > cfg.world.clearance("destination")
-    assert rms < 0.02
+    assert rms < 0.03
 
 
 def test_rail_variant_homing_and_setpoints():

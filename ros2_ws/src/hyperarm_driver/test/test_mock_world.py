@@ -222,3 +222,32 @@ def test_world_contact_geometry(cfg):
     (c,) = w.contacts(at(clearance + 0.001, 0.01))
     assert c.kind == "peg_side:destination" and c.depth == pytest.approx(0.001)
     assert c.normal == pytest.approx([-1.0, 0.0, 0.0])
+
+
+def test_blind_descent_usually_fails_and_dither_inserts(desc):
+    """The paper's situation with the default work cell (repeatability on): pushing the
+    block straight down onto the destination peg mostly stops on the peg's top, while
+    pressing and dithering in x-y over a growing spiral (radius up to 1.5 cm) inserts it."""
+    base = load_mock_config()
+    blind, dithered = [], []
+    for seed in range(4):
+        cfg = dataclasses.replace(base, imperfections=dataclasses.replace(
+            base.imperfections, seed=seed))
+        sc, s = picked(desc, cfg)
+        sim = sc.sim
+        sc.move_tool(s["dst_above"], 1.5)
+        press = s["dst_above"].copy()
+        press[2] = s["dst_top"] + s["half"] - 0.005          # 5 mm below the top
+        sc.move_tool(press, 1.5)
+        blind.append(sim.world.peg == "destination")
+        for k in range(400):
+            if sim.world.peg == "destination":
+                break
+            r, a = 0.015 * k / 400, 0.35 * k
+            sc.move_tool(press + [r * np.cos(a), r * np.sin(a), 0.0], 0.02)
+        dithered.append(sim.world.peg == "destination")
+        sc.move_tool(s["dst_base"], 1.5)
+        sc.grip(OPEN, seconds=0.5)
+        assert sim.world.on_peg("destination") == dithered[-1]
+    assert sum(blind) <= 1, blind
+    assert all(dithered), dithered
