@@ -1,0 +1,36 @@
+"""The documented benchmark command keeps working (a tiny run; figures are not asserted)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hyperarm_ik.benchmark import ik_benchmark as bench
+from hyperarm_ik.kinematics import Kinematics
+
+pytestmark = pytest.mark.core
+
+
+def test_benchmark_runs_and_prints_its_table(capsys, tmp_path):
+    doc = tmp_path / "ik.md"
+    doc.write_text("intro\n<!-- ik_benchmark:begin -->\nold\n<!-- ik_benchmark:end -->\nend\n")
+    bench.main(["--count", "6", "--slow-count", "1", "--ikpy-count", "1",
+                "--skip", "tight", "unreachable", "rail", "service", "--markdown", str(doc)])
+    out = capsys.readouterr().out
+    assert "| random | default | 6 |" in out
+    assert "| figure8 | default | 6 |" in out
+    text = doc.read_text()
+    assert "old" not in text and "| random | default | 6 |" in text
+    assert text.startswith("intro\n") and text.endswith("end\n")
+
+
+def test_evaluation_judges_by_our_fk():
+    kin = Kinematics()
+    q = np.full(9, 0.2)
+    t = kin.forward(q)
+    run = bench.Run("x", "y")
+    assert bench.evaluate(kin, run, q, t[:3, 3], t[:3, :3], (1e-9, 1e-9))
+    bad = q.copy()
+    bad[3] = 2.7  # beyond 150 deg
+    assert not bench.evaluate(kin, run, bad, kin.forward(bad)[:3, 3], t[:3, :3], (1e-3, 1e-3))
+    assert not bench.evaluate(kin, run, None, t[:3, 3], t[:3, :3], (1e-3, 1e-3))
+    assert (run.n, run.ok_paper, run.violations, run.no_answer) == (3, 1, 1, 1)
