@@ -54,7 +54,8 @@ def test_jacobian_matches_finite_differences(kin):
             fd[:3, i] = (t1[:3, 3] - t0[:3, 3]) / h
             # angular velocity in the root frame: vee(R1 R0^T - I) / h
             w = t1[:3, :3] @ t0[:3, :3].T
-            fd[3:, i] = np.array([w[2, 1] - w[1, 2], w[0, 2] - w[2, 0], w[1, 0] - w[0, 1]]) / (2 * h)
+            fd[3:, i] = np.array([w[2, 1] - w[1, 2], w[0, 2] - w[2, 0],
+                                  w[1, 0] - w[0, 1]]) / (2 * h)
         np.testing.assert_allclose(j, fd, atol=1e-5)
 
 

@@ -41,7 +41,7 @@ import pinocchio as pin
 from hyperarm_description.urdf import generate_urdf
 
 from ..kinematics import Kinematics, rotation_angle
-from ..solvers import make_solver, solver_names
+from ..solvers import make_solver
 
 PAPER_POS = 1e-3                 # m, Danko & Oh's success criterion
 SIX_D_ORI = math.radians(1.0)    # rad, our 6-D criterion
@@ -345,7 +345,8 @@ def table(runs: list[Run]) -> str:
 
 
 def plots(outdir: Path, kin: Kinematics, fig8: list, track: dict[str, Run],
-          rail: dict[str, Run] | None, rail_targets: list | None, cold: dict[str, Run]) -> list[str]:
+          rail: dict[str, Run] | None, rail_targets: list | None,
+          cold: dict[str, Run]) -> list[str]:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -31,7 +31,11 @@ def solver_names(variant: str | None = None) -> list[str]:
 
 
 def make_solver(name: str, kin: Kinematics, **options) -> Solver:
-    """Solver ``name`` ("" = default) on ``kin``; raises UnknownSolverError naming the valid ones."""
+    """Solver ``name`` ("" = default) on ``kin``.
+
+    Raises UnknownSolverError naming the valid ones, UnsupportedVariantError for a solver
+    that does not apply to ``kin``'s variant, InvalidOptionError for bad ``options``.
+    """
     key = name or DEFAULT_SOLVER
     try:
         cls = SOLVERS[key]
