@@ -12,6 +12,7 @@ other nodes with ``use_sim_time:=true``.
 """
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
@@ -109,11 +110,15 @@ class MockDriver(Node):
         if self._sim.rail is not None:
             self.create_service(Trigger, contract.RAIL_HOME, self._on_home)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self._last_wall = time.monotonic()
-        self._owed = 0.0
-        self.create_timer(self._dt, self._tick, clock=steady)
         self.create_timer(self._diag_period / max(self._speed, 1.0), self._publish_diagnostics,
                           clock=steady)
+        # The simulation loop runs in its own thread, paced by the monotonic clock: a
+        # 200 Hz rclpy timer would cost more CPU in the executor than the simulation.
+        # Callbacks (commands, services, diagnostics) share the simulation under _lock.
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._loop = threading.Thread(target=self._run, name="mock_driver-sim", daemon=True)
+        self._loop.start()
         timing = (f"sim time x{self._speed:g}, publishing {contract.CLOCK}" if self._speed > 0.0
                   else "real time")
         self.get_logger().info(
@@ -155,15 +160,36 @@ class MockDriver(Node):
         return out
 
     # -- time and the simulation loop -----------------------------------------------------
-    def _tick(self) -> None:
+    def _run(self) -> None:
+        """Tick every 1/rate s of wall time until stopped. In real time a tick simulates
+        the wall time elapsed (at most _MAX_CATCH_UP steps); on sim time, sim_speed steps."""
+        last = next_tick = time.monotonic()
+        owed = 0.0
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if self._speed > 0.0:
+                owed += self._speed
+            else:
+                owed = min(owed + (now - last) / self._dt, _MAX_CATCH_UP)
+            last = now
+            steps = max(int(owed + 0.5), 0)
+            owed -= steps
+            try:
+                with self._lock:
+                    self._tick(steps)
+            except Exception as exc:  # noqa: BLE001 - context gone at shutdown: stop quietly
+                if self.context.ok():
+                    raise
+                self.get_logger().debug(f"simulation loop stopped: {exc}")
+                return
+            next_tick += self._dt
+            delay = next_tick - time.monotonic()
+            if delay < -self._dt:          # fell behind (loaded machine): do not burst
+                next_tick = time.monotonic()
+            self._stop.wait(max(delay, 0.0))
+
+    def _tick(self, steps: int) -> None:
         start = time.monotonic()
-        elapsed, self._last_wall = start - self._last_wall, start
-        if self._speed > 0.0:  # the timer runs at `rate` in wall time: `speed` steps a tick
-            self._owed += self._speed
-        else:                  # real time: steps owed by the wall clock, bounded catch-up
-            self._owed = min(self._owed + elapsed / self._dt, _MAX_CATCH_UP)
-        steps = max(int(self._owed + 0.5), 0)
-        self._owed -= steps
         for _ in range(steps):
             self._sim.step(self._dt)
             for frame in self._camera.step(self._sim.time, self._sim.truth):
@@ -199,7 +225,9 @@ class MockDriver(Node):
     # -- commands and services --------------------------------------------------------------
     def _on_command(self, msg: JointState) -> None:
         try:
-            report = self._sim.command(list(msg.name), list(msg.position), list(msg.effort))
+            with self._lock:
+                report = self._sim.command(list(msg.name), list(msg.position),
+                                           list(msg.effort))
         except (JointStateError, MockError) as exc:
             if self._sim.rail in msg.name:
                 self._stats.rejected_setpoints += 1
@@ -211,7 +239,8 @@ class MockDriver(Node):
 
     def _on_set_torque(self, req: SetBool.Request, res: SetBool.Response) -> SetBool.Response:
         try:
-            self._sim.set_torque(bool(req.data))
+            with self._lock:
+                self._sim.set_torque(bool(req.data))
         except MockError as exc:
             res.success, res.message = False, f"set_torque {req.data}: {exc}"
             self.get_logger().error(res.message)
@@ -222,7 +251,8 @@ class MockDriver(Node):
 
     def _on_reboot(self, req: Reboot.Request, res: Reboot.Response) -> Reboot.Response:
         try:
-            res.rebooted = self._sim.reboot(list(req.joints))
+            with self._lock:
+                res.rebooted = self._sim.reboot(list(req.joints))
         except (JointStateError, MockError) as exc:
             res.success, res.message = False, f"reboot: {exc}"
             self.get_logger().error(res.message)
@@ -234,13 +264,15 @@ class MockDriver(Node):
         return res
 
     def _on_hold(self, req: Trigger.Request, res: Trigger.Response) -> Trigger.Response:
-        self._sim.hold()
+        with self._lock:
+            self._sim.hold()
         res.success, res.message = True, "holding the present position"
         return res
 
     def _on_home(self, req: Trigger.Request, res: Trigger.Response) -> Trigger.Response:
         try:
-            self._sim.home_rail()
+            with self._lock:
+                self._sim.home_rail()
         except MockError as exc:
             res.success, res.message = False, f"rail/home: {exc}"
             self.get_logger().error(res.message)
@@ -252,7 +284,9 @@ class MockDriver(Node):
     def _publish_diagnostics(self) -> None:
         arr = DiagnosticArray()
         arr.header.stamp = _stamp(self._origin + self._sim.time)
-        for d in mock_diagnostics(self._sim, self._stats, self._diag_period, self._speed):
+        with self._lock:
+            statuses = mock_diagnostics(self._sim, self._stats, self._diag_period, self._speed)
+        for d in statuses:
             st = DiagnosticStatus(name=d.name, hardware_id=d.hardware_id, level=_LEVELS[d.level],
                                   message=d.message)
             st.values = [KeyValue(key=k, value=v) for k, v in d.values.items()]
@@ -260,7 +294,9 @@ class MockDriver(Node):
         self._diag.publish(arr)
 
     def destroy_node(self) -> None:
-        if hasattr(self, "_sim"):
+        if hasattr(self, "_loop"):
+            self._stop.set()
+            self._loop.join(timeout=5.0)
             self.get_logger().info(f"shutting down ({self._shutdown_torque})")
         super().destroy_node()
 
