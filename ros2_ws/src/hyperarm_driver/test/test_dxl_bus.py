@@ -222,6 +222,23 @@ def test_shutdown_policy(emu, policy, torque):
         assert states["5"]["operating_mode"] == 3
 
 
+@pytest.mark.parametrize("policy,torque", [("hold", 1), ("release", 0)])
+def test_shutdown_after_a_transaction_interrupted_by_ctrl_c(emu, policy, torque):
+    """Ctrl-C raises KeyboardInterrupt inside the SDK, which leaves its port flagged busy
+    (every later call: "Port is in use!"); the shutdown policy must still be applied."""
+    drv = make_driver(emu)
+    drv.connect()
+    drv.set_torque(True)
+    drv.command(["joint5"], effort=[0.3])
+    drv.cycle()
+    drv.bus.port.is_using = True   # the state an interrupted txRxPacket leaves behind
+    drv.shutdown(policy)
+    states = emu.ctl("state")["servos"]
+    assert all(states[str(i)]["torque_enable"] == torque for i in range(1, 11))
+    if policy == "hold":
+        assert states["5"]["operating_mode"] == 3
+
+
 def test_port_loss_detected_and_reconnect_with_torque_off(emu):
     drv = make_driver(emu, reconnect_period=0.1)
     drv.connect()

@@ -180,6 +180,7 @@ def test_e2e_installed_executables_and_release_on_ctrl_c(launch, tmp_path, wait_
     assert control("state")["servos"]["3"]["torque_enable"] == 1
     drv.proc.send_signal(signal.SIGINT)
     assert drv.proc.wait(timeout=15.0) in (0, -signal.SIGINT), drv.output()[-2000:]
-    assert all(control("state")["servos"][str(i)]["torque_enable"] == 0 for i in range(1, 11))
+    servos = control("state")["servos"]
+    assert all(servos[str(i)]["torque_enable"] == 0 for i in range(1, 11)), drv.output()[-2000:]
     control.close()
     assert "10 servos" in emu.output()

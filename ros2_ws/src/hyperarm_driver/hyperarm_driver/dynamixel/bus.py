@@ -156,6 +156,18 @@ class DynamixelBus:
                 pass
         self.torque = [False] * len(self.config.joints)
 
+    def resync(self) -> None:
+        """Make the port usable again after a transaction was interrupted half-way (Ctrl-C
+        raises KeyboardInterrupt inside the SDK, which then leaves its port flagged busy and
+        every later call fails with "Port is in use!"): clear that flag, drop stale input."""
+        if self.port is None:
+            return
+        self.port.is_using = False
+        try:
+            self.port.clearPort()
+        except _PORT_ERRORS:
+            pass
+
     def _call(self, fn: Callable, *args):  # type: ignore[no-untyped-def]
         if self.port is None:
             raise PortLostError(f"Dynamixel port {self.port_name} is not open")

@@ -337,18 +337,36 @@ class DynamixelDriver:
         return done
 
     def shutdown(self, policy: str) -> None:
-        """``hold``: hold the present position, torque on; ``release``: torque off."""
+        """``hold``: hold the present position, torque on; ``release``: torque off.
+
+        Runs after Ctrl-C, which may have interrupted a transaction: the port is resynced
+        first. ``release`` tries every servo even if some fail; if ``hold`` fails, joints in
+        current (torque) control are released, since nobody will command them any more.
+        """
         if policy not in ("hold", "release"):
             raise ValueError(f"shutdown policy must be hold or release, got {policy!r}")
         if self.connected:
-            try:
-                if policy == "release":
-                    self.bus.set_torque(range(len(self.names)), False)
-                else:
+            self.bus.resync()
+            if policy == "hold":
+                try:
                     self.state = self.bus.read_state()
                     self._reset_goals_to_present()
                     self._apply(time.monotonic())
-            except (PortError, CommError) as exc:
-                _log.warning("shutdown: %s", exc)
+                except (PortError, CommError) as exc:
+                    _log.warning("shutdown: cannot hold (%s)", exc)
+                    self._release([i for i, m in enumerate(self.bus.modes)
+                                   if m == OperatingMode.CURRENT])
+            else:
+                self._release(range(len(self.names)))
         self.bus.close()
         self.connected = False
+
+    def _release(self, indices: Sequence[int]) -> None:
+        """Torque off on each of ``indices``, carrying on past failures (logged)."""
+        for i in indices:
+            try:
+                self.bus.set_torque([i], False)
+            except (PortError, CommError) as exc:
+                _log.warning("shutdown: %s", exc)
+                if isinstance(exc, PortError):
+                    return
