@@ -62,12 +62,20 @@ def servo(emu: EmulatorProcess, sid: int) -> dict:
 
 
 def test_startup_configures_every_servo_torque_off(emu):
+    # values another tool may have left in a servo's EEPROM: they would mirror/shift the arm
+    other = DynamixelBus(bus_config_from_description(DESC), emu.link)
+    other.open()
+    other.write(2, "drive_mode", 1)
+    other.write(2, "homing_offset", 1024)
+    other.close()
+    assert (servo(emu, 3)["drive_mode"], servo(emu, 3)["homing_offset"]) == (1, 1024)
     drv = make_driver(emu)
     drv.connect()
     assert drv.connected and drv.bus.fast
     for j in bus_config_from_description(DESC).joints:
         s = servo(emu, j.id)
         assert s["torque_enable"] == 0 and s["return_delay_time"] == 0
+        assert s["drive_mode"] == 0 and s["homing_offset"] == 0
         assert (s["min_position_limit"], s["max_position_limit"]) == j.tick_limits
         assert s["operating_mode"] == (5 if j.name == "gripper" else 3)
         assert s["profile_velocity"] > 0

@@ -262,12 +262,21 @@ class DynamixelBus:
                                + "; ".join(parts), missing, wrong)
 
     def configure(self, index: int) -> None:
-        """Torque off, then Return Delay Time 0, operating mode, position/current limits,
-        profile velocity and the indirect address blocks of joint ``index``."""
+        """Torque off, then Return Delay Time 0, Drive Mode 0 and Homing Offset 0, operating
+        mode, position limits, profile velocity and the indirect address blocks of joint
+        ``index``.
+
+        Drive Mode 0 (normal direction, velocity-based profile) and Homing Offset 0 make the
+        configured ``direction``/``zero_offset`` the only transform between joint angle and
+        ticks: a value left in the servo by another tool would otherwise shift or mirror the
+        arm, and the tick limits would no longer be the joint limits.
+        """
         j = self.config.joints[index]
         self.write(index, "torque_enable", 0)
         self.torque[index] = False
         self.write(index, "return_delay_time", 0)
+        self.write(index, "drive_mode", 0)
+        self.write(index, "homing_offset", 0)
         self.write(index, "operating_mode", j.mode_value)
         self.modes[index] = j.mode_value
         lo, hi = j.tick_limits

@@ -467,7 +467,8 @@ class EmulatedBus:
         names = ("model_number", "operating_mode", "torque_enable", "goal_position",
                  "goal_current", "present_position", "present_velocity", "present_current",
                  "hardware_error_status", "return_delay_time", "min_position_limit",
-                 "max_position_limit", "profile_velocity", "current_limit")
+                 "max_position_limit", "profile_velocity", "current_limit", "drive_mode",
+                 "homing_offset")
         return {n: s.get(n) for n in names}
 
 
