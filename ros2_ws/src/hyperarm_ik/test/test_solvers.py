@@ -177,6 +177,21 @@ def test_preferred_posture_is_used_in_the_redundancy():
     assert np.linalg.norm(pref.q - q_pref) < 0.5 * np.linalg.norm(plain.q - q_pref)
 
 
+def test_cold_start_base_alignment_is_exact_and_spares_warm_starts():
+    from hyperarm_ik.solvers.default import DefaultSolver
+    solver = DefaultSolver(ARM)
+    q0 = np.zeros(9)
+    p = np.array([-0.3, 0.3, 0.2])  # behind-left of the stretched arm
+    q = solver._aligned(p, q0)
+    assert q[0] == pytest.approx(math.atan2(0.3, -0.3))  # tool0 azimuth now the target's
+    assert np.all(q[1:] == 0.0)
+    near = ARM.forward(q0)[:3, 3] + np.array([0.0, 0.05, 0.0])  # a tracking step away
+    assert solver._aligned(near, q0) is q0
+    assert DefaultSolver(RAIL).align_base == 0.0  # off for the rail variant
+    with pytest.raises(InvalidOptionError, match="align_base"):
+        DefaultSolver(ARM, align_base=-1.0)
+
+
 def test_heuristic_candidate_moves_match_forward_kinematics():
     for kin in (ARM, RAIL):
         solver = HeuristicSolver(kin)

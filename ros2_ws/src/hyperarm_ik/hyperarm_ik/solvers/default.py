@@ -15,6 +15,10 @@ Redundancy: z pulls joints out of the outer ``limit_margin`` of their range and,
 which keeps warm-started tracking close to the seed. A joint held at a limit by the clip is
 removed from the step (its W^-1 set to 0) and the step recomputed once (active set).
 
+Cold starts (fixed arm): when tool0 is far (> 0.1 m) from the target and joint1 would have to
+swing round (> 0.5 rad), joint1 is first turned to the target's azimuth (an exact one-joint
+move); warm starts of tracking are never affected. Off for the rail variant, where it did
+not pay off.
 Restarts: an attempt stops when it stalls (error not reduced by 1 % over ``stall``
 iterations) or after ``max_iterations``; the next starts from uniform random joints, until the
 timeout. The best configuration seen is returned, with success computed from it.
@@ -49,15 +53,20 @@ class DefaultSolver(Solver):
                  damping: float = 1e-8, max_step: float = 1.5, stall: int = 8,
                  limit_margin: float = 0.08, limit_gain: float = 0.5,
                  preferred: np.ndarray | None = None, preferred_gain: float = 0.0,
-                 gain: float = 0.03, seed: int = 0) -> None:
+                 gain: float = 0.03, align_base: float | None = None,
+                 align_distance: float = 0.1,
+                 seed: int = 0) -> None:
         super().__init__(kin, max_iterations)
         for name, v in (("orientation_scale", orientation_scale), ("max_step", max_step)):
             if not np.isfinite(v) or v <= 0.0:
                 raise InvalidOptionError(f"{name} must be > 0, got {v!r}")
         for name, v in (("damping", damping), ("limit_gain", limit_gain), ("gain", gain),
+                        ("align_distance", align_distance),
                         ("preferred_gain", preferred_gain)):
             if not np.isfinite(v) or v < 0.0:
                 raise InvalidOptionError(f"{name} must be >= 0, got {v!r}")
+        if align_base is not None and (not np.isfinite(align_base) or align_base < 0.0):
+            raise InvalidOptionError(f"align_base must be >= 0, got {align_base!r}")
         if not 0.0 <= limit_margin < 0.5:
             raise InvalidOptionError(f"limit_margin must be in [0, 0.5), got {limit_margin!r}")
         if preferred is not None:
@@ -67,6 +76,11 @@ class DefaultSolver(Solver):
         self.s = float(orientation_scale)
         self.lambda0 = float(damping)
         self.gain = float(gain)
+        if align_base is None:  # measured: helps the fixed arm, not the rail (see docs)
+            align_base = 0.5 if kin.variant == "arm" else 0.0
+        self.align_base = float(align_base)
+        self.align_distance = float(align_distance)
+        self._yaw = kin.joint_names.index("joint1")
         self.max_step = float(max_step)
         self.stall = int(stall)
         self.preferred = preferred
@@ -97,6 +111,42 @@ class DefaultSolver(Solver):
             zp = self.preferred_gain * (self.preferred - q)
             z = zp if z is None else z + zp
         return z
+
+    # --- base alignment (cold starts only) ------------------------------------------------
+    def _aligned(self, p: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """q with joint1 turned so that tool0's azimuth about joint1's axis is the target's.
+
+        Only when tool0 is more than ``align_distance`` m from the target and the azimuths
+        differ by more than ``align_base`` rad: a cold start or a restart. Warm starts of
+        tracking (targets millimetres away) are never touched, so this cannot make a joint
+        jump along a path. It is an exact one-joint move (as in the heuristic search) that
+        saves the LM iterations of swinging the arm round; it does not count as one.
+        """
+        kin = self.kin
+        pin.forwardKinematics(kin.model, kin.data, q)
+        m = kin.data.oMi[self._yaw + 1]
+        wx, wy, wz = m.rotation[:, 2].tolist()  # revolute joints turn about local z
+        ox, oy, oz = m.translation.tolist()
+        tx, ty, tz = pin.updateFramePlacement(kin.model, kin.data,
+                                              kin.tool_id).translation.tolist()
+        px, py, pz = p.tolist()
+        if (px - tx) ** 2 + (py - ty) ** 2 + (pz - tz) ** 2 < self.align_distance ** 2:
+            return q
+        ax, ay, az = px - ox, py - oy, pz - oz
+        bx, by, bz = tx - ox, ty - oy, tz - oz
+        da, db = ax * wx + ay * wy + az * wz, bx * wx + by * wy + bz * wz
+        ax, ay, az = ax - da * wx, ay - da * wy, az - da * wz  # projections on the plane
+        bx, by, bz = bx - db * wx, by - db * wy, bz - db * wz  # normal to the axis
+        if min(ax * ax + ay * ay + az * az, bx * bx + by * by + bz * bz) < 0.05 ** 2:
+            return q  # target or tool near the axis: azimuth undefined
+        sin = (by * az - bz * ay) * wx + (bz * ax - bx * az) * wy + (bx * ay - by * ax) * wz
+        ang = math.atan2(sin, ax * bx + ay * by + az * bz)
+        if abs(ang) <= self.align_base:
+            return q
+        out = q.copy()
+        i = self._yaw
+        out[i] = min(max(float(q[i]) + ang, float(self._lo[i])), float(self._hi[i]))
+        return out
 
     # --- one attempt ---------------------------------------------------------------------
     def _attempt(self, p, r, q, position_only, ptol, otol, deadline, max_iter):
@@ -210,6 +260,8 @@ class DefaultSolver(Solver):
         attempts = 0
         while True:
             attempts += 1
+            if self.align_base > 0.0:
+                q = self._aligned(p, q)
             qa, cost, it, errs = self._attempt(p, r, q, position_only, ptol, otol, deadline,
                                                self.max_iterations)
             total += it
