@@ -4,12 +4,7 @@ See docs/dynamixel.md for the parameters, topics, services and diagnostics.
 """
 from __future__ import annotations
 
-import time
-
-import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
@@ -17,8 +12,10 @@ from std_srvs.srv import SetBool, Trigger
 from hyperarm_description import contract
 from hyperarm_description.model import DescriptionError, load_description
 from hyperarm_description.qos import qos_for
+from hyperarm_description.ros_main import run_node
 from hyperarm_interfaces.srv import Reboot
 
+from .common import NonEmpty, OneOf, ParamSpec, Range, declare_parameters, diagnostic_status
 from .dynamixel.bus import DynamixelBus, ftdi_latency_timer
 from .dynamixel.config import bus_config_from_description
 from .dynamixel.control_table import OperatingMode, decode_hardware_error
@@ -27,6 +24,23 @@ from .dynamixel.errors import DynamixelError, StartupError
 
 _SDK_BAUDS = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600,
               1000000, 1152000, 2000000, 2500000, 3000000, 3500000, 4000000)
+OK, WARN, ERROR, STALE = 0, 1, 2, 3   # diagnostic_msgs/DiagnosticStatus levels
+
+PARAMETERS: ParamSpec = {
+    "port": ("/dev/ttyUSB0", "serial device of the Dynamixel bus", NonEmpty()),
+    "baud": (1000000, "bus baud rate", OneOf(_SDK_BAUDS)),
+    "rate": (100.0, "control cycle and joint_states rate, Hz", Range(1.0, 1000.0)),
+    "description_file": ("", "robot description YAML ('' = the packaged one)", None),
+    "command_timeout": (0.5, "effort watchdog: current-controlled joints hold their position "
+                             "when no effort command came for this long, s", Range(0.05, 10.0)),
+    "torque_on_start": (False, "enable torque after the start-up check", None),
+    "shutdown_torque": ("hold", "on shutdown: 'hold' (torque on, hold position) or 'release' "
+                                "(torque off)", OneOf(("hold", "release"))),
+    "fast_sync_read": (True, "use Fast Sync Read when available", None),
+    "reconnect_period": (0.5, "delay between reopening attempts of a lost port, s",
+                         Range(0.05, 60.0)),
+    "diagnostics_period": (1.0, "/diagnostics period, s", Range(0.1, 10.0)),
+}
 
 
 class DynamixelDriverNode(Node):
@@ -51,7 +65,7 @@ class DynamixelDriverNode(Node):
         self._port, self._baud = p["port"], p["baud"]
         self._window = [0, 0]   # transactions, failures at the last diagnostics
         self._cycles = 0
-        self._down_since: float | None = None
+        self.rejected_commands = 0   # joint_command messages rejected whole (NaN, ...)
         self._pub = self.create_publisher(JointState, contract.JOINT_STATES,
                                           qos_for(contract.JOINT_STATES))
         self._diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
@@ -68,56 +82,25 @@ class DynamixelDriverNode(Node):
                 "wait that long; set it to 1 (docs/dynamixel.md, udev rule)")
         try:
             self._drv.connect()
-            self.get_logger().info(
-                f"{len(config.joints)} servos on {p['port']} at {p['baud']} baud, "
-                f"{'fast' if bus.fast else 'plain'} sync read, {p['rate']:g} Hz; torque off")
-            if p["torque_on_start"]:
-                self._drv.set_torque(True)
-                self.get_logger().info("torque on (torque_on_start)")
         except StartupError as exc:
             raise SystemExit(f"dynamixel_driver: {exc}") from exc
         except DynamixelError as exc:
             self.get_logger().error(f"{exc}; retrying every {p['reconnect_period']:g} s")
-            self._down_since = time.monotonic()
+        else:
+            self.get_logger().info(
+                f"{len(config.joints)} servos on {p['port']} at {p['baud']} baud, "
+                f"{'fast' if bus.fast else 'plain'} sync read, {p['rate']:g} Hz; torque off")
+            if p["torque_on_start"]:
+                try:
+                    self._drv.set_torque(True)
+                    self.get_logger().info("torque on (torque_on_start)")
+                except DynamixelError as exc:
+                    self.get_logger().error(f"torque_on_start: {exc}; torque stays off")
         self.create_timer(self._period, self._tick)
         self.create_timer(self._diag_period, self._publish_diagnostics)
 
     def _declare_parameters(self) -> dict:
-        specs = {
-            "port": ("/dev/ttyUSB0", "serial device of the Dynamixel bus"),
-            "baud": (1000000, f"bus baud rate, one of {_SDK_BAUDS}"),
-            "rate": (100.0, "control cycle and joint_states rate, Hz (1..1000)"),
-            "description_file": ("", "robot description YAML ('' = the packaged one)"),
-            "command_timeout": (0.5, "effort watchdog: current-controlled joints hold "
-                                     "their position when no effort command came for "
-                                     "this long, s (0.05..10)"),
-            "torque_on_start": (False, "enable torque after the start-up check"),
-            "shutdown_torque": ("hold", "on shutdown: 'hold' (torque on, hold position) "
-                                        "or 'release' (torque off)"),
-            "fast_sync_read": (True, "use Fast Sync Read when available"),
-            "reconnect_period": (0.5, "delay between reopening attempts of a lost port, s "
-                                      "(0.05..60)"),
-            "diagnostics_period": (1.0, "/diagnostics period, s (0.1..10)"),
-        }
-        out = {}
-        for name, (default, text) in specs.items():
-            self.declare_parameter(name, default, ParameterDescriptor(description=text,
-                                                                      read_only=True))
-            out[name] = self.get_parameter(name).value
-        checks = [
-            (out["baud"] in _SDK_BAUDS, f"baud must be one of {_SDK_BAUDS}"),
-            (1.0 <= out["rate"] <= 1000.0, "rate must be within 1..1000 Hz"),
-            (0.05 <= out["command_timeout"] <= 10.0, "command_timeout must be 0.05..10 s"),
-            (out["shutdown_torque"] in ("hold", "release"),
-             "shutdown_torque must be 'hold' or 'release'"),
-            (0.05 <= out["reconnect_period"] <= 60.0, "reconnect_period must be 0.05..60 s"),
-            (0.1 <= out["diagnostics_period"] <= 10.0, "diagnostics_period must be 0.1..10 s"),
-            (bool(out["port"]), "port must not be empty"),
-        ]
-        for ok, text in checks:
-            if not ok:
-                raise SystemExit(f"dynamixel_driver: {text}")
-        return out
+        return declare_parameters(self, PARAMETERS)
 
     # -- cycle -------------------------------------------------------------------------------
     def _tick(self) -> None:
@@ -129,7 +112,6 @@ class DynamixelDriverNode(Node):
             else:
                 self.get_logger().info(event)
         if was_up and not self._drv.connected:
-            self._down_since = time.monotonic()
             self.get_logger().error(f"Dynamixel port lost: {self._drv.last_error}")
         if state is None:
             if not self._drv.connected:
@@ -139,7 +121,6 @@ class DynamixelDriverNode(Node):
                 self.get_logger().warn(f"bus read failed: {self._drv.last_error}",
                                        throttle_duration_sec=2.0)
             return
-        self._down_since = None
         self._cycles += 1
         msg = JointState()
         msg.header.stamp = self.get_clock().now().to_msg()
@@ -158,6 +139,7 @@ class DynamixelDriverNode(Node):
         try:
             report = self._drv.command(list(msg.name), list(msg.position), list(msg.effort))
         except DynamixelError as exc:
+            self.rejected_commands += 1
             self.get_logger().error(f"joint_command rejected: {exc}",
                                     throttle_duration_sec=1.0)
             return
@@ -210,12 +192,11 @@ class DynamixelDriverNode(Node):
         arr.header.stamp = self.get_clock().now().to_msg()
         state = drv.state if drv.connected else None
         for i, j in enumerate(drv.config.joints):
-            st = DiagnosticStatus(name=f"dynamixel_driver: {j.name}", hardware_id=f"dxl-{j.id}")
             values = {"id": str(j.id), "model": j.model.name,
                       "mode": OperatingMode.NAMES.get(drv.bus.modes[i], "?"),
                       "torque": "on" if drv.bus.torque[i] else "off"}
             if state is None:
-                st.level, st.message = DiagnosticStatus.STALE, "port down"
+                level, message = STALE, "port down"
             else:
                 bits = int(state.hardware_error[i])
                 names = decode_hardware_error(bits)
@@ -223,34 +204,34 @@ class DynamixelDriverNode(Node):
                               voltage_V=f"{state.voltage[i]:.1f}",
                               hardware_error=", ".join(names) or "none",
                               hardware_error_bits=str(bits))
-                st.level = DiagnosticStatus.ERROR if bits else DiagnosticStatus.OK
-                st.message = f"hardware error: {', '.join(names)}" if bits else "OK"
-            st.values = [KeyValue(key=k, value=v) for k, v in values.items()]
-            arr.status.append(st)
+                level = ERROR if bits else OK
+                message = f"hardware error: {', '.join(names)}" if bits else "OK"
+            arr.status.append(diagnostic_status(f"dynamixel_driver: {j.name}", f"dxl-{j.id}",
+                                                level, message, values.items()))
         tx, fail = stats.transactions - self._window[0], stats.failures - self._window[1]
         self._window = [stats.transactions, stats.failures]
         rate = fail / tx if tx else 0.0
         times = list(stats.cycle_times)
         stats.cycle_times.clear()
-        bus = DiagnosticStatus(name="dynamixel_driver: bus", hardware_id=self._port)
-        bus.values = [KeyValue(key=k, value=str(v)) for k, v in {
+        values = {
             "port": self._port, "baud": self._baud, "connected": drv.connected,
             "sync_read": "fast" if drv.bus.fast else "plain", "cycles": self._cycles,
             "cycle_time_ms": f"{1e3 * sum(times) / len(times):.3f}" if times else "n/a",
             "rate_hz": f"{len(times) / self._diag_period:.1f}",
             "comm_errors": stats.failures, "error_rate": f"{rate:.4f}",
-            "reconnects": drv.reconnects, "last_error": drv.last_error}.items()]
+            "reconnects": drv.reconnects, "last_error": drv.last_error}
         silent = drv.silent_for()
         if not drv.connected:
-            bus.level, bus.message = DiagnosticStatus.ERROR, f"port down: {drv.last_error}"
+            level, message = ERROR, f"port down: {drv.last_error}"
         elif silent > 0.5:
-            bus.level = DiagnosticStatus.ERROR
-            bus.message = f"no valid reply from the servos for {silent:.1f} s: {drv.last_error}"
+            level = ERROR
+            message = f"no valid reply from the servos for {silent:.1f} s: {drv.last_error}"
         elif rate > 0.01:
-            bus.level, bus.message = DiagnosticStatus.WARN, f"bus error rate {rate:.1%}"
+            level, message = WARN, f"bus error rate {rate:.1%}"
         else:
-            bus.level, bus.message = DiagnosticStatus.OK, "OK"
-        arr.status.append(bus)
+            level, message = OK, "OK"
+        arr.status.append(diagnostic_status("dynamixel_driver: bus", self._port, level, message,
+                                            values.items()))
         self._diag.publish(arr)
 
     def destroy_node(self) -> None:
@@ -262,17 +243,7 @@ class DynamixelDriverNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = DynamixelDriverNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(DynamixelDriverNode, args)
 
 
 if __name__ == "__main__":

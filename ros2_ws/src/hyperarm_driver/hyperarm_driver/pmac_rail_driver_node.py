@@ -7,10 +7,7 @@ reports on ``/diagnostics``. Parameters and behaviour: docs/pmac.md.
 """
 from __future__ import annotations
 
-import math
-
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
@@ -20,6 +17,7 @@ from hyperarm_description.model import DescriptionError, load_description
 from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import run_node
 
+from .common import NonEmpty, ParamSpec, Range, declare_parameters, diagnostic_status
 from .pmac.axis import RailAxis, RailConfig
 from .pmac.client import PmacClient
 from .pmac.driver import RailDriver
@@ -28,24 +26,23 @@ from .pmac.errors import PmacError, RailError
 NODE_NAME = "pmac_rail_driver"
 _SERVICE_TIMEOUT = 1.0   # s, wait for the worker to run a service request
 
-# name: (default, description, (min, max) or None)
-PARAMETERS: dict[str, tuple[object, str, tuple[float, float] | None]] = {
+PARAMETERS: ParamSpec = {
     "variant": ("rail_arm", "robot variant; only rail_arm has a rail", None),
     "description_file": ("", "robot description YAML ('' = the packaged one)", None),
-    "host": ("127.0.0.1", "PMAC IP address", None),
-    "port": (1025, "PMAC TCP port", (1, 65535)),
+    "host": ("127.0.0.1", "PMAC IP address", NonEmpty()),
+    "port": (1025, "PMAC TCP port", Range(1, 65535)),
     "motor": (0, "PMAC motor number 1..32; 0 = from the description (rail.pmac.motor)",
-              (0, 32)),
+              Range(0, 32)),
     "counts_per_metre": (0.0, "encoder counts per metre; 0 = from the description "
                               "(rail.pmac.counts_per_metre); negative flips the direction", None),
-    "rate": (50.0, "status poll and joint_states rate, Hz", (5.0, 500.0)),
+    "rate": (50.0, "status poll and joint_states rate, Hz", Range(5.0, 500.0)),
     "timeout": (0.1, "reply timeout of one command, s (link loss detected within "
-                     "timeout + 1/rate)", (0.005, 0.4)),
-    "reconnect_period": (1.0, "delay between reconnection attempts, s", (0.05, 60.0)),
+                     "timeout + 1/rate)", Range(0.005, 0.4)),
+    "reconnect_period": (1.0, "delay between reconnection attempts, s", Range(0.05, 60.0)),
     "require_homing": (True, "refuse setpoints until the card reports home complete", None),
     "configure_card": (True, "write jog speed/acceleration (Ixx22, Ixx19, Ixx20, Ixx21) and "
                              "soft limits (Ixx13, Ixx14) on every (re)connect", None),
-    "diagnostics_period": (0.5, "/diagnostics period, s", (0.1, 10.0)),
+    "diagnostics_period": (0.5, "/diagnostics period, s", Range(0.1, 10.0)),
 }
 
 
@@ -94,19 +91,7 @@ class PmacRailDriver(Node):
             f" {p['rate']:g} Hz, homing {'required' if p['require_homing'] else 'not required'}")
 
     def _declare_parameters(self) -> dict[str, object]:
-        values: dict[str, object] = {}
-        for name, (default, text, bounds) in PARAMETERS.items():
-            if bounds is not None:
-                text += f" [{bounds[0]:g}..{bounds[1]:g}]"
-            value = self.declare_parameter(name, default, ParameterDescriptor(
-                description=text, read_only=True)).value
-            if bounds is not None and not bounds[0] <= value <= bounds[1]:
-                raise SystemExit(f"{NODE_NAME}: parameter {name}={value} not within "
-                                 f"{bounds[0]:g}..{bounds[1]:g}")
-            if isinstance(value, float) and not math.isfinite(value):
-                raise SystemExit(f"{NODE_NAME}: parameter {name} must be finite")
-            values[name] = value
-        return values
+        return declare_parameters(self, PARAMETERS)
 
     def _on_event(self, level: str, message: str) -> None:
         # (rclpy fixes one severity per call site: one call per level)
@@ -147,9 +132,8 @@ class PmacRailDriver(Node):
     def _publish_diagnostics(self) -> None:
         snap = self._driver.snapshot()
         level, message, kv = snap.diagnostic()
-        status = DiagnosticStatus(level=bytes([level]), name=f"{NODE_NAME}: {self._joint}",
-                                  message=message, hardware_id=f"pmac@{snap.endpoint}#{snap.motor}",
-                                  values=[KeyValue(key=k, value=v) for k, v in kv])
+        status = diagnostic_status(f"{NODE_NAME}: {self._joint}",
+                                   f"pmac@{snap.endpoint}#{snap.motor}", level, message, kv)
         out = DiagnosticArray()
         out.header.stamp = self.get_clock().now().to_msg()
         out.status = [status]

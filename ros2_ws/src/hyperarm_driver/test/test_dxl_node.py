@@ -83,7 +83,7 @@ def start_node(executor, rclpy_context, emu, **params):
 
 @pytest.mark.node
 def test_node_states_commands_torque_hold(executor, rclpy_context, emu, wait_for):
-    start_node(executor, rclpy_context, emu)
+    node = start_node(executor, rclpy_context, emu)
     probe = Probe(executor, rclpy_context)
     wait_for(lambda: probe.states, 10.0, what="joint_states")
     assert list(probe.states[-1].name) == NAMES
@@ -100,10 +100,13 @@ def test_node_states_commands_torque_hold(executor, rclpy_context, emu, wait_for
 
     send_until(lambda: abs(probe.position("joint1") - 0.3) < 3e-3, "joint1 at 0.3",
                ["joint1"], [0.3])
-    # a NaN command is rejected whole: joint2 does not move to 0.5
-    for _ in range(5):
-        probe.command(["joint2", "joint3"], [0.5, float("nan")])
-    time.sleep(0.3)
+    # a NaN or unknown-joint command is rejected whole: joint2 does not move to 0.5
+    for k, (names, pos) in enumerate(((["joint2", "joint3"], [0.5, float("nan")]),
+                                      (["joint2", "elbow"], [0.5, 0.1])), start=1):
+        probe.command(names, pos)   # (one at a time: joint_command keeps only the newest)
+        wait_for(lambda: node.rejected_commands == k, 5.0, what=f"rejection of {names} {pos}")
+    n = len(probe.states)
+    wait_for(lambda: len(probe.states) > n + 3, 5.0, what="cycles after the rejections")
     assert abs(probe.position("joint2")) < 3e-3
     # effort only -> current mode on the servo; hold -> back to position mode
     send_until(lambda: emu.ctl("state")["servos"]["5"]["operating_mode"] == 0,
@@ -115,6 +118,31 @@ def test_node_states_commands_torque_hold(executor, rclpy_context, emu, wait_for
     res = probe.call("torque", SetBool.Request(data=False), wait_for)
     assert res.success
     assert all(emu.ctl("state")["servos"][str(i)]["torque_enable"] == 0 for i in range(1, 11))
+
+
+@pytest.mark.node
+@pytest.mark.parametrize("name,value,problem", [
+    ("baud", 1e6, "must be an integer"), ("port", 5, "must be a string"),
+    ("rate", 2000.0, "not within 1..1000"), ("shutdown_torque", "drop", "not one of hold"),
+    ("torque_on_start", "yes", "must be a bool"), ("port", "", "must not be empty"),
+    ("command_timeout", float("nan"), "must be finite")])
+def test_node_rejects_bad_parameters_with_a_clear_error(rclpy_context, name, value, problem):
+    with pytest.raises(SystemExit) as info:
+        DynamixelDriverNode(context=rclpy_context,
+                            parameter_overrides=[Parameter(name, value=value)])
+    text = str(info.value)
+    assert text.startswith(f"dynamixel_driver: parameter {name}") and problem in text, text
+
+
+@pytest.mark.node
+def test_node_takes_an_integer_rate_and_waits_for_a_missing_port(rclpy_context, tmp_path):
+    node = DynamixelDriverNode(context=rclpy_context, parameter_overrides=[
+        Parameter("port", value=str(tmp_path / "ttyNONE")), Parameter("rate", value=50)])
+    try:
+        assert node._period == pytest.approx(0.02) and not node._drv.connected
+        assert "ttyNONE" in node._drv.last_error
+    finally:
+        node.destroy_node()
 
 
 @pytest.mark.node

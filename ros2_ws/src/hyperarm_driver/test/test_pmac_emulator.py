@@ -302,6 +302,30 @@ def test_driver_holds_a_motion_left_over_from_before_a_link_loss(driver, emu, wa
     assert any("moving" in m and "held" in m for _, m in driver.events)
 
 
+def test_driver_stop_halts_a_motion_and_leaves_a_killed_motor_killed(axis, emu,
+                                                                     wait_for) -> None:
+    for kill in (False, True):
+        d = RailDriver(axis, rate=100.0, reconnect_period=0.1)
+        d.start()
+        wait_for(lambda: d.snapshot().link_up, 2.0, what="link")
+        d.request("enable")
+        emu.motor(1).homed = True
+        wait_for(lambda: d.snapshot().homed, 2.0, what="homed seen")
+        if kill:
+            d.request("kill")
+            d.stop()
+            assert not emu.motor(1).closed_loop        # shutdown did not enable it
+            continue
+        start = emu.motor(1).actual
+        d.set_target((emu.motor(1).actual - emu.motor(1).ref) / CPM + 0.05)
+        wait_for(lambda: emu.motor(1).vel != 0, 2.0, what="motion started")
+        d.stop()
+        wait_for(lambda: emu.motor(1).mode == "idle" and emu.motor(1).vel == 0, 2.0,
+                 what="stopped")
+        assert abs(emu.motor(1).actual - start) < 0.05 * CPM - 100   # short of the target
+        assert emu.motor(1).closed_loop
+
+
 def test_home_offset_ixx26_in_sixteenths_of_a_count(axis, client, emu, wait_for) -> None:
     client.command("I126=6400")               # 400 counts beyond the switch is the zero
     home(axis, wait_for)

@@ -196,7 +196,8 @@ def test_node_link_loss_and_reconnect(rclpy_context, executor, emu, wait_for) ->
 
 @pytest.mark.node
 @pytest.mark.parametrize("params", [dict(rate=1000.0), dict(timeout=0.5), dict(motor=33),
-                                    dict(variant="arm"), dict(counts_per_metre=math.nan)])
+                                    dict(variant="arm"), dict(counts_per_metre=math.nan),
+                                    dict(port="1025"), dict(motor=1.0), dict(host="")])
 def test_node_rejects_bad_parameters(rclpy_context, params) -> None:
     from rclpy.parameter import Parameter
 

@@ -152,12 +152,25 @@ class RailDriver:
         self._thread.start()
 
     def stop(self, timeout: float = 2.0) -> None:
-        """Stop the worker and close the link (the card keeps its state: no motion is
-        commanded; a jog in progress completes on the card)."""
+        """Stop the worker, halt a motion in progress and close the link.
+
+        A motor that is enabled and moving gets ``#nJ/`` (decelerate, hold with the servo
+        on): a controller that goes away must not leave the carriage travelling to its last
+        target. A killed motor is left killed (``J/`` would close its loop).
+        """
         self._stop.set()
         self._wake.set()
         if self._thread is not None:
             self._thread.join(timeout)
+        worker_gone = self._thread is None or not self._thread.is_alive()
+        if worker_gone and self.client.connected and self.snapshot().link_up:
+            try:
+                st = self.axis.status()
+                if st.amp_enabled and not st.desired_velocity_zero:
+                    self.axis.stop()
+                    self._log("info", "rail was moving at shutdown: stopped (J/)")
+            except PmacError as exc:
+                self._log("warn", f"could not stop the rail at shutdown: {exc}")
         self.client.close()
         with self._lock:
             reqs, self._requests = self._requests, []
