@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ from hypothesis import strategies as hs
 
 from hyperarm_description.model import load_description
 from hyperarm_driver.dynamixel.bus import DynamixelBus
-from hyperarm_driver.dynamixel.config import bus_config_from_description
+from hyperarm_driver.dynamixel.config import BusConfig, bus_config_from_description
 from hyperarm_driver.dynamixel.driver import DynamixelDriver
 from hyperarm_driver.dynamixel.errors import CommandError, PortOpenError, StartupError
 from hyperarm_driver.dynamixel.testing import EmulatorProcess
@@ -29,8 +30,17 @@ def emu(tmp_path):
         yield e
 
 
-def make_driver(emu: EmulatorProcess, **kw) -> DynamixelDriver:
-    bus = DynamixelBus(bus_config_from_description(DESC), emu.link)
+def mirrored_config() -> BusConfig:
+    """The description's servos with some mounted mirrored and off-centre (the packaged YAML
+    has direction +1 and zero offset 0 everywhere)."""
+    changes = {0: (-1, 0.3), 3: (-1, -0.2), 4: (-1, 0.0), 6: (1, 0.25), 9: (-1, -0.2)}
+    cfg = bus_config_from_description(DESC)
+    return BusConfig(tuple(replace(j, direction=changes[i][0], zero_offset=changes[i][1])
+                           if i in changes else j for i, j in enumerate(cfg.joints)))
+
+
+def make_driver(emu: EmulatorProcess, config: BusConfig | None = None, **kw) -> DynamixelDriver:
+    bus = DynamixelBus(config or bus_config_from_description(DESC), emu.link)
     return DynamixelDriver(bus, **kw)
 
 
@@ -210,8 +220,10 @@ def test_crc_corruption_and_dropped_replies_are_retried(emu):
     emu.ctl("rates", reply_delay=0.25)
     assert drv.cycle() is None and drv.connected and "no status packet" in drv.last_error
     emu.ctl("rates", reply_delay=0.0)
-    time.sleep(0.3)   # let the late replies arrive; the SDK flushes them before the next one
-    assert drv.cycle() is not None
+    # the late replies still arrive for a while; the SDK flushes stale input before each
+    # request, so cycles succeed again once they are through
+    run_until(drv, lambda s: True, 2.0, "a good cycle after the slow replies")
+    assert drv.connected
 
 
 @pytest.mark.parametrize("policy,torque", [("hold", 1), ("release", 0)])
@@ -287,15 +299,49 @@ def test_bad_commands_never_reach_the_wire(emu):
     assert all(r["accepted"] for r in log)
 
 
-def _tick_bounds():
-    """Tick range of every servo, computed here from the YAML (independent of the driver)."""
+def _tick(direction: int, offset: float, q: float) -> float:
+    """Joint angle -> servo tick, written out here independently of the driver."""
+    return 2048 + (direction * q + offset) * 4096 / (2 * math.pi)
+
+
+def _tick_bounds(config: BusConfig):
+    """Tick range of every servo from its limits, direction and zero offset."""
     out = {}
-    for spec in list(DESC.joints) + [DESC.gripper]:
-        s = spec.servo
-        a = 2048 + (s.direction * spec.lower + s.zero_offset) * 4096 / (2 * math.pi)
-        b = 2048 + (s.direction * spec.upper + s.zero_offset) * 4096 / (2 * math.pi)
-        out[s.id] = (min(a, b) - 1e-6, max(a, b) + 1e-6)
+    for j in config.joints:
+        a, b = _tick(j.direction, j.zero_offset, j.lower), _tick(j.direction, j.zero_offset,
+                                                                 j.upper)
+        out[j.id] = (min(a, b) - 1e-6, max(a, b) + 1e-6)
     return out
+
+
+def test_direction_and_zero_offset_on_the_wire(emu):
+    cfg = mirrored_config()
+    drv = make_driver(emu, cfg)
+    drv.connect()
+    bounds = _tick_bounds(cfg)
+    for j in cfg.joints:
+        s = servo(emu, j.id)
+        assert bounds[j.id][0] <= s["min_position_limit"] < bounds[j.id][0] + 1
+        assert bounds[j.id][1] - 1 < s["max_position_limit"] <= bounds[j.id][1]
+    drv.set_torque(True)
+    # joint1 (mirrored, +0.3), joint4 (mirrored, -0.2), joint7 (+0.25): goals in ticks
+    targets = {0: 0.4, 3: -0.5, 6: 0.3}
+    drv.command([cfg.joints[i].name for i in targets], list(targets.values()))
+    st = run_until(drv, lambda s: all(abs(s.position[i] - q) < 2e-3 for i, q in targets.items()),
+                   5.0, "mirrored joints at their goals")
+    for i, q in targets.items():
+        j = cfg.joints[i]
+        assert servo(emu, j.id)["goal_position"] == round(_tick(j.direction, j.zero_offset, q))
+    assert abs(st.position[1]) < 2e-3   # untouched joint stays
+    # torque on a mirrored joint: positive joint torque turns the joint positive
+    drv.command(["joint5"], effort=[0.3])
+    st = run_until(drv, lambda s: s.position[4] > 0.05, 3.0, "joint5 turning positive")
+    assert servo(emu, 5)["goal_current"] < 0 and st.effort[4] == pytest.approx(0.3, rel=0.05)
+    # beyond a limit a mirrored joint's torque is cut like any other's
+    drv.command(["joint1"], [10.0])
+    run_until(drv, lambda s: abs(s.position[0] - cfg.joints[0].upper) < 2e-3, 5.0,
+              "joint1 at its upper limit")
+    assert servo(emu, 1)["goal_position"] == servo(emu, 1)["min_position_limit"]
 
 
 finite = hs.floats(min_value=-1e6, max_value=1e6, allow_nan=False)
@@ -314,10 +360,13 @@ def commands(draw):
     return names, pos, eff
 
 
-def test_property_no_generated_command_puts_a_goal_outside_limits_on_the_wire(tmp_path):
-    bounds = _tick_bounds()
+@pytest.mark.parametrize("config", ["description", "mirrored"])
+def test_property_no_generated_command_puts_a_goal_outside_limits_on_the_wire(tmp_path,
+                                                                             config):
+    cfg = mirrored_config() if config == "mirrored" else bus_config_from_description(DESC)
+    bounds = _tick_bounds(cfg)
     with EmulatorProcess(workdir=tmp_path) as e:
-        drv = make_driver(e)
+        drv = make_driver(e, cfg)
         drv.connect()
         drv.set_torque(True)
         seen = []
