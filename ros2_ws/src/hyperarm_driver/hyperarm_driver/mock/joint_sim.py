@@ -387,8 +387,8 @@ class JointSim:
         big_e = np.abs(e) / (adt * dt)
         n = np.floor((np.sqrt(1.0 + 8.0 * big_e) - 1.0) / 2.0)
         v_stop = adt * (big_e + n * (n + 1.0) / 2.0) / (n + 1.0)
-        v_des = np.clip(np.sign(e) * v_stop, -self.vmax, self.vmax)
-        v_new = np.clip(v_des, self._prof_v - adt, self._prof_v + adt)
+        v_des = np.minimum(np.maximum(np.sign(e) * v_stop, -self.vmax), self.vmax)
+        v_new = np.minimum(np.maximum(v_des, self._prof_v - adt), self._prof_v + adt)
         # on the braking curve: follow it exactly (it decelerates at amax, step by step)
         braking = (v_new * e > 0.0) & (np.abs(v_des) < np.abs(v_new))
         v_new = np.where(braking, v_des, v_new)
@@ -461,7 +461,10 @@ class JointSim:
             p0 = p0 + jr @ (q_lin - q)             # the interference at the undeflected q
             f = self._solve_contacts(jr, p0, owner, tangential, kinv, v)
             solved = contacts, jr, p0, f, owner, tangential, points, q_lin
-            q_lin = q + kinv * (jr.T @ f)
+            deflection = kinv * (jr.T @ f)
+            if np.abs(deflection).max() < 1e-3:   # rad: re-linearizing would change ~nothing
+                break
+            q_lin = q + deflection
         if solved is None:
             self.contact_force = np.zeros(3)
             self._anchors.clear()
