@@ -1,8 +1,9 @@
 """End-to-end tier: installed executables as separate processes.
 
-- The mock and the real Dynamixel driver (on the pty emulator) expose the same topic and
-  service names and types, the same parameters (where they apply) and the same diagnostics
-  keys: higher-level nodes cannot tell them apart.
+- The mock and the real Dynamixel driver (on the pty emulator), and the mock's rail variant
+  and the PMAC rail driver (on the TCP emulator), expose the same topic and service names
+  and types, the same parameters (where they apply) and the same diagnostics keys:
+  higher-level nodes cannot tell them apart.
 - On sim time the mock publishes /clock and a node with use_sim_time follows it.
 """
 from __future__ import annotations
@@ -117,6 +118,52 @@ def test_mock_and_dynamixel_driver_expose_the_same_interface(launch, rclpy_conte
     wait_for(diag_pair, 20.0, what="diagnostics of both")
     for part in ["bus"] + [f"joint{i}" for i in range(1, 10)] + ["gripper"]:
         assert statuses[f"mock_driver: {part}"] == statuses[f"dynamixel_driver: {part}"], part
+
+
+def test_rail_variant_and_pmac_rail_driver_expose_the_same_interface(
+        launch, rclpy_context, executor, wait_for):
+    import socket
+
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    launch("hyperarm_driver", "pmac_emulator", "--port", str(port))
+    launch("hyperarm_driver", "pmac_rail_driver", params={"port": port}, namespace="/pmac")
+    launch("hyperarm_driver", "mock_driver", params={"variant": "rail_arm"}, namespace="/mock")
+    probe = rclpy.create_node("probe", context=rclpy_context)
+    statuses: dict[str, set] = {}
+    probe.create_subscription(
+        DiagnosticArray, contract.DIAGNOSTICS,
+        lambda m: statuses.update({s.name: {kv.key for kv in s.values} for s in m.status}),
+        qos_for(contract.DIAGNOSTICS))
+    executor.add_node(probe)
+    needs = {"publishers": {contract.JOINT_STATES, contract.DIAGNOSTICS},
+             "subscriptions": {contract.JOINT_COMMAND},
+             "services": {contract.SET_TORQUE, contract.HOLD, contract.RAIL_HOME}}
+
+    def complete(ns, name):
+        if (name, ns) not in probe.get_node_names_and_namespaces():
+            return None
+        got = _interface(probe, name, ns)
+        return got if all(needs[k] <= set(got[k]) for k in needs) else None
+
+    real = wait_for(lambda: complete("/pmac", "pmac_rail_driver"), 30.0,
+                    what="the PMAC driver's interface")
+    mock = wait_for(lambda: complete("/mock", "mock_driver"), 30.0, what="the mock's interface")
+    for kind in needs:
+        for name, types in real[kind].items():
+            assert mock[kind].get(name) == types, f"{kind} {name}"
+    real_params = _parameters(probe, "/pmac/pmac_rail_driver", wait_for)
+    mock_params = _parameters(probe, "/mock/mock_driver", wait_for)
+    for name in ("description_file", "rate", "require_homing", "diagnostics_period"):
+        assert name in real_params, f"the PMAC driver has no parameter {name} any more"
+        assert mock_params.get(name) == real_params[name], name
+    wait_for(lambda: "pmac_rail_driver: rail" in statuses and "mock_driver: rail" in statuses,
+             20.0, what="rail diagnostics of both")
+    assert statuses["mock_driver: rail"] == statuses["pmac_rail_driver: rail"]
 
 
 def test_sim_time_clock_drives_use_sim_time_nodes(launch, rclpy_context, executor, wait_for):
