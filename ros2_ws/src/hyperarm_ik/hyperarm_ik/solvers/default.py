@@ -4,9 +4,11 @@ One iteration, with e = [p0 - p; s * log3(R0 R^T)] (s = ``orientation_scale`` m/
 position rows only when position_only), J the matching rows of the LOCAL_WORLD_ALIGNED
 Jacobian (orientation rows scaled by s), W^-1 = diag(winv) and z a desired joint motion:
 
-    lambda = e.e + lambda0                                    (analytic damping, Sugihara)
-    dq     = z + W^-1 J^T (J W^-1 J^T + lambda I)^-1 (e - J z)
+    lambda = gain * e.e + lambda0                     (analytic damping, after Sugihara)
+    dq     = z + W^-1 J^T (J W^-1 J^T + lambda I)^-1 (e - J z),  |dq| <= max_step
     q      = clip(q + dq, lower, upper)
+
+The 6 x 6 system is solved by Cholesky (eigenpy.LLT, pinocchio's own binding dependency).
 
 i.e. dq minimises |J dq - e|^2 + lambda |dq - z|^2_W. Damping that shrinks with the error
 gives Gauss-Newton speed near the solution and stays bounded at singular poses (q = 0).
@@ -19,12 +21,14 @@ Cold starts (fixed arm): when tool0 is far (> 0.1 m) from the target and joint1 
 swing round (> 0.5 rad), joint1 is first turned to the target's azimuth (an exact one-joint
 move); warm starts of tracking are never affected. Off for the rail variant, where it did
 not pay off.
+
 Restarts: an attempt stops when it stalls (error not reduced by 1 % over ``stall``
 iterations) or after ``max_iterations``; the next starts from uniform random joints, until the
 timeout. The best configuration seen is returned, with success computed from it.
 Unreachable: a target farther from the shoulder than the sum of the link lengths (plus the
 rail's travel) is out of reach for certain; the solver then returns at once with the
 position-only best effort of a short attempt and says so.
+Parameters are documented in docs/ik.md; units: m, rad, s (orientation_scale m/rad).
 """
 from __future__ import annotations
 
