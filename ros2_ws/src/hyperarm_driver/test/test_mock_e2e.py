@@ -60,72 +60,82 @@ def _parameters(node, target: str, wait_for) -> dict[str, int]:
     return {d.name: d.type for d in fut.result().descriptors}
 
 
+class Comparison:
+    """A probe node that records the diagnostics keys of every status and compares a real
+    driver's interface with the mock's."""
+
+    def __init__(self, rclpy_context, executor, wait_for) -> None:
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        self.wait_for = wait_for
+        self.probe = rclpy.create_node("probe", context=rclpy_context)
+        self.statuses: dict[str, set] = {}
+        self.probe.create_subscription(
+            DiagnosticArray, contract.DIAGNOSTICS,
+            lambda m: self.statuses.update({s.name: {kv.key for kv in s.values}
+                                            for s in m.status}),
+            qos_for(contract.DIAGNOSTICS))
+        executor.add_node(self.probe)
+
+    def interface(self, namespace: str, name: str, needs: dict[str, set]) -> dict:
+        """The node's interface, once it exists and shows at least ``needs``."""
+        def complete():
+            if (name, namespace) not in self.probe.get_node_names_and_namespaces():
+                return None
+            got = _interface(self.probe, name, namespace)
+            return got if all(needs[k] <= set(got[k]) for k in needs) else None
+
+        return self.wait_for(complete, 30.0, what=f"the interface of {namespace}/{name}")
+
+    def same_interface(self, real_ns: str, real_name: str, needs: dict[str, set],
+                       shared_parameters: tuple[str, ...]) -> tuple[dict, dict]:
+        """Assert: everything the real node offers, the mock offers with the same type;
+        the shared parameters exist on both with the same type."""
+        real = self.interface(real_ns, real_name, needs)
+        mock = self.interface("/mock", "mock_driver", needs)
+        for kind in needs:
+            for name, types in real[kind].items():
+                assert mock[kind].get(name) == types, \
+                    f"{kind} {name}: {types} vs mock's {mock[kind].get(name)}"
+        real_params = _parameters(self.probe, f"{real_ns}/{real_name}", self.wait_for)
+        mock_params = _parameters(self.probe, "/mock/mock_driver", self.wait_for)
+        for name in shared_parameters:
+            assert name in real_params, f"{real_name} has no parameter {name} any more"
+            assert mock_params.get(name) == real_params[name], name
+        return real, mock
+
+    def same_diagnostics(self, real_name: str, parts: list[str]) -> None:
+        names = [f"{n}: {p}" for n in (real_name, "mock_driver") for p in parts]
+        self.wait_for(lambda: all(n in self.statuses for n in names), 20.0,
+                      what=f"diagnostics {names}")
+        for part in parts:
+            assert self.statuses[f"mock_driver: {part}"] == \
+                self.statuses[f"{real_name}: {part}"], part
+
+
 def test_mock_and_dynamixel_driver_expose_the_same_interface(launch, rclpy_context, executor,
                                                              wait_for, tmp_path):
-    import rclpy
-    from diagnostic_msgs.msg import DiagnosticArray
-
     link = str(tmp_path / "ttyDXL")
     launch("hyperarm_driver", "dxl_emulator", "--link", link)
     wait_for(lambda: os.path.exists(link), 20.0, what="the emulator's pty")
-    dxl = launch("hyperarm_driver", "dynamixel_driver", params={"port": link},
-                 namespace="/dxl")
+    launch("hyperarm_driver", "dynamixel_driver", params={"port": link}, namespace="/dxl")
     launch("hyperarm_driver", "mock_driver", namespace="/mock")
-    probe = rclpy.create_node("probe", context=rclpy_context)
-    statuses: dict[str, dict] = {}
-    probe.create_subscription(
-        DiagnosticArray, contract.DIAGNOSTICS,
-        lambda m: statuses.update({s.name: {kv.key for kv in s.values} for s in m.status}),
-        qos_for(contract.DIAGNOSTICS))
-    executor.add_node(probe)
-
-    def both_up():
-        names = probe.get_node_names_and_namespaces()
-        return ("dynamixel_driver", "/dxl") in names and ("mock_driver", "/mock") in names
-
-    wait_for(both_up, 30.0, what=f"both nodes (driver log: {dxl.output()[-500:]})")
-    expected = {"publishers", "subscriptions", "services"}
-
-    def complete(ns, name, needs):
-        got = _interface(probe, name, ns)
-        return got if all(needs[k] <= set(got[k]) for k in expected) else None
-
+    cmp = Comparison(rclpy_context, executor, wait_for)
     needs = {"publishers": {contract.JOINT_STATES, contract.DIAGNOSTICS},
              "subscriptions": {contract.JOINT_COMMAND},
              "services": {contract.SET_TORQUE, contract.REBOOT, contract.HOLD}}
-    real = wait_for(lambda: complete("/dxl", "dynamixel_driver", needs), 20.0,
-                    what="the Dynamixel driver's interface")
-    mock = wait_for(lambda: complete("/mock", "mock_driver", needs), 20.0,
-                    what="the mock's interface")
-    for kind in expected:
-        for name, types in real[kind].items():
-            assert mock[kind].get(name) == types, f"{kind} {name}: {types} vs mock's " \
-                                                  f"{mock[kind].get(name)}"
+    real, mock = cmp.same_interface("/dxl", "dynamixel_driver", needs, SHARED_PARAMETERS)
     # The mock adds only the camera (and /clock on sim time), nothing a driver user needs.
     extra = set(mock["publishers"]) - set(real["publishers"])
     assert extra == {contract.DETECTIONS, contract.DETECTIONS_TRUTH}
-
-    real_params = _parameters(probe, "/dxl/dynamixel_driver", wait_for)
-    mock_params = _parameters(probe, "/mock/mock_driver", wait_for)
-    for name in SHARED_PARAMETERS:
-        assert name in real_params, f"the Dynamixel driver has no parameter {name} any more"
-        assert mock_params.get(name) == real_params[name], name
-
-    def diag_pair():
-        return ("dynamixel_driver: joint1" in statuses and "mock_driver: joint1" in statuses
-                and "dynamixel_driver: bus" in statuses and "mock_driver: bus" in statuses)
-
-    wait_for(diag_pair, 20.0, what="diagnostics of both")
-    for part in ["bus"] + [f"joint{i}" for i in range(1, 10)] + ["gripper"]:
-        assert statuses[f"mock_driver: {part}"] == statuses[f"dynamixel_driver: {part}"], part
+    cmp.same_diagnostics("dynamixel_driver",
+                         ["bus"] + [f"joint{i}" for i in range(1, 10)] + ["gripper"])
 
 
 def test_rail_variant_and_pmac_rail_driver_expose_the_same_interface(
         launch, rclpy_context, executor, wait_for):
     import socket
-
-    import rclpy
-    from diagnostic_msgs.msg import DiagnosticArray
 
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
@@ -133,37 +143,13 @@ def test_rail_variant_and_pmac_rail_driver_expose_the_same_interface(
     launch("hyperarm_driver", "pmac_emulator", "--port", str(port))
     launch("hyperarm_driver", "pmac_rail_driver", params={"port": port}, namespace="/pmac")
     launch("hyperarm_driver", "mock_driver", params={"variant": "rail_arm"}, namespace="/mock")
-    probe = rclpy.create_node("probe", context=rclpy_context)
-    statuses: dict[str, set] = {}
-    probe.create_subscription(
-        DiagnosticArray, contract.DIAGNOSTICS,
-        lambda m: statuses.update({s.name: {kv.key for kv in s.values} for s in m.status}),
-        qos_for(contract.DIAGNOSTICS))
-    executor.add_node(probe)
+    cmp = Comparison(rclpy_context, executor, wait_for)
     needs = {"publishers": {contract.JOINT_STATES, contract.DIAGNOSTICS},
              "subscriptions": {contract.JOINT_COMMAND},
              "services": {contract.SET_TORQUE, contract.HOLD, contract.RAIL_HOME}}
-
-    def complete(ns, name):
-        if (name, ns) not in probe.get_node_names_and_namespaces():
-            return None
-        got = _interface(probe, name, ns)
-        return got if all(needs[k] <= set(got[k]) for k in needs) else None
-
-    real = wait_for(lambda: complete("/pmac", "pmac_rail_driver"), 30.0,
-                    what="the PMAC driver's interface")
-    mock = wait_for(lambda: complete("/mock", "mock_driver"), 30.0, what="the mock's interface")
-    for kind in needs:
-        for name, types in real[kind].items():
-            assert mock[kind].get(name) == types, f"{kind} {name}"
-    real_params = _parameters(probe, "/pmac/pmac_rail_driver", wait_for)
-    mock_params = _parameters(probe, "/mock/mock_driver", wait_for)
-    for name in ("description_file", "rate", "require_homing", "diagnostics_period"):
-        assert name in real_params, f"the PMAC driver has no parameter {name} any more"
-        assert mock_params.get(name) == real_params[name], name
-    wait_for(lambda: "pmac_rail_driver: rail" in statuses and "mock_driver: rail" in statuses,
-             20.0, what="rail diagnostics of both")
-    assert statuses["mock_driver: rail"] == statuses["pmac_rail_driver: rail"]
+    cmp.same_interface("/pmac", "pmac_rail_driver", needs,
+                       ("description_file", "rate", "require_homing", "diagnostics_period"))
+    cmp.same_diagnostics("pmac_rail_driver", ["rail"])
 
 
 def test_sim_time_clock_drives_use_sim_time_nodes(launch, rclpy_context, executor, wait_for):
