@@ -342,6 +342,26 @@ def test_emulator_command_line_help() -> None:
     assert out.returncode == 0 and "--port" in out.stdout and "127.0.0.1" in out.stdout
 
 
+def test_emulator_exits_on_sigint_even_if_started_with_sigint_ignored() -> None:
+    """A background job starts its children with SIGINT ignored (the launch fixture and
+    users stop the emulator with SIGINT)."""
+    import signal
+    import subprocess
+    import sys
+    proc = subprocess.Popen([sys.executable, "-m", "hyperarm_driver.pmac.emulator", "--port",
+                             "0"], stdout=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    try:
+        assert "listening on 127.0.0.1:" in proc.stdout.readline()
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=10.0) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stdout.close()
+
+
 def test_serial_client_on_a_pty(emu) -> None:
     from hyperarm_driver.pmac.client import PmacSerialClient
     with PmacSerialClient(emu.serve_pty(), timeout=0.3) as c:

@@ -615,7 +615,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"pmac_emulator: listening on 127.0.0.1:{emu.port} with {args.motors} motor(s)",
           flush=True)
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    # SIGINT explicitly too: a process started from a background job inherits SIGINT
+    # ignored, and Python then installs no KeyboardInterrupt handler
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
     try:
         while not stop.wait(args.drop_every or 0.5):
             if args.drop_every:
