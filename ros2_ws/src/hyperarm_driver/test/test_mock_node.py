@@ -190,3 +190,21 @@ def test_rail_variant_homing(rclpy_context, executor, wait_for):
     p.send(["rail"], [0.3])
     wait_for(lambda: abs(p.position("rail") - 0.3) < 1e-6, 5.0, what="rail at 0.3 m")
     assert int(p.diag("mock_driver: rail")["rejected_setpoints"]) == 1
+
+
+@pytest.mark.parametrize("params, message", [
+    ({"workcell_file": "/nonexistent/workcell.yaml"}, "cannot read work-cell file"),
+    ({"rate": 0.0}, "rate must be within 1..1000 Hz"),
+    ({"sim_speed": -1.0}, "sim_speed must be 0 (real time) or within 0.1..100"),
+    ({"shutdown_torque": "drop"}, "shutdown_torque must be 'hold' or 'release'"),
+    ({"variant": "tripod"}, "unknown variant 'tripod'"),
+])
+def test_bad_parameters_stop_with_a_clear_message(rclpy_context, params, message):
+    from rclpy.parameter import Parameter
+
+    from hyperarm_driver.mock_driver_node import MockDriver
+
+    with pytest.raises(SystemExit) as err:
+        MockDriver(context=rclpy_context,
+                   parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
+    assert message in str(err.value)

@@ -43,7 +43,7 @@ from hyperarm_description.model import RobotDescription
 from hyperarm_description.pinocchio_model import build_model
 
 from .config import MockConfig, MockError, load_mock_config
-from .world import World, WorldEvent
+from .world import BlockState, World, WorldEvent
 
 __all__ = ["ControlMode", "CommandReport", "StateSample", "MockCommandError", "JointSim",
            "OVERLOAD_TIME", "RAIL_FORCE_LIMIT"]
@@ -182,8 +182,6 @@ class JointSim:
         the command latency."""
         if len(positions) == 0 and len(efforts) == 0:
             raise JointStateError("command has neither positions nor efforts")
-        if len(positions) == 0 and len(names) == 0:
-            raise JointStateError("command names no joints")
         goals = check_command(names, positions, self.names) if len(positions) else {}
         torques = check_command(names, efforts, self.names, "effort") if len(efforts) else {}
         idx = [self._index[n] for n in names]
@@ -412,19 +410,30 @@ class JointSim:
 
     def _dynamics(self, dt: float, q: np.ndarray, v: np.ndarray, a: np.ndarray,
                   P: np.ndarray, D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Integrate the torque-mode / limp joints ``D`` (others follow their reference)."""
+        """Integrate the torque-mode / limp joints ``D`` (others follow their reference).
+
+        Sub-steps of semi-implicit Euler with implicit viscous damping; the mass matrix and
+        the contact rows are evaluated once per step (their interferences follow the
+        sub-steps' motion linearly), the bias forces (RNEA) every sub-step."""
         h = dt / SUBSTEPS
+        nk = self.nk
         tau_d = self._applied_torque(D)
         damping = self.cfg.servo.damping
         q, v = q.copy(), v.copy()
-        lo, hi = self.lower[:self.nk][D], self.upper[:self.nk][D]
+        lo, hi = self.lower[:nk][D], self.upper[:nk][D]
+        m = pin.crba(self.model, self.data, q + self.offset[:nk])
+        m = np.triu(m) + np.triu(m, 1).T
+        mdd = m[np.ix_(D, D)] + h * damping * np.eye(int(D.sum()))
+        rows = self._contact_rows(q) if self.world.state is BlockState.HELD else None
+        kinv = np.where(P, 1.0 / self.stiffness[:nk], 0.0)
+        q0 = q.copy()
         for _ in range(SUBSTEPS):
-            _, gen = self._contacts(q, P, v=v)
-            qt = q + self.offset[:self.nk]
-            b = pin.rnea(self.model, self.data, qt, v, a)
-            m = pin.crba(self.model, self.data, qt)
-            m = np.triu(m) + np.triu(m, 1).T
-            mdd = m[np.ix_(D, D)] + h * damping * np.eye(int(D.sum()))
+            gen = np.zeros(nk)
+            if rows is not None:
+                _, jr, p0, owner, tangential, _ = rows
+                f = self._solve_contacts(jr, p0 + jr @ (q - q0), owner, tangential, kinv, v)
+                gen = jr.T @ f
+            b = pin.rnea(self.model, self.data, q + self.offset[:nk], v, a)
             rhs = tau_d + gen[D] - b[D] - damping * v[D]
             vd = v[D] + h * np.linalg.solve(mdd, rhs)
             qd = q[D] + h * vd
@@ -446,7 +455,7 @@ class JointSim:
         nk = self.nk
         zero = np.zeros(nk)
         self._contact_rows_used = None
-        if self.world.state.value != "held":
+        if self.world.state is not BlockState.HELD:
             self.contact_force = np.zeros(3)
             self._anchors.clear()
             return zero, zero
@@ -647,7 +656,7 @@ class JointSim:
         self.position[g], self.velocity[g], self.effort[g] = q, vel, effort
         grip = abs(effort) if contact else 0.0
         min_effort = self.cfg.world.grasp.min_effort
-        if self.world.state.value == "held":
+        if self.world.state is BlockState.HELD:
             if not contact:
                 self.world.release(self._tool, "released")
             elif grip < min_effort:   # slipped: let go on purpose if it is opening

@@ -165,7 +165,8 @@ class World:
                 excess = e - (self.cfg.block.hole_radius - p.radius)
                 if excess > 0.0 and e > 0.0:
                     n = -np.array([centre[0] - p.xy[0], centre[1] - p.xy[1], 0.0]) / e
-                    z = max(bottom, self.cfg.table_height) + 0.5 * (min(top, centre[2] + self._half[2]) - max(bottom, self.cfg.table_height))
+                    low = max(bottom, self.cfg.table_height)     # middle of the overlap
+                    z = low + 0.5 * (min(top, centre[2] + self._half[2]) - low)
                     out.append(Contact(f"peg_side:{name}", n, excess,
                                        np.array([centre[0], centre[1], z])))
                 continue
