@@ -44,6 +44,16 @@ def make_driver(emu: EmulatorProcess, config: BusConfig | None = None, **kw) -> 
     return DynamixelDriver(bus, **kw)
 
 
+def torque_on_joint4(emu: EmulatorProcess, effort: float, **kw) -> DynamixelDriver:
+    """A connected driver, torque on, joint4 in current mode with ``effort`` (N·m)."""
+    drv = make_driver(emu, **kw)
+    drv.connect()
+    drv.set_torque(True)
+    drv.command(["joint4"], effort=[effort])
+    drv.cycle()
+    return drv
+
+
 def run_until(drv: DynamixelDriver, cond, timeout: float, what: str, period: float = 0.01):
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -69,6 +79,17 @@ def wait_log(emu: EmulatorProcess, cond, timeout: float = 2.0) -> list:
 
 def servo(emu: EmulatorProcess, sid: int) -> dict:
     return emu.ctl("state")["servos"][str(sid)]
+
+
+def wait_servo(emu: EmulatorProcess, sid: int, cond, timeout: float, what: str) -> dict:
+    deadline = time.monotonic() + timeout
+    while True:
+        s = servo(emu, sid)
+        if cond(s):
+            return s
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}: {s}")
+        time.sleep(0.01)
 
 
 def test_startup_configures_every_servo_torque_off(emu):
@@ -129,13 +150,10 @@ def test_motion_in_position_mode_and_plain_sync_read(tmp_path):
 
 
 def test_current_mode_and_watchdog_hold(emu):
-    drv = make_driver(emu, command_timeout=0.3)
-    drv.connect()
-    drv.set_torque(True)
-    drv.command(["joint4"], effort=[0.5])
-    drv.cycle()
+    drv = torque_on_joint4(emu, 0.5, command_timeout=0.3)
     s = servo(emu, 4)
     assert s["operating_mode"] == 0 and s["torque_enable"] == 1
+    assert s["bus_watchdog"] == 15          # armed with command_timeout 0.3 s / 20 ms
     kt, unit = drv.config.joints[3].model.torque_constant, drv.config.joints[3].model.current_unit
     assert s["goal_current"] == round(0.5 / kt / unit)
     st = run_until(drv, lambda s: s.position[3] > 0.05, 3.0, "joint4 to turn under torque")
@@ -147,6 +165,7 @@ def test_current_mode_and_watchdog_hold(emu):
     assert time.monotonic() - t_last >= 0.3 - 0.02
     assert drv.watchdog_trips == 1
     held = servo(emu, 4)["goal_position"]
+    assert servo(emu, 4)["bus_watchdog"] == 0   # not armed in position mode
     time.sleep(0.2)
     drv.cycle()
     assert servo(emu, 4)["goal_position"] == held
@@ -276,6 +295,35 @@ def test_port_loss_detected_and_reconnect_with_torque_off(emu):
     assert drv.connected and drv.reconnects == 1 and not any(drv.bus.torque)
     assert all(servo(emu, i)["torque_enable"] == 0 for i in range(1, 11))
     assert st is not None
+
+
+def test_port_loss_in_current_mode_the_servos_bus_watchdog_stops_it(emu):
+    drv = torque_on_joint4(emu, 0.5, command_timeout=0.2, reconnect_period=0.1)
+    assert servo(emu, 4)["goal_current"] > 0 and servo(emu, 4)["bus_watchdog"] == 10
+    emu.ctl("disappear", seconds=1.0)        # nobody can command the servo any more
+    t0 = time.monotonic()
+    s = wait_servo(emu, 4, lambda s: s["bus_watchdog"] == -1, 3.0, "bus watchdog trip")
+    assert s["goal_current"] == 0 and s["torque_enable"] == 1
+    assert time.monotonic() - t0 >= 0.2 - 0.02
+    # back: reconnect clears the trip, torque off; torque control works again when asked
+    run_until(drv, lambda s: True, 5.0, "reconnect")
+    assert servo(emu, 4)["bus_watchdog"] == 0 and servo(emu, 4)["torque_enable"] == 0
+    drv.set_torque(True)
+    drv.command(["joint4"], effort=[0.5])
+    drv.cycle()
+    assert servo(emu, 4)["goal_current"] > 0 and servo(emu, 4)["operating_mode"] == 0
+
+
+def test_a_bus_watchdog_trip_is_seen_and_the_joint_held(emu):
+    drv = torque_on_joint4(emu, 0.3, command_timeout=0.2)
+    # the host stalls for longer than the watchdog, effort commands keep coming after it
+    wait_servo(emu, 4, lambda s: s["bus_watchdog"] == -1, 3.0, "bus watchdog trip")
+    drv.command(["joint4"], effort=[0.3])
+    st = drv.cycle()
+    assert st is not None and st.bus_watchdog[3] == -1
+    assert any("bus watchdog" in e and "joint4" in e for e in drv.pop_events())
+    s = servo(emu, 4)
+    assert s["operating_mode"] == 3 and s["bus_watchdog"] == 0 and s["torque_enable"] == 1
 
 
 def test_bad_commands_never_reach_the_wire(emu):

@@ -157,6 +157,29 @@ def test_emulated_servo_enforces_firmware_rules():
     assert st.error & 0x7F == p2.ERR_INSTRUCTION
 
 
+def test_emulated_bus_watchdog_stops_a_torque_servo_on_a_silent_bus():
+    bus = EmulatedBus([EmulatedServo(1, model_by_name("XM430-W350"))])
+    s = bus.servos[1]
+
+    def write(t, addr, data):
+        return bus.feed(p2.build_packet(1, p2.INST_WRITE, bytes([addr, 0]) + data), now=t)
+    write(0.0, 11, bytes([0]))                           # current mode
+    write(0.0, 98, bytes([5]))                           # armed: 100 ms
+    write(0.0, 102, (200).to_bytes(2, "little"))         # goal current
+    write(0.0, 64, bytes([1]))                           # torque on
+    for t in (0.05, 0.1, 0.15):                          # traffic keeps it armed
+        write(t, 102, (200).to_bytes(2, "little"))
+    bus.advance(0.24)
+    assert s.get("bus_watchdog") == 5 and s.get("goal_current") == 200
+    bus.advance(0.3)                                     # 150 ms without a packet
+    assert s.get("bus_watchdog") == -1 and s.get("goal_current") == 0
+    (st,) = p2.PacketReader().feed(b"".join(write(0.31, 102, (100).to_bytes(2, "little"))))
+    assert st.error == p2.ERR_ACCESS and s.get("goal_current") == 0   # goals read-only
+    write(0.32, 98, bytes([0]))                          # cleared
+    write(0.33, 102, (100).to_bytes(2, "little"))
+    assert s.get("bus_watchdog") == 0 and s.get("goal_current") == 100
+
+
 def test_emulated_bus_instructions_byte_exact():
     bus = EmulatedBus([EmulatedServo(1, model_by_name("MX-64")),
                        EmulatedServo(2, model_by_name("XM540-W270"))])

@@ -1,7 +1,8 @@
 """The Dynamixel bus on the official dynamixel-sdk (Protocol 2.0), in SI units (no ROS).
 
-One cycle = one (fast) sync read of a 14-byte indirect block per servo (hardware error,
-present current, velocity, position, input voltage, temperature) + one sync write of a
+One cycle = one (fast) sync read of a 15-byte indirect block per servo (hardware error,
+present current, velocity, position, input voltage, temperature, bus watchdog) + one sync
+write of a
 6-byte indirect block (goal current, goal position). The indirect addresses are set up by
 :meth:`DynamixelBus.configure`, so both transfers are single instructions.
 Every SDK call is wrapped: port failures raise :class:`PortLostError`, failed transactions
@@ -10,6 +11,7 @@ Every SDK call is wrapped: port failures raise :class:`PortLostError`, failed tr
 from __future__ import annotations
 
 import logging
+import math
 import os
 import termios
 import time
@@ -23,9 +25,9 @@ from dynamixel_sdk import (COMM_SUCCESS, GroupSyncRead, GroupSyncWrite, PacketHa
                            PortHandler)
 
 from .config import BusConfig, velocity_to_raw
-from .control_table import (CENTER_TICK, INDIRECT_ADDRESS_1, INDIRECT_DATA_1, RAD_PER_TICK,
-                            RADPS_PER_VELOCITY_UNIT, REGISTERS, OperatingMode,
-                            decode_hardware_error, model_by_number)
+from .control_table import (BUS_WATCHDOG_UNIT, CENTER_TICK, INDIRECT_ADDRESS_1,
+                            INDIRECT_DATA_1, RAD_PER_TICK, RADPS_PER_VELOCITY_UNIT, REGISTERS,
+                            OperatingMode, decode_hardware_error, model_by_number)
 from .errors import CommError, PortLostError, PortOpenError, StartupError
 
 __all__ = ["BusState", "BusStats", "DynamixelBus", "READ_BLOCK", "WRITE_BLOCK",
@@ -35,7 +37,8 @@ _log = logging.getLogger(__name__)
 
 # (register, size) laid out in indirect data, in this order
 READ_BLOCK = ("hardware_error_status", "present_current", "present_velocity",
-              "present_position", "present_input_voltage", "present_temperature")
+              "present_position", "present_input_voltage", "present_temperature",
+              "bus_watchdog")
 WRITE_BLOCK = ("goal_current", "goal_position")
 
 
@@ -59,7 +62,8 @@ _PORT_ERRORS = (OSError, termios.error)  # serial.SerialException is an OSError
 
 @dataclass
 class BusState:
-    """One sync read, arrays in joint order: rad, rad/s, N·m, A, V, °C, raw error bits."""
+    """One sync read, arrays in joint order: rad, rad/s, N·m, A, V, °C, raw error bits,
+    Bus Watchdog register (-1 = tripped)."""
 
     stamp: float
     position: np.ndarray
@@ -70,6 +74,7 @@ class BusState:
     voltage: np.ndarray
     temperature: np.ndarray
     ticks: np.ndarray
+    bus_watchdog: np.ndarray
 
 
 @dataclass
@@ -123,6 +128,16 @@ class DynamixelBus:
         self._climit = np.array([j.model.current_limit for j in config.joints], dtype=np.int64)
         self.modes = [j.mode_value for j in config.joints]   # as written to each servo
         self.torque = [False] * len(config.joints)
+        self.bus_watchdog = 0    # Bus Watchdog units armed in current mode (0 = off)
+
+    def set_bus_watchdog(self, seconds: float) -> None:
+        """Arm the servos' Bus Watchdog (98) with ``seconds`` (rounded up to 20 ms, at most
+        2.54 s; 0 = off) whenever a joint is switched to current mode: if the host goes
+        silent (port lost, driver dead) such a servo stops pushing by itself."""
+        if not 0.0 <= seconds < math.inf:
+            raise ValueError(f"bus watchdog must be >= 0 s, got {seconds}")
+        self.bus_watchdog = min(127, math.ceil(seconds / BUS_WATCHDOG_UNIT - 1e-9)) \
+            if seconds > 0 else 0
 
     # -- port --------------------------------------------------------------------------------
     @property
@@ -277,6 +292,7 @@ class DynamixelBus:
         self.write(index, "return_delay_time", 0)
         self.write(index, "drive_mode", 0)
         self.write(index, "homing_offset", 0)
+        self.write(index, "bus_watchdog", 0)   # clears a trip left by a port loss
         self.write(index, "operating_mode", j.mode_value)
         self.modes[index] = j.mode_value
         lo, hi = j.tick_limits
@@ -343,7 +359,7 @@ class DynamixelBus:
             hardware_error=raw[:, _READ_OFF["hardware_error_status"]].astype(np.int64),
             voltage=field_("present_input_voltage", "<u2") * 0.1,
             temperature=raw[:, _READ_OFF["present_temperature"]].astype(float),
-            ticks=ticks)
+            ticks=ticks, bus_watchdog=field_("bus_watchdog", "i1"))
 
     def goal_ticks(self, position: np.ndarray) -> np.ndarray:
         """Joint angles (rad, finite) -> goal ticks, clamped into each servo's tick limits."""
@@ -380,17 +396,21 @@ class DynamixelBus:
             self.torque[i] = on
 
     def set_mode(self, index: int, mode: int, goal_tick: int, goal_current: int) -> None:
-        """Switch joint ``index`` to ``mode`` (torque off -> mode -> goals -> torque back)."""
+        """Switch joint ``index`` to ``mode`` (torque off -> Bus Watchdog off -> mode ->
+        goals -> Bus Watchdog armed in current mode -> torque back)."""
         was_on = self.torque[index]
         if was_on:
             self.write(index, "torque_enable", 0)
             self.torque[index] = False
+        self.write(index, "bus_watchdog", 0)   # also clears a trip (goals writable again)
         self.write(index, "operating_mode", mode)
         self.modes[index] = mode
         lo, hi = self.config.joints[index].tick_limits
         self.write(index, "goal_position", int(min(max(goal_tick, lo), hi)))
         limit = self.config.joints[index].model.current_limit
         self.write(index, "goal_current", int(min(max(goal_current, -limit), limit)))
+        if mode == OperatingMode.CURRENT and self.bus_watchdog:
+            self.write(index, "bus_watchdog", self.bus_watchdog)
         if was_on:
             self.write(index, "torque_enable", 1)
             self.torque[index] = True

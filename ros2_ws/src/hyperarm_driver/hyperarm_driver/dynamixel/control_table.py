@@ -21,6 +21,7 @@ __all__ = [
     "INDIRECT_ADDRESS_1",
     "INDIRECT_DATA_1",
     "INDIRECT_COUNT",
+    "BUS_WATCHDOG_UNIT",
     "OperatingMode",
     "HARDWARE_ERROR_BITS",
     "decode_hardware_error",
@@ -73,6 +74,7 @@ REGISTERS: Mapping[str, Register] = _regs(
     Register("led", 65, 1),
     Register("status_return_level", 68, 1),
     Register("hardware_error_status", 70, 1),
+    Register("bus_watchdog", 98, 1, signed=True),
     Register("goal_current", 102, 2, signed=True),
     Register("goal_velocity", 104, 4, signed=True),
     Register("profile_acceleration", 108, 4),
@@ -91,6 +93,7 @@ TABLE_SIZE = 256         # bytes emulated/addressable here (indirect 1..28 inclu
 INDIRECT_ADDRESS_1 = 168  # Indirect Address n at 168 + 2(n-1), 2 bytes each
 INDIRECT_DATA_1 = 224     # Indirect Data n at 224 + (n-1), 1 byte each
 INDIRECT_COUNT = 28
+BUS_WATCHDOG_UNIT = 0.02  # s per unit of Bus Watchdog (98); 1..127 arm it, -1 = tripped
 
 
 class OperatingMode:

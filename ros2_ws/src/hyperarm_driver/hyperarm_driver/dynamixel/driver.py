@@ -6,7 +6,10 @@ Commands arrive by joint name (``command``); positions are clamped into the join
 NaN/inf rejected; efforts clamped to the servo's current limit. A joint in current (torque)
 control whose effort command is older than ``command_timeout`` is switched to hold its
 present position (watchdog); in current control a torque pushing a joint further past a
-limit is zeroed (the servo does not enforce position limits in current mode).
+limit is zeroed (the servo does not enforce position limits in current mode). The servo side
+of the same watchdog: a joint in current mode has its Bus Watchdog armed with
+``command_timeout``, so it stops by itself if the bus goes silent (port lost, driver dead);
+a trip seen after a stall is logged and the joint held.
 """
 from __future__ import annotations
 
@@ -52,6 +55,7 @@ class DynamixelDriver:
         if not 0.0 < reconnect_period <= 60.0:
             raise ValueError(f"reconnect_period must be in (0, 60] s, got {reconnect_period}")
         self.bus = bus
+        bus.set_bus_watchdog(command_timeout)   # the servo-side twin of the effort watchdog
         self.config: BusConfig = bus.config
         self.other_joints = frozenset(other_joints) - set(bus.config.names)
         self.command_timeout = command_timeout
@@ -242,13 +246,22 @@ class DynamixelDriver:
         """Watchdog, mode switches, limit guard, then the sync write of goals."""
         st = self.state
         assert st is not None
+        tripped = [i for i, c in enumerate(self.control)
+                   if c == CURRENT and st.bus_watchdog[i] == -1]
+        if tripped:
+            names = [self.config.joints[i].name for i in tripped]
+            self._event(f"bus watchdog: servo of {names} stopped after a silent bus; "
+                        "holding position")
+            for i in tripped:
+                self.effort_stamp[i] = -math.inf    # hold below, like the effort watchdog
         stale = [i for i, c in enumerate(self.control)
                  if c == CURRENT and now - self.effort_stamp[i] > self.command_timeout]
         if stale:
             self.watchdog_trips += 1
-            names = [self.config.joints[i].name for i in stale]
-            self._event(f"watchdog: no effort command for {self.command_timeout:g} s on "
-                        f"{names}; holding position")
+            names = [self.config.joints[i].name for i in stale if i not in tripped]
+            if names:
+                self._event(f"watchdog: no effort command for {self.command_timeout:g} s on "
+                            f"{names}; holding position")
             for i in stale:
                 self.control[i] = self._configured(i)
                 self.goal_position[i] = min(max(st.position[i], self.lower[i]), self.upper[i])

@@ -74,6 +74,7 @@ class EmulatedServo:
         self.obstacle: float | None = None   # tick a moving servo cannot pass
         self.obstacle_side = 1.0
         self.silent_until = 0.0
+        self.last_rx = time.monotonic()   # last instruction packet seen (Bus Watchdog)
         self.temperature = 36
         self.voltage = 120      # 0.1 V
         self._set_eeprom_defaults()
@@ -174,10 +175,19 @@ class EmulatedServo:
             return any(a in touched for a in range(r.address, r.address + r.size))
 
         mode = val("operating_mode", new)
+        watchdog_tripped = self.get("bus_watchdog") == -1 and not (
+            touches("bus_watchdog") and val("bus_watchdog", new) == 0)
         for name in _GOAL_REGS:
             if not touches(name):
                 continue
             v = val(name, new)
+            if watchdog_tripped:      # goal registers are read-only after a watchdog trip
+                if log is not None:
+                    log.append(WriteRecord(self.id, name, v, False, mode))
+                r = REGISTERS[name]
+                new[r.address:r.address + r.size] = self.table[r.address:r.address + r.size]
+                code = p2.ERR_ACCESS
+                continue
             if name == "goal_position":
                 ok = (mode not in (OperatingMode.POSITION, OperatingMode.CURRENT_BASED_POSITION)
                       or val("min_position_limit", new) <= v <= val("max_position_limit", new))
@@ -209,6 +219,20 @@ class EmulatedServo:
             self.voltage = 70
         if bits & 0x04:
             self.temperature = 85
+
+    def check_bus_watchdog(self, now: float) -> None:
+        """Bus Watchdog (98): with torque on and the watchdog armed, no instruction packet
+        for longer than its time stops the servo (current mode: goal current 0; position
+        modes: hold the present position), sets it to -1 and makes the goal registers
+        read-only until 0 is written to it."""
+        bw = self.get("bus_watchdog")
+        if bw <= 0 or self.get("torque_enable") != 1 or now - self.last_rx <= bw * 0.02:
+            return
+        self._set("bus_watchdog", -1)
+        if self.get("operating_mode") == OperatingMode.CURRENT:
+            self._set("goal_current", 0)
+        else:
+            self._set("goal_position", int(round(self.pos)))
 
     # -- motion ----------------------------------------------------------------------------
     def step(self, dt: float) -> None:
@@ -281,9 +305,12 @@ class EmulatedBus:
         now = time.monotonic() if now is None else now
         dt = min(max(0.0, now - self._last), 1.0)
         self._last = now
+        t = now - dt
         while dt > 0:
             h = min(dt, 0.005)
+            t += h
             for s in self.servos.values():
+                s.check_bus_watchdog(t)
                 s.step(h)
             dt -= h
 
@@ -313,6 +340,8 @@ class EmulatedBus:
         out: list[bytes] = []
         for pkt in self.reader.feed(data):
             self.advance(now)
+            for s in self.servos.values():   # every instruction packet feeds Bus Watchdog
+                s.last_rx = now
             self.instructions[pkt.instruction] = self.instructions.get(pkt.instruction, 0) + 1
             self._handle(pkt, now, out)
         return out
@@ -468,7 +497,7 @@ class EmulatedBus:
                  "goal_current", "present_position", "present_velocity", "present_current",
                  "hardware_error_status", "return_delay_time", "min_position_limit",
                  "max_position_limit", "profile_velocity", "current_limit", "drive_mode",
-                 "homing_offset")
+                 "homing_offset", "bus_watchdog")
         return {n: s.get(n) for n in names}
 
 
