@@ -192,6 +192,60 @@ def test_cold_start_base_alignment_is_exact_and_spares_warm_starts():
         DefaultSolver(ARM, align_base=-1.0)
 
 
+def test_cold_start_table_gives_a_nearby_configuration_and_spares_warm_starts():
+    from hyperarm_ik.solvers.default import TABLE_CELL, DefaultSolver
+    solver = DefaultSolver(ARM, start_table=4096)
+    rng = np.random.default_rng(11)
+    q0 = np.zeros(9)
+    for _ in range(20):
+        p, r = _target(ARM, rng.uniform(ARM.lower, ARM.upper))
+        qt = solver._cold_start(p, r, q0, False)
+        if qt is None:  # empty cell (or the ready pose is already close): seed kept
+            continue
+        pt, rt = _target(ARM, qt)
+        assert np.all(np.abs(pt - p) <= TABLE_CELL * math.sqrt(3))  # same cell
+        assert ARM.within_limits(qt) and np.all(qt >= solver._soft_lo)
+        assert np.all(qt <= solver._soft_hi)
+        # 6-D lookup: no other configuration of the cell has a nearer pose in the metric
+        cell = solver._cells[tuple(math.floor(v / TABLE_CELL) for v in p)]
+        f = np.concatenate((p, r.ravel() * solver._k))
+        assert np.min(np.sum((cell[1] - f) ** 2, axis=1)) == pytest.approx(
+            np.sum((np.concatenate((pt, rt.ravel() * solver._k)) - f) ** 2))
+    assert solver._cold_start(p, r, q0, False) is not None  # the last target: a far one
+    # a target a tracking step away keeps the seed
+    q = np.array([0.2, 0.4, -0.3, -0.5, 0.2, 0.6, -0.2, 0.3, 0.1])
+    p, r = _target(ARM, q)
+    assert solver._cold_start(p + 0.02, r, q, False) is None
+    assert solver._cold_start(p + 0.02, None, q, True) is None
+    assert DefaultSolver(ARM, start_table=0)._cells == {}
+    with pytest.raises(InvalidOptionError, match="start_table"):
+        DefaultSolver(ARM, start_table=-1)
+
+
+@pytest.mark.parametrize("position_only", [False, True])
+def test_far_targets_do_not_depend_on_the_seed(position_only):
+    """A target far from the seed's tool pose starts from the table (deterministic), so
+    two different far seeds give the same answer; success still follows from FK."""
+    a, b = make_solver("default", ARM), make_solver("default", ARM)
+    rng = np.random.default_rng(12)
+    seeds = (np.zeros(9), np.array([-1.0, 0.8, 0.5, -0.7, 0.4, -1.2, 0.3, 0.9, -0.6]))
+    tried = 0
+    while tried < 5:
+        p, r = _target(ARM, rng.uniform(ARM.lower, ARM.upper))
+        rr = None if position_only else r
+        if min(np.linalg.norm(_target(ARM, s)[0] - p) for s in seeds) <= 0.1:
+            continue
+        tried += 1
+        ra = a.solve(p, rr, seeds[0], position_only=position_only, position_tolerance=1e-5,
+                     orientation_tolerance=1e-4)
+        rb = b.solve(p, rr, seeds[1], position_only=position_only, position_tolerance=1e-5,
+                     orientation_tolerance=1e-4)
+        assert ra.success and rb.success, (ra.message, rb.message)
+        np.testing.assert_array_equal(ra.q, rb.q)
+        _check_honest(ARM, ra, p, r if rr is not None else np.eye(3), 1e-5, 1e-4,
+                      position_only)
+
+
 def test_heuristic_candidate_moves_match_forward_kinematics():
     for kin in (ARM, RAIL):
         solver = HeuristicSolver(kin)

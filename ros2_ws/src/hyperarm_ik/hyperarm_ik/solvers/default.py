@@ -17,10 +17,18 @@ Redundancy: z pulls joints out of the outer ``limit_margin`` of their range and,
 which keeps warm-started tracking close to the seed. A joint held at a limit by the clip is
 removed from the step (its W^-1 set to 0) and the step recomputed once (active set).
 
-Cold starts (fixed arm): when tool0 is far (> 0.1 m) from the target and joint1 would have to
-swing round (> 0.5 rad), joint1 is first turned to the target's azimuth (an exact one-joint
-move); warm starts of tracking are never affected. Off for the rail variant, where it did
-not pay off.
+Cold starts: when the seed's tool pose is farther than ``align_distance`` (0.1 m, in the
+metric sqrt(|dp|^2 + s^2 theta^2), position only for position_only requests) from the
+target, the first attempt starts from a precomputed table instead of the seed: FK of
+``start_table`` (65,536) configurations drawn uniformly within the soft limits by a fixed
+RNG seed at construction (~0.3 s), binned by tool position in 0.1 m cubes; the start is the
+configuration of the target's cube whose tool pose is nearest the target (or the seed when
+the cube is empty). A far target's solution therefore does not depend on the seed. A seed
+within align_distance (warm starts, tracking) is used as is. Without a table start (empty
+cube, restarts, ``start_table=0``) on the fixed arm: when tool0 is far (> 0.1 m) from the
+target and joint1 would have to swing round (> 0.5 rad), joint1 is first turned to the
+target's azimuth (an exact one-joint move); off for the rail variant, where it did not pay
+off.
 
 Restarts: an attempt stops when it stalls (error not reduced by 1 % over ``stall``
 iterations) or after ``max_iterations``; the next starts from uniform random joints, until the
@@ -46,6 +54,9 @@ from .base import OUT_OF_REACH, Solver
 __all__ = ["DefaultSolver"]
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+START_TABLE_SIZE = 65536  # configurations in the cold-start table of the fixed arm (0: none)
+TABLE_CELL = 0.1         # m, edge of the position cubes the table is binned in
+TABLE_RNG_SEED = 20261122
 
 
 class DefaultSolver(Solver):
@@ -58,7 +69,7 @@ class DefaultSolver(Solver):
                  limit_margin: float = 0.08, limit_gain: float = 0.5,
                  preferred: np.ndarray | None = None, preferred_gain: float = 0.0,
                  gain: float = 0.03, align_base: float | None = None,
-                 align_distance: float = 0.1,
+                 align_distance: float = 0.1, start_table: int | None = None,
                  seed: int = 0) -> None:
         super().__init__(kin, max_iterations)
         for name, v in (("orientation_scale", orientation_scale), ("max_step", max_step)):
@@ -71,6 +82,9 @@ class DefaultSolver(Solver):
                 raise InvalidOptionError(f"{name} must be >= 0, got {v!r}")
         if align_base is not None and (not np.isfinite(align_base) or align_base < 0.0):
             raise InvalidOptionError(f"align_base must be >= 0, got {align_base!r}")
+        if start_table is not None and (isinstance(start_table, bool)
+                                        or not isinstance(start_table, int) or start_table < 0):
+            raise InvalidOptionError(f"start_table must be an integer >= 0, got {start_table!r}")
         if not 0.0 <= limit_margin < 0.5:
             raise InvalidOptionError(f"limit_margin must be in [0, 0.5), got {limit_margin!r}")
         if preferred is not None:
@@ -101,6 +115,67 @@ class DefaultSolver(Solver):
         # joints are surely inside their limits when |q_i| <= _rmin (fast path of the clip)
         self._rmin = kin.safe_range
         self._soft_rmin = float(max(0.0, min(np.min(-self._soft_lo), np.min(self._soft_hi))))
+        if start_table is None:
+            start_table = START_TABLE_SIZE
+        self._build_start_table(start_table)
+
+    # --- cold starts from a table of (configuration -> tool pose) ---------------------------
+    def _build_start_table(self, n: int) -> None:
+        """FK of ``n`` configurations drawn uniformly within the soft limits (a fixed RNG
+        seed: the table, hence every answer, is deterministic), binned by tool position in
+        cubes of ``TABLE_CELL`` m. A pose is a feature vector f = [p, k R.ravel()] with
+        k = s / sqrt(2): |f - f_i|^2 = |p - p_i|^2 + s^2 theta^2 to second order in the
+        angle theta between R and R_i (the solver's own error metric)."""
+        self._k = self.s / math.sqrt(2.0)
+        self._cells: dict[tuple[int, int, int], tuple] = {}
+        if n == 0:
+            return
+        kin = self.kin
+        qs = np.random.default_rng(TABLE_RNG_SEED).uniform(self._soft_lo, self._soft_hi,
+                                                           (n, kin.nq))
+        feats = np.empty((n, 12))
+        model, data, fid = kin.model, kin.data, kin.tool_id
+        for i, q in enumerate(qs):
+            pin.forwardKinematics(model, data, q)
+            m = pin.updateFramePlacement(model, data, fid)
+            feats[i, :3] = m.translation
+            feats[i, 3:] = m.rotation.ravel()
+        feats[:, 3:] *= self._k
+        keys = np.floor(feats[:, :3] / TABLE_CELL).astype(int)
+        order = np.lexsort(keys.T)
+        keys, qs, feats = keys[order], qs[order], feats[order]
+        bounds = np.flatnonzero(np.any(np.diff(keys, axis=0) != 0, axis=1)) + 1
+        for lo, hi in zip(np.r_[0, bounds], np.r_[bounds, n]):
+            fc = np.ascontiguousarray(feats[lo:hi])
+            pc = np.ascontiguousarray(fc[:, :3])
+            self._cells[tuple(keys[lo].tolist())] = (
+                qs[lo:hi], fc, np.einsum("ij,ij->i", fc, fc), pc, np.einsum("ij,ij->i", pc, pc))
+
+    def _cold_start(self, p: np.ndarray, r: np.ndarray, q: np.ndarray,
+                    position_only: bool) -> np.ndarray | None:
+        """The start of the first attempt when the seed's tool pose is farther than
+        ``align_distance`` (in the metric above) from the target: the configuration of the
+        target's cell whose tool pose is nearest the target. None: keep the seed (a warm
+        start; also when the target's cell is empty)."""
+        kin = self.kin
+        pin.forwardKinematics(kin.model, kin.data, q)
+        m = pin.updateFramePlacement(kin.model, kin.data, kin.tool_id)
+        px, py, pz = p.tolist()
+        tx, ty, tz = m.translation.tolist()
+        d2 = (px - tx) ** 2 + (py - ty) ** 2 + (pz - tz) ** 2
+        if not position_only:  # |R - R_q|_F^2 = 2 (3 - <R, R_q>)
+            d2 += 2.0 * self._k * self._k * (3.0 - float(np.vdot(r, m.rotation)))
+        if d2 <= self.align_distance ** 2:
+            return None
+        h = TABLE_CELL
+        cell = self._cells.get((math.floor(px / h), math.floor(py / h), math.floor(pz / h)))
+        if cell is None:
+            return None
+        qs, fc, n2, pc, pn2 = cell
+        if position_only:
+            return qs[int(np.argmin(pn2 - 2.0 * (pc @ p)))]
+        f = np.concatenate((p, r.ravel() * self._k))
+        return qs[int(np.argmin(n2 - 2.0 * (fc @ f)))]
 
     # --- secondary motion ----------------------------------------------------------------
     def _z(self, q: np.ndarray) -> np.ndarray | None:
@@ -262,10 +337,16 @@ class DefaultSolver(Solver):
         total = 0
         best_q, best_cost = q, np.inf
         attempts = 0
+        tabled = False
+        if self._cells:
+            qt = self._cold_start(p, r, q, position_only)
+            if qt is not None:
+                q, tabled = qt, True
         while True:
             attempts += 1
-            if self.align_base > 0.0:
+            if self.align_base > 0.0 and not tabled:
                 q = self._aligned(p, q)
+            tabled = False
             qa, cost, it, errs = self._attempt(p, r, q, position_only, ptol, otol, deadline,
                                                self.max_iterations)
             total += it
