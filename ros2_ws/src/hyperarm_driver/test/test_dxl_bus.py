@@ -314,6 +314,18 @@ def test_port_loss_in_current_mode_the_servos_bus_watchdog_stops_it(emu):
     assert servo(emu, 4)["goal_current"] > 0 and servo(emu, 4)["operating_mode"] == 0
 
 
+def test_firmware_without_bus_watchdog_still_works(emu):
+    emu.ctl("register", id=4, name="firmware_version", value=37)   # Bus Watchdog from v38
+    drv = torque_on_joint4(emu, 0.5)
+    s = servo(emu, 4)
+    assert s["operating_mode"] == 0 and s["goal_current"] > 0 and s["bus_watchdog"] == 0
+    assert drv.bus.has_watchdog == [True] * 3 + [False] + [True] * 6
+    assert servo(emu, 5)["firmware_version"] == 46
+    emu.ctl("fault", id=4, bits=0x20)        # its watchdog slot reads register 70 instead
+    st = run_until(drv, lambda s: s.hardware_error[3] != 0, 2.0, "overload on joint4")
+    assert st.bus_watchdog[3] == 0x20
+
+
 def test_a_bus_watchdog_trip_is_seen_and_the_joint_held(emu):
     drv = torque_on_joint4(emu, 0.3, command_timeout=0.2)
     # the host stalls for longer than the watchdog, effort commands keep coming after it

@@ -174,7 +174,7 @@ def test_emulated_bus_watchdog_stops_a_torque_servo_on_a_silent_bus():
     bus.advance(0.3)                                     # 150 ms without a packet
     assert s.get("bus_watchdog") == -1 and s.get("goal_current") == 0
     (st,) = p2.PacketReader().feed(b"".join(write(0.31, 102, (100).to_bytes(2, "little"))))
-    assert st.error == p2.ERR_ACCESS and s.get("goal_current") == 0   # goals read-only
+    assert st.error == p2.ERR_DATA_RANGE and s.get("goal_current") == 0   # goals read-only
     write(0.32, 98, bytes([0]))                          # cleared
     write(0.33, 102, (100).to_bytes(2, "little"))
     assert s.get("bus_watchdog") == 0 and s.get("goal_current") == 100

@@ -25,9 +25,10 @@ from dynamixel_sdk import (COMM_SUCCESS, GroupSyncRead, GroupSyncWrite, PacketHa
                            PortHandler)
 
 from .config import BusConfig, velocity_to_raw
-from .control_table import (BUS_WATCHDOG_UNIT, CENTER_TICK, INDIRECT_ADDRESS_1,
-                            INDIRECT_DATA_1, RAD_PER_TICK, RADPS_PER_VELOCITY_UNIT, REGISTERS,
-                            OperatingMode, decode_hardware_error, model_by_number)
+from .control_table import (BUS_WATCHDOG_FIRMWARE, BUS_WATCHDOG_UNIT, CENTER_TICK,
+                            INDIRECT_ADDRESS_1, INDIRECT_DATA_1, RAD_PER_TICK,
+                            RADPS_PER_VELOCITY_UNIT, REGISTERS, OperatingMode,
+                            decode_hardware_error, model_by_number)
 from .errors import CommError, PortLostError, PortOpenError, StartupError
 
 __all__ = ["BusState", "BusStats", "DynamixelBus", "READ_BLOCK", "WRITE_BLOCK",
@@ -129,6 +130,7 @@ class DynamixelBus:
         self.modes = [j.mode_value for j in config.joints]   # as written to each servo
         self.torque = [False] * len(config.joints)
         self.bus_watchdog = 0    # Bus Watchdog units armed in current mode (0 = off)
+        self.has_watchdog = [False] * len(config.joints)   # firmware >= v38, see configure
 
     def set_bus_watchdog(self, seconds: float) -> None:
         """Arm the servos' Bus Watchdog (98) with ``seconds`` (rounded up to 20 ms, at most
@@ -292,7 +294,15 @@ class DynamixelBus:
         self.write(index, "return_delay_time", 0)
         self.write(index, "drive_mode", 0)
         self.write(index, "homing_offset", 0)
-        self.write(index, "bus_watchdog", 0)   # clears a trip left by a port loss
+        # Bus Watchdog (98) exists from firmware v38 on (e-Manual); 0 clears a trip left by a
+        # port loss
+        self.has_watchdog[index] = self.read(index, "firmware_version") >= BUS_WATCHDOG_FIRMWARE
+        if self.has_watchdog[index]:
+            self.write(index, "bus_watchdog", 0)
+        elif self.bus_watchdog:
+            _log.warning("%s (ID %d): firmware older than v%d has no Bus Watchdog: a lost port "
+                         "will not stop it in current mode", j.name, j.id,
+                         BUS_WATCHDOG_FIRMWARE)
         self.write(index, "operating_mode", j.mode_value)
         self.modes[index] = j.mode_value
         lo, hi = j.tick_limits
@@ -300,6 +310,8 @@ class DynamixelBus:
         self.write(index, "max_position_limit", hi)
         self.write(index, "profile_velocity", velocity_to_raw(j.velocity))
         addrs = _READ_ADDRS + _WRITE_ADDRS
+        if not self.has_watchdog[index]:   # no register 98: that byte reads register 70
+            addrs[_READ_OFF["bus_watchdog"]] = REGISTERS["hardware_error_status"].address
         data = b"".join(a.to_bytes(2, "little") for a in addrs)
         self._retry(f"{j.name} (ID {j.id}) indirect addresses",
                     lambda: self.ph.writeTxRx(self.port, j.id, INDIRECT_ADDRESS_1, len(data),
@@ -402,14 +414,15 @@ class DynamixelBus:
         if was_on:
             self.write(index, "torque_enable", 0)
             self.torque[index] = False
-        self.write(index, "bus_watchdog", 0)   # also clears a trip (goals writable again)
+        if self.has_watchdog[index]:
+            self.write(index, "bus_watchdog", 0)   # also clears a trip (goals writable again)
         self.write(index, "operating_mode", mode)
         self.modes[index] = mode
         lo, hi = self.config.joints[index].tick_limits
         self.write(index, "goal_position", int(min(max(goal_tick, lo), hi)))
         limit = self.config.joints[index].model.current_limit
         self.write(index, "goal_current", int(min(max(goal_current, -limit), limit)))
-        if mode == OperatingMode.CURRENT and self.bus_watchdog:
+        if mode == OperatingMode.CURRENT and self.bus_watchdog and self.has_watchdog[index]:
             self.write(index, "bus_watchdog", self.bus_watchdog)
         if was_on:
             self.write(index, "torque_enable", 1)

@@ -22,6 +22,7 @@ __all__ = [
     "INDIRECT_DATA_1",
     "INDIRECT_COUNT",
     "BUS_WATCHDOG_UNIT",
+    "BUS_WATCHDOG_FIRMWARE",
     "OperatingMode",
     "HARDWARE_ERROR_BITS",
     "decode_hardware_error",
@@ -94,6 +95,7 @@ INDIRECT_ADDRESS_1 = 168  # Indirect Address n at 168 + 2(n-1), 2 bytes each
 INDIRECT_DATA_1 = 224     # Indirect Data n at 224 + (n-1), 1 byte each
 INDIRECT_COUNT = 28
 BUS_WATCHDOG_UNIT = 0.02  # s per unit of Bus Watchdog (98); 1..127 arm it, -1 = tripped
+BUS_WATCHDOG_FIRMWARE = 38  # first firmware version with Bus Watchdog (98)
 
 
 class OperatingMode:

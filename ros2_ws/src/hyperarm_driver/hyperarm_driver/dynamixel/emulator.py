@@ -186,7 +186,7 @@ class EmulatedServo:
                     log.append(WriteRecord(self.id, name, v, False, mode))
                 r = REGISTERS[name]
                 new[r.address:r.address + r.size] = self.table[r.address:r.address + r.size]
-                code = p2.ERR_ACCESS
+                code = p2.ERR_DATA_RANGE     # (e-Manual: Data Range Error in the status)
                 continue
             if name == "goal_position":
                 ok = (mode not in (OperatingMode.POSITION, OperatingMode.CURRENT_BASED_POSITION)
@@ -445,6 +445,7 @@ class EmulatedBus:
         ``drop`` {id, count} drop that servo's next replies; ``corrupt`` {count} corrupt the
         CRC of the next replies; ``rates`` {drop_rate, corrupt_rate, reply_delay};
         ``obstacle`` {id, position (tick) or null}; ``set`` {id, position (tick)};
+        ``register`` {id, name, value} set a register (e.g. an old ``firmware_version``);
         ``state`` -> per-servo registers; ``write_log`` {clear} -> goal writes received;
         ``stats`` -> packet counts.
         """
@@ -471,6 +472,8 @@ class EmulatedBus:
                     s.obstacle_side = 1.0 if s.pos >= s.obstacle else -1.0
             elif op == "set":
                 self.servos[int(cmd["id"])].pos = float(cmd["position"])
+            elif op == "register":        # poke any register, as Dynamixel Wizard would
+                self.servos[int(cmd["id"])]._set(str(cmd["name"]), int(cmd["value"]))
             elif op == "state":
                 self.advance()
                 return {"ok": True, "servos": {str(i): self._state(s)
@@ -493,7 +496,8 @@ class EmulatedBus:
     @staticmethod
     def _state(s: EmulatedServo) -> dict[str, Any]:
         s._refresh_present()
-        names = ("model_number", "operating_mode", "torque_enable", "goal_position",
+        names = ("model_number", "firmware_version", "operating_mode", "torque_enable",
+                 "goal_position",
                  "goal_current", "present_position", "present_velocity", "present_current",
                  "hardware_error_status", "return_delay_time", "min_position_limit",
                  "max_position_limit", "profile_velocity", "current_limit", "drive_mode",
