@@ -83,8 +83,6 @@ class MockDriver(Node):
         self._stats = BusStats()
         if not p["torque_on_start"]:
             self._sim.set_torque(False)
-        # Simulated time 0 maps to the node clock's "now" in real time, to 0 on sim time.
-        self._origin = 0.0 if self._speed > 0.0 else self.get_clock().now().nanoseconds * 1e-9
         self._pub = self.create_publisher(JointState, contract.JOINT_STATES,
                                           qos_for(contract.JOINT_STATES))
         # No QoS-event handlers on the low-rate outputs: each one costs every executor
@@ -97,9 +95,9 @@ class MockDriver(Node):
         self._truth = self.create_publisher(Detections, contract.DETECTIONS_TRUTH,
                                             qos_for(contract.DETECTIONS_TRUTH),
                                             event_callbacks=quiet)
-        self._clock = None
+        self._clock_pub = None
         if self._speed > 0.0:
-            self._clock = self.create_publisher(ClockMsg, contract.CLOCK, QoSProfile(
+            self._clock_pub = self.create_publisher(ClockMsg, contract.CLOCK, QoSProfile(
                 depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,
                 durability=DurabilityPolicy.VOLATILE), event_callbacks=quiet)
         self.create_subscription(JointState, contract.JOINT_COMMAND, self._on_command,
@@ -119,6 +117,10 @@ class MockDriver(Node):
         self._stop = threading.Event()
         self._loop = threading.Thread(target=self._run, name="mock_driver-sim", daemon=True)
         self._loop.start()
+        if self.get_parameter("use_sim_time").value and self._speed == 0.0:
+            self.get_logger().warn(
+                "use_sim_time is true but sim_speed is 0: nothing publishes /clock, so this "
+                "node's clock stays at 0; set sim_speed > 0 to run on simulated time")
         timing = (f"sim time x{self._speed:g}, publishing {contract.CLOCK}" if self._speed > 0.0
                   else "real time")
         self.get_logger().info(
@@ -196,11 +198,11 @@ class MockDriver(Node):
                 self._publish_frame(frame)
         if steps == 0:
             return
-        if self._clock is not None:
-            self._clock.publish(ClockMsg(clock=_stamp(self._sim.time)))
+        if self._clock_pub is not None:
+            self._clock_pub.publish(ClockMsg(clock=_stamp(self._sim.time)))
         s = self._sim.state()
         msg = JointState()
-        msg.header.stamp = _stamp(self._origin + s.stamp)
+        msg.header.stamp = self._time(s.stamp)
         msg.name = self._sim.names
         msg.position = s.position.tolist()
         msg.velocity = s.velocity.tolist()
@@ -213,10 +215,18 @@ class MockDriver(Node):
         self._stats.cycles += 1
         self._stats.cycle_times.append(time.monotonic() - start)
 
+    def _time(self, t: float) -> Time:
+        """Stamp of simulated time ``t`` (s): itself on sim time; in real time the node
+        clock's now, less how long ago ``t`` was in the simulation (latencies)."""
+        if self._speed > 0.0:
+            return _stamp(t)
+        now = self.get_clock().now().nanoseconds * 1e-9
+        return _stamp(now - (self._sim.time - t))
+
     def _publish_frame(self, frame: Frame) -> None:
         for pub, poses in ((self._det, frame.detected), (self._truth, frame.truth)):
             msg = Detections()
-            msg.header.stamp = _stamp(self._origin + frame.stamp)
+            msg.header.stamp = self._time(frame.stamp)
             msg.header.frame_id = self._frame_id
             msg.names = list(frame.names)
             msg.poses = [_pose(m) for m in poses]
@@ -283,7 +293,7 @@ class MockDriver(Node):
     # -- diagnostics ------------------------------------------------------------------------
     def _publish_diagnostics(self) -> None:
         arr = DiagnosticArray()
-        arr.header.stamp = _stamp(self._origin + self._sim.time)
+        arr.header.stamp = self._time(self._sim.time)
         with self._lock:
             statuses = mock_diagnostics(self._sim, self._stats, self._diag_period, self._speed)
         for d in statuses:
