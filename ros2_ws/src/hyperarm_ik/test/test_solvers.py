@@ -209,7 +209,7 @@ def test_cold_start_table_gives_a_nearby_configuration_and_spares_warm_starts():
         # 6-D lookup: no other configuration of the cell has a nearer pose in the metric
         cell = solver._cells[tuple(math.floor(v / TABLE_CELL) for v in p)]
         f = np.concatenate((p, r.ravel() * solver._k))
-        assert np.min(np.sum((cell[1] - f) ** 2, axis=1)) == pytest.approx(
+        assert np.min(np.sum((cell[1].T - f) ** 2, axis=1)) == pytest.approx(
             np.sum((np.concatenate((pt, rt.ravel() * solver._k)) - f) ** 2))
     assert solver._cold_start(p, r, q0, False) is not None  # the last target: a far one
     # a target a tracking step away keeps the seed

@@ -146,10 +146,11 @@ class DefaultSolver(Solver):
         keys, qs, feats = keys[order], qs[order], feats[order]
         bounds = np.flatnonzero(np.any(np.diff(keys, axis=0) != 0, axis=1)) + 1
         for lo, hi in zip(np.r_[0, bounds], np.r_[bounds, n]):
-            fc = np.ascontiguousarray(feats[lo:hi])
-            pc = np.ascontiguousarray(fc[:, :3])
+            fc = feats[lo:hi]
+            # transposed copies: f @ F^T is the faster product for these short tables
             self._cells[tuple(keys[lo].tolist())] = (
-                qs[lo:hi], fc, np.einsum("ij,ij->i", fc, fc), pc, np.einsum("ij,ij->i", pc, pc))
+                qs[lo:hi], np.ascontiguousarray(fc.T), np.einsum("ij,ij->i", fc, fc),
+                np.ascontiguousarray(fc[:, :3].T), np.einsum("ij,ij->i", fc[:, :3], fc[:, :3]))
 
     def _cold_start(self, p: np.ndarray, r: np.ndarray, q: np.ndarray,
                     position_only: bool) -> np.ndarray | None:
@@ -171,21 +172,19 @@ class DefaultSolver(Solver):
         cell = self._cells.get((math.floor(px / h), math.floor(py / h), math.floor(pz / h)))
         if cell is None:
             return None
-        qs, fc, n2, pc, pn2 = cell
+        qs, ft, n2, pt, pn2 = cell  # ft, pt: features transposed (12, m), (3, m)
         if position_only:
-            return qs[int(np.argmin(pn2 - 2.0 * (pc @ p)))]
+            return qs[int(np.argmin(pn2 - 2.0 * (p @ pt)))]
         f = np.concatenate((p, r.ravel() * self._k))
-        return qs[int(np.argmin(n2 - 2.0 * (fc @ f)))]
+        return qs[int(np.argmin(n2 - 2.0 * (f @ ft)))]
 
     # --- secondary motion ----------------------------------------------------------------
     def _z(self, q: np.ndarray) -> np.ndarray | None:
         z = None
-        if self.limit_gain > 0.0:
-            below = q < self._soft_lo
-            above = q > self._soft_hi
-            if below.any() or above.any():
-                z = self.limit_gain * (np.where(below, self._soft_lo - q, 0.0)
-                                       + np.where(above, self._soft_hi - q, 0.0))
+        if self.limit_gain > 0.0:  # back into [soft_lo, soft_hi]; 0 for joints inside
+            z = np.minimum(np.maximum(q, self._soft_lo), self._soft_hi)
+            z -= q
+            z *= self.limit_gain
         if self.preferred is not None and self.preferred_gain > 0.0:
             zp = self.preferred_gain * (self.preferred - q)
             z = zp if z is None else z + zp
@@ -248,7 +247,8 @@ class DefaultSolver(Solver):
         best_q, best_cost = q, np.inf
         window_cost = np.inf
         llt = eigenpy.LLT
-        concat = np.concatenate
+        array = np.array
+        px, py, pz = p.tolist()
         jacobian = pin.computeFrameJacobian
         oMf = data.oMf
         lst = q.tolist()
@@ -256,28 +256,29 @@ class DefaultSolver(Solver):
         for it in range(1, max_iter + 1):
             j = jacobian(model, data, q, fid, _LWA)
             m = oMf[fid]
-            ep = p - m.translation
-            perr = math.sqrt(ep @ ep)
+            # errors on Python floats: cheaper than numpy calls on 3-vectors
+            tx, ty, tz = m.translation.tolist()
+            ex, ey, ez = px - tx, py - ty, pz - tz
+            e2 = ex * ex + ey * ey + ez * ez
+            perr = math.sqrt(e2)
             if position_only:
                 cost = perr
                 if perr <= ptol:
                     return q, cost, it - 1, None
-                e = ep
+                e = array((ex, ey, ez))
                 jt = j[:3]
-                e2 = perr * perr
             else:
-                eo = log3(r @ m.rotation.T)
-                oerr = math.sqrt(eo @ eo)
+                ox, oy, oz = log3(r @ m.rotation.T).tolist()
+                o2 = ox * ox + oy * oy + oz * oz
+                oerr = math.sqrt(o2)
                 cost = perr + s * oerr
                 if perr <= ptol and oerr <= otol:
                     return q, cost, it - 1, (perr, oerr)
+                e = array((ex, ey, ez, s * ox, s * oy, s * oz))
                 if scaled:
-                    e = concat((ep, eo * s))
                     j[3:] *= s
-                else:
-                    e = concat((ep, eo))
                 jt = j
-                e2 = perr * perr + s * s * oerr * oerr
+                e2 += s * s * o2
             if cost < best_cost:
                 best_q, best_cost = q, cost
             if it % self.stall == 0:
