@@ -218,6 +218,8 @@ def test_cold_start_table_gives_a_nearby_configuration_and_spares_warm_starts():
     assert solver._cold_start(p + 0.02, r, q, False) is None
     assert solver._cold_start(p + 0.02, None, q, True) is None
     assert DefaultSolver(ARM, start_table=0)._cells == {}
+    assert DefaultSolver(ARM, start_table=4096)._cells is solver._cells  # built once
+    assert DefaultSolver(ARM, start_table=4096, limit_margin=0.1)._cells is not solver._cells
     with pytest.raises(InvalidOptionError, match="start_table"):
         DefaultSolver(ARM, start_table=-1)
 

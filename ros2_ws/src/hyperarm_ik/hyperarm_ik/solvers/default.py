@@ -57,6 +57,7 @@ _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 START_TABLE_SIZE = 65536  # configurations in the cold-start table of the fixed arm (0: none)
 TABLE_CELL = 0.1         # m, edge of the position cubes the table is binned in
 TABLE_RNG_SEED = 20261122
+_TABLES: dict[tuple, dict] = {}  # start tables by (size, scale, kinematics and soft limits)
 
 
 class DefaultSolver(Solver):
@@ -125,16 +126,26 @@ class DefaultSolver(Solver):
         seed: the table, hence every answer, is deterministic), binned by tool position in
         cubes of ``TABLE_CELL`` m. A pose is a feature vector f = [p, k R.ravel()] with
         k = s / sqrt(2): |f - f_i|^2 = |p - p_i|^2 + s^2 theta^2 to second order in the
-        angle theta between R and R_i (the solver's own error metric)."""
+        angle theta between R and R_i (the solver's own error metric). Tables are shared
+        (read only) by solvers of the same kinematics, soft limits, scale and size."""
         self._k = self.s / math.sqrt(2.0)
         self._cells: dict[tuple[int, int, int], tuple] = {}
         if n == 0:
             return
         kin = self.kin
+        model = kin.model
+        key = (n, self.s, np.concatenate(
+            [model.jointPlacements[i].homogeneous.ravel() for i in range(model.njoints)]
+            + [model.frames[kin.tool_id].placement.homogeneous.ravel(), self._soft_lo,
+               self._soft_hi]).tobytes())
+        cached = _TABLES.get(key)
+        if cached is not None:
+            self._cells = cached
+            return
         qs = np.random.default_rng(TABLE_RNG_SEED).uniform(self._soft_lo, self._soft_hi,
                                                            (n, kin.nq))
         feats = np.empty((n, 12))
-        model, data, fid = kin.model, kin.data, kin.tool_id
+        data, fid = kin.data, kin.tool_id
         for i, q in enumerate(qs):
             pin.forwardKinematics(model, data, q)
             m = pin.updateFramePlacement(model, data, fid)
@@ -151,6 +162,7 @@ class DefaultSolver(Solver):
             self._cells[tuple(keys[lo].tolist())] = (
                 qs[lo:hi], np.ascontiguousarray(fc.T), np.einsum("ij,ij->i", fc, fc),
                 np.ascontiguousarray(fc[:, :3].T), np.einsum("ij,ij->i", fc[:, :3], fc[:, :3]))
+        _TABLES[key] = self._cells
 
     def _cold_start(self, p: np.ndarray, r: np.ndarray, q: np.ndarray,
                     position_only: bool) -> np.ndarray | None:
