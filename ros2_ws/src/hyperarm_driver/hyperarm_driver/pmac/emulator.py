@@ -612,13 +612,14 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, OSError) as exc:
         print(f"pmac_emulator: {exc}", file=sys.stderr)
         return 2
-    print(f"pmac_emulator: listening on 127.0.0.1:{emu.port} with {args.motors} motor(s)",
-          flush=True)
     stop = threading.Event()
     # SIGINT explicitly too: a process started from a background job inherits SIGINT
-    # ignored, and Python then installs no KeyboardInterrupt handler
+    # ignored, and Python then installs no KeyboardInterrupt handler. Installed before the
+    # "listening" line, which callers wait for.
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
+    print(f"pmac_emulator: listening on 127.0.0.1:{emu.port} with {args.motors} motor(s)",
+          flush=True)
     try:
         while not stop.wait(args.drop_every or 0.5):
             if args.drop_every:
