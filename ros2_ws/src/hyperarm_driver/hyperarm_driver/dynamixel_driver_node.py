@@ -18,13 +18,11 @@ from hyperarm_interfaces.srv import Reboot
 from .common import NonEmpty, OneOf, ParamSpec, Range, declare_parameters, diagnostic_status
 from .dynamixel.bus import DynamixelBus, ftdi_latency_timer
 from .dynamixel.config import bus_config_from_description
-from .dynamixel.control_table import OperatingMode, decode_hardware_error
 from .dynamixel.driver import DynamixelDriver
 from .dynamixel.errors import DynamixelError, StartupError
 
 _SDK_BAUDS = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600,
               1000000, 1152000, 2000000, 2500000, 3000000, 3500000, 4000000)
-OK, WARN, ERROR, STALE = 0, 1, 2, 3   # diagnostic_msgs/DiagnosticStatus levels
 
 PARAMETERS: ParamSpec = {
     "port": ("/dev/ttyUSB0", "serial device of the Dynamixel bus", NonEmpty()),
@@ -62,9 +60,6 @@ class DynamixelDriverNode(Node):
         self._shutdown_torque = p["shutdown_torque"]
         self._period = 1.0 / p["rate"]
         self._diag_period = p["diagnostics_period"]
-        self._port, self._baud = p["port"], p["baud"]
-        self._window = [0, 0]   # transactions, failures at the last diagnostics
-        self._cycles = 0
         self.rejected_commands = 0   # joint_command messages rejected whole (NaN, ...)
         self._pub = self.create_publisher(JointState, contract.JOINT_STATES,
                                           qos_for(contract.JOINT_STATES))
@@ -121,7 +116,6 @@ class DynamixelDriverNode(Node):
                 self.get_logger().warn(f"bus read failed: {self._drv.last_error}",
                                        throttle_duration_sec=2.0)
             return
-        self._cycles += 1
         msg = JointState()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.name = self._drv.names
@@ -187,51 +181,10 @@ class DynamixelDriverNode(Node):
 
     # -- diagnostics -------------------------------------------------------------------------
     def _publish_diagnostics(self) -> None:
-        drv, stats = self._drv, self._drv.bus.stats
         arr = DiagnosticArray()
         arr.header.stamp = self.get_clock().now().to_msg()
-        state = drv.state if drv.connected else None
-        for i, j in enumerate(drv.config.joints):
-            values = {"id": str(j.id), "model": j.model.name,
-                      "mode": OperatingMode.NAMES.get(drv.bus.modes[i], "?"),
-                      "torque": "on" if drv.bus.torque[i] else "off"}
-            if state is None:
-                level, message = STALE, "port down"
-            else:
-                bits = int(state.hardware_error[i])
-                names = decode_hardware_error(bits)
-                values.update(temperature_C=f"{state.temperature[i]:.0f}",
-                              voltage_V=f"{state.voltage[i]:.1f}",
-                              hardware_error=", ".join(names) or "none",
-                              hardware_error_bits=str(bits))
-                level = ERROR if bits else OK
-                message = f"hardware error: {', '.join(names)}" if bits else "OK"
-            arr.status.append(diagnostic_status(f"dynamixel_driver: {j.name}", f"dxl-{j.id}",
-                                                level, message, values.items()))
-        tx, fail = stats.transactions - self._window[0], stats.failures - self._window[1]
-        self._window = [stats.transactions, stats.failures]
-        rate = fail / tx if tx else 0.0
-        times = list(stats.cycle_times)
-        stats.cycle_times.clear()
-        values = {
-            "port": self._port, "baud": self._baud, "connected": drv.connected,
-            "sync_read": "fast" if drv.bus.fast else "plain", "cycles": self._cycles,
-            "cycle_time_ms": f"{1e3 * sum(times) / len(times):.3f}" if times else "n/a",
-            "rate_hz": f"{len(times) / self._diag_period:.1f}",
-            "comm_errors": stats.failures, "error_rate": f"{rate:.4f}",
-            "reconnects": drv.reconnects, "last_error": drv.last_error}
-        silent = drv.silent_for()
-        if not drv.connected:
-            level, message = ERROR, f"port down: {drv.last_error}"
-        elif silent > 0.5:
-            level = ERROR
-            message = f"no valid reply from the servos for {silent:.1f} s: {drv.last_error}"
-        elif rate > 0.01:
-            level, message = WARN, f"bus error rate {rate:.1%}"
-        else:
-            level, message = OK, "OK"
-        arr.status.append(diagnostic_status("dynamixel_driver: bus", self._port, level, message,
-                                            values.items()))
+        arr.status = [diagnostic_status(st.name, st.hardware_id, st.level, st.message, st.values)
+                      for st in self._drv.diagnostics("dynamixel_driver", self._diag_period)]
         self._diag.publish(arr)
 
     def destroy_node(self) -> None:

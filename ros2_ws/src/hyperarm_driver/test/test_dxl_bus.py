@@ -291,6 +291,9 @@ def test_port_loss_detected_and_reconnect_with_torque_off(emu):
         time.sleep(0.01)
         assert time.monotonic() - t0 < 0.5, "port loss not detected within 0.5 s"
     assert "lost" in drv.last_error
+    diag = drv.diagnostics("dxl", 0.5)
+    assert [d.level for d in diag] == [3] * 10 + [2]   # servos STALE, bus ERROR
+    assert diag[-1].message.startswith("port down") and emu.link in diag[-1].message
     st = run_until(drv, lambda s: True, 5.0, "reconnect")
     assert drv.connected and drv.reconnects == 1 and not any(drv.bus.torque)
     assert all(servo(emu, i)["torque_enable"] == 0 for i in range(1, 11))
@@ -468,5 +471,8 @@ def test_silent_bus_is_detected_without_losing_the_port(emu):
         assert drv.cycle() is None
     assert drv.connected and drv.silent_for() > 0.5
     assert "no status packet" in drv.last_error
+    bus = drv.diagnostics("dxl", 0.7)[-1]
+    assert (bus.name, bus.level) == ("dxl: bus", 2) and "no valid reply" in bus.message
+    assert float(dict(bus.values)["error_rate"]) > 0.0 and dict(bus.values)["connected"] == "True"
     emu.ctl("rates", drop_rate=0.0)
     assert drv.cycle() is not None and drv.silent_for() < 0.2

@@ -26,7 +26,9 @@ from .config import BusConfig
 from .control_table import OperatingMode, decode_hardware_error
 from .errors import CommandError, CommError, PortError, PortLostError, StartupError
 
-__all__ = ["CommandReport", "DynamixelDriver"]
+__all__ = ["CommandReport", "DynamixelDriver", "Status", "OK", "WARN", "ERROR", "STALE"]
+
+OK, WARN, ERROR, STALE = 0, 1, 2, 3   # diagnostic levels (diagnostic_msgs/DiagnosticStatus)
 
 _log = logging.getLogger(__name__)
 
@@ -41,6 +43,17 @@ class CommandReport:
 
     clamped: list[str] = field(default_factory=list)
     effort_clamped: list[str] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class Status:
+    """One diagnostic status: the content of a diagnostic_msgs/DiagnosticStatus."""
+
+    name: str
+    hardware_id: str
+    level: int
+    message: str
+    values: tuple[tuple[str, str], ...]
 
 
 class DynamixelDriver:
@@ -79,6 +92,8 @@ class DynamixelDriver:
         self._next_attempt = 0.0
         self._have_goal = False
         self.watchdog_trips = 0
+        self.cycles = 0                  # successful cycles since start
+        self._window = (0, 0)            # bus transactions, failures at the last diagnostics
         self.events: list[str] = []      # human-readable events for the node to log
 
     # -- helpers -----------------------------------------------------------------------------
@@ -235,6 +250,7 @@ class DynamixelDriver:
             self.last_error = str(exc)
             return None
         self.bus.stats.cycle_times.append(time.perf_counter() - t0)
+        self.cycles += 1
         return self.state
 
     def silent_for(self, now: float | None = None) -> float:
@@ -289,6 +305,56 @@ class DynamixelDriver:
                 self.bus.set_mode(i, want, int(ticks[i]), int(current[i]))
                 self._event(f"{self.config.joints[i].name}: operating mode -> {c}")
         self.bus.write_goals(ticks, current)
+
+    # -- diagnostics -------------------------------------------------------------------------
+    def diagnostics(self, prefix: str, period: float) -> list[Status]:
+        """One status per servo (``<prefix>: <joint>``) and one for the bus (``<prefix>:
+        bus``); the error and cycle rates are over the ``period`` s since the last call."""
+        out = []
+        state = self.state if self.connected else None
+        for i, j in enumerate(self.config.joints):
+            values = {"id": str(j.id), "model": j.model.name,
+                      "mode": OperatingMode.NAMES.get(self.bus.modes[i], "?"),
+                      "torque": "on" if self.bus.torque[i] else "off"}
+            if state is None:
+                level, message = STALE, "port down"
+            else:
+                bits = int(state.hardware_error[i])
+                names = decode_hardware_error(bits)
+                values.update(temperature_C=f"{state.temperature[i]:.0f}",
+                              voltage_V=f"{state.voltage[i]:.1f}",
+                              hardware_error=", ".join(names) or "none",
+                              hardware_error_bits=str(bits))
+                level = ERROR if bits else OK
+                message = f"hardware error: {', '.join(names)}" if bits else "OK"
+            out.append(Status(f"{prefix}: {j.name}", f"dxl-{j.id}", level, message,
+                              tuple(values.items())))
+        stats = self.bus.stats
+        tx, fail = stats.transactions - self._window[0], stats.failures - self._window[1]
+        self._window = (stats.transactions, stats.failures)
+        rate = fail / tx if tx else 0.0
+        times = list(stats.cycle_times)
+        stats.cycle_times.clear()
+        bus_values = {
+            "port": self.bus.port_name, "baud": self.bus.baud, "connected": self.connected,
+            "sync_read": "fast" if self.bus.fast else "plain", "cycles": self.cycles,
+            "cycle_time_ms": f"{1e3 * sum(times) / len(times):.3f}" if times else "n/a",
+            "rate_hz": f"{len(times) / period:.1f}",
+            "comm_errors": stats.failures, "error_rate": f"{rate:.4f}",
+            "reconnects": self.reconnects, "last_error": self.last_error}
+        silent = self.silent_for()
+        if not self.connected:
+            level, message = ERROR, f"port down: {self.last_error}"
+        elif silent > 0.5:
+            level = ERROR
+            message = f"no valid reply from the servos for {silent:.1f} s: {self.last_error}"
+        elif rate > 0.01:
+            level, message = WARN, f"bus error rate {rate:.1%}"
+        else:
+            level, message = OK, "OK"
+        out.append(Status(f"{prefix}: bus", self.bus.port_name, level, message,
+                          tuple((k, str(v)) for k, v in bus_values.items())))
+        return out
 
     # -- services ----------------------------------------------------------------------------
     def in_error(self) -> list[int]:
