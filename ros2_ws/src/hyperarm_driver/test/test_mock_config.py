@@ -29,7 +29,8 @@ def test_default_mirrors_the_papers_demonstration():
 @pytest.mark.parametrize("path, value, message", [
     (("servo", "stiffness"), -1.0, "servo.stiffness: must be > 0"),
     (("servo", "bogus"), 1.0, "servo: unknown key(s) ['bogus']"),
-    (("imperfections", "position_noise"), float("nan"), "imperfections.position_noise: must be finite"),
+    (("imperfections", "position_noise"), float("nan"),
+     "imperfections.position_noise: must be finite"),
     (("imperfections", "seed"), -3, "imperfections.seed: must be a non-negative integer"),
     (("world", "pegs", "destination", "radius"), 0.010, "world.pegs.destination.radius"),
     (("world", "pegs", "source", "height"), 0.02, "must exceed the block's height"),

@@ -59,7 +59,8 @@ class Camera:
             if self.cfg.position_noise > 0.0:
                 n[:3, 3] += self._rng.normal(0.0, self.cfg.position_noise, 3)
             if self.cfg.orientation_noise > 0.0:
-                n[:3, :3] = t[:3, :3] @ pin.exp3(self._rng.normal(0.0, self.cfg.orientation_noise, 3))
+                turn = self._rng.normal(0.0, self.cfg.orientation_noise, 3)
+                n[:3, :3] = t[:3, :3] @ pin.exp3(turn)
             names.append(name)
             det.append(n)
             tru.append(t)

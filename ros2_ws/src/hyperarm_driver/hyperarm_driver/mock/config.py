@@ -224,7 +224,8 @@ def _seed(raw: Mapping[str, Any], where: str) -> int | None:
     if value is None:
         return None
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise MockConfigError(f"{where}.seed: must be a non-negative integer or null, got {value!r}")
+        raise MockConfigError(
+            f"{where}.seed: must be a non-negative integer or null, got {value!r}")
     return value
 
 
@@ -249,7 +250,8 @@ def _world(raw: Mapping[str, Any]) -> WorldConfig:
     size = _vec(rb, "size", f"{w}.block", 3)
     if min(size) <= 0.0:
         raise MockConfigError(f"{w}.block.size: every side must be > 0, got {list(size)}")
-    block = BlockConfig(size=size, hole_radius=_num(rb, "hole_radius", f"{w}.block", positive=True),  # type: ignore[arg-type]
+    block = BlockConfig(size=size,  # type: ignore[arg-type]
+                        hole_radius=_num(rb, "hole_radius", f"{w}.block", positive=True),
                         mass=_num(rb, "mass", f"{w}.block", 0.05, positive=True),
                         start=str(rb.get("start", "")))
     names = [p.name for p in pegs]
@@ -275,7 +277,8 @@ def _world(raw: Mapping[str, Any]) -> WorldConfig:
     if not isinstance(rg, Mapping):
         raise MockConfigError(f"{w}.grasp: expected a mapping")
     _reject_unknown(rg, frozenset({"offset", "capture_radius", "min_effort"}), f"{w}.grasp")
-    grasp = GraspConfig(offset=_vec(rg, "offset", f"{w}.grasp", 3, (0.0, 0.0, 0.0)),  # type: ignore[arg-type]
+    grasp = GraspConfig(offset=_vec(rg, "offset", f"{w}.grasp", 3,  # type: ignore[arg-type]
+                                    (0.0, 0.0, 0.0)),
                         capture_radius=_num(rg, "capture_radius", f"{w}.grasp", 0.015,
                                             positive=True),
                         min_effort=_num(rg, "min_effort", f"{w}.grasp", 0.3, positive=True))
@@ -291,7 +294,8 @@ def parse_mock_config(data: Any, source: str = "<data>") -> MockConfig:
         raise MockConfigError(f"{source}: top level must be a mapping")
     _reject_unknown(data, frozenset({"schema_version", *_KNOWN}), "<top level>")
     if data.get("schema_version", 1) != 1:
-        raise MockConfigError(f"schema_version: only 1 is known, got {data.get('schema_version')!r}")
+        raise MockConfigError(
+            f"schema_version: only 1 is known, got {data.get('schema_version')!r}")
     rs = _section(data, "servo", "")
     servo = ServoConfig(
         stiffness=_num(rs, "stiffness", "servo", ServoConfig.stiffness, positive=True),

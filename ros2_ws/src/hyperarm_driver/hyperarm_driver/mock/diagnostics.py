@@ -77,7 +77,8 @@ def mock_diagnostics(sim: JointSim, stats: BusStats, period: float, sim_speed: f
         out.append(DiagStatus(
             name=f"{node}: rail", hardware_id="mock-pmac", level=level, message=message,
             values={"link": "up", "endpoint": "mock", "motor": str(sim.desc.rail.pmac_motor),
-                    "position_m": f"{sim.position[i]:.6f}", "velocity_mps": f"{sim.velocity[i]:.6f}",
+                    "position_m": f"{sim.position[i]:.6f}",
+                    "velocity_mps": f"{sim.velocity[i]:.6f}",
                     "following_error_m": f"{sim.goal[i] - sim.position[i]:.6f}"
                     if enabled else "0.000000",
                     "homed": str(sim.homed).lower(), "amp_enabled": str(enabled).lower(),

@@ -231,9 +231,10 @@ class JointSim:
                 self.mode[i] = mode
                 self.limit[i] = values[n] if mode is ControlMode.CURRENT_POSITION else self.stall[i]
                 self.goal[i] = goals[n]
-                if self._arm[i] and abs(goals[n] - self._anchor[i]) > self.cfg.imperfections.move_threshold:
+                imp = self.cfg.imperfections
+                if self._arm[i] and abs(goals[n] - self._anchor[i]) > imp.move_threshold:
                     self._anchor[i] = goals[n]
-                    sigma = self.cfg.imperfections.repeatability
+                    sigma = imp.repeatability
                     self.offset[i] = self._rng.normal(0.0, sigma) if sigma > 0.0 else 0.0
 
         self._schedule(apply)

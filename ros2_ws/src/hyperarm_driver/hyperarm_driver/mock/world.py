@@ -232,7 +232,8 @@ class World:
                 if self._touches_top(name, probe):
                     d = xy - np.array(p.xy)
                     n = d / np.linalg.norm(d) if np.linalg.norm(d) > 1e-9 else np.array([1.0, 0.0])
-                    xy = np.array(p.xy) + n * (float(np.linalg.norm(self._half[:2])) + p.radius + 1e-3)
+                    reach = float(np.linalg.norm(self._half[:2])) + p.radius + 1e-3
+                    xy = np.array(p.xy) + n * reach
                     break
         if landed is not None:
             p = self._pegs[landed]
