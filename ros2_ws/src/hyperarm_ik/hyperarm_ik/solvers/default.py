@@ -8,7 +8,9 @@ Jacobian (orientation rows scaled by s), W^-1 = diag(winv) and z a desired joint
     dq     = z + W^-1 J^T (J W^-1 J^T + lambda I)^-1 (e - J z),  |dq| <= max_step
     q      = clip(q + dq, lower, upper)
 
-The 6 x 6 system is solved by Cholesky (eigenpy.LLT, pinocchio's own binding dependency).
+The 6 x 6 system is solved by Cholesky (eigenpy.LLT, pinocchio's own binding dependency),
+in the equivalent unscaled form J W^-1 J^T + lambda S^-2 with S = diag(1, 1, 1, s, s, s),
+the unscaled J and e (S (S M S + lambda I)^-1 S = (M + lambda S^-2)^-1): no row scaling.
 
 i.e. dq minimises |J dq - e|^2 + lambda |dq - z|^2_W. Damping that shrinks with the error
 gives Gauss-Newton speed near the solution and stays bounded at singular poses (q = 0).
@@ -111,7 +113,8 @@ class DefaultSolver(Solver):
         self._lo, self._hi = kin.lower, kin.upper
         self.rng = np.random.default_rng(seed)
         self._eye3 = np.eye(3)
-        self._eye6 = np.eye(6)
+        # S^-2, S = diag(1, 1, 1, s, s, s): the damping term of the unscaled system below
+        self._sinv2 = np.diag([1.0, 1.0, 1.0] + [1.0 / (self.s * self.s)] * 3)
         self._ones = np.ones(kin.nq)
         # joints are surely inside their limits when |q_i| <= _rmin (fast path of the clip)
         self._rmin = kin.safe_range
@@ -248,14 +251,13 @@ class DefaultSolver(Solver):
         kin = self.kin
         model, data, fid = kin.model, kin.data, kin.tool_id
         s = self.s
-        scaled = s != 1.0
         c = self.gain
         lo, hi, rmin = self._lo, self._hi, self._rmin
         soft_rmin = self._soft_rmin
         max_step2 = self.max_step * self.max_step
         need_limit_z = self.limit_gain > 0.0
         always_z = self.preferred is not None and self.preferred_gain > 0.0
-        eye = self._eye3 if position_only else self._eye6
+        eye = self._eye3 if position_only else self._sinv2
         best_q, best_cost = q, np.inf
         window_cost = np.inf
         llt = eigenpy.LLT
@@ -286,9 +288,7 @@ class DefaultSolver(Solver):
                 cost = perr + s * oerr
                 if perr <= ptol and oerr <= otol:
                     return q, cost, it - 1, (perr, oerr)
-                e = array((ex, ey, ez, s * ox, s * oy, s * oz))
-                if scaled:
-                    j[3:] *= s
+                e = array((ex, ey, ez, ox, oy, oz))  # unscaled: s enters through S^-2
                 jt = j
                 e2 += s * s * o2
             if cost < best_cost:
