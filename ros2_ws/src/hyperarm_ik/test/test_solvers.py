@@ -193,7 +193,7 @@ def test_cold_start_base_alignment_is_exact_and_spares_warm_starts():
 
 
 def test_cold_start_table_gives_a_nearby_configuration_and_spares_warm_starts():
-    from hyperarm_ik.solvers.default import TABLE_CELL, DefaultSolver
+    from hyperarm_ik.solvers.default import TABLE_CELL, TABLE_POSTURE_WEIGHT, DefaultSolver
     solver = DefaultSolver(ARM, start_table=4096)
     rng = np.random.default_rng(11)
     q0 = np.zeros(9)
@@ -206,11 +206,13 @@ def test_cold_start_table_gives_a_nearby_configuration_and_spares_warm_starts():
         assert np.all(np.abs(pt - p) <= TABLE_CELL * math.sqrt(3))  # same cell
         assert ARM.within_limits(qt) and np.all(qt >= solver._soft_lo)
         assert np.all(qt <= solver._soft_hi)
-        # 6-D lookup: no other configuration of the cell has a nearer pose in the metric
+        # 6-D lookup: no entry of the cell scores better (pose distance^2 + w |q|^2)
         cell = solver._cells[tuple(math.floor(v / TABLE_CELL) for v in p)]
         f = np.concatenate((p, r.ravel() * solver._k))
-        assert np.min(np.sum((cell[1].T - f) ** 2, axis=1)) == pytest.approx(
-            np.sum((np.concatenate((pt, rt.ravel() * solver._k)) - f) ** 2))
+        score = lambda fs, qs: np.sum((fs - f) ** 2, axis=-1) \
+            + TABLE_POSTURE_WEIGHT * np.sum(qs ** 2, axis=-1)  # noqa: E731
+        assert np.min(score(cell[1].T, cell[0])) == pytest.approx(
+            score(np.concatenate((pt, rt.ravel() * solver._k)), qt))
     assert solver._cold_start(p, r, q0, False) is not None  # the last target: a far one
     # a target a tracking step away keeps the seed
     q = np.array([0.2, 0.4, -0.3, -0.5, 0.2, 0.6, -0.2, 0.3, 0.1])
@@ -218,6 +220,7 @@ def test_cold_start_table_gives_a_nearby_configuration_and_spares_warm_starts():
     assert solver._cold_start(p + 0.02, r, q, False) is None
     assert solver._cold_start(p + 0.02, None, q, True) is None
     assert DefaultSolver(ARM, start_table=0)._cells == {}
+    assert DefaultSolver(RAIL)._cells == {}  # off by default on the rail variant
     assert DefaultSolver(ARM, start_table=4096)._cells is solver._cells  # built once
     assert DefaultSolver(ARM, start_table=4096, limit_margin=0.1)._cells is not solver._cells
     with pytest.raises(InvalidOptionError, match="start_table"):

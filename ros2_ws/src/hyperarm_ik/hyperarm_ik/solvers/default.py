@@ -19,16 +19,17 @@ Redundancy: z pulls joints out of the outer ``limit_margin`` of their range and,
 which keeps warm-started tracking close to the seed. A joint held at a limit by the clip is
 removed from the step (its W^-1 set to 0) and the step recomputed once (active set).
 
-Cold starts: when the seed's tool pose is farther than ``align_distance`` (0.1 m, in the
-metric sqrt(|dp|^2 + s^2 theta^2), position only for position_only requests) from the
-target, the first attempt starts from a precomputed table instead of the seed: FK of
-``start_table`` (65,536) configurations drawn uniformly within the soft limits by a fixed
-RNG seed at construction (~0.3 s), binned by tool position in 0.1 m cubes; the start is the
-configuration of the target's cube whose tool pose is nearest the target (or the seed when
+Cold starts (fixed arm): when the seed's tool pose is farther than ``align_distance``
+(0.1 m, in the metric sqrt(|dp|^2 + s^2 theta^2), position only for position_only requests)
+from the target, the first attempt starts from a precomputed table instead of the seed: FK
+of ``start_table`` (65,536) configurations drawn uniformly within the soft limits by a fixed
+RNG seed, built once per process (~0.3 s), binned by tool position in 0.1 m cubes; the start
+is the entry of the target's cube minimising pose distance^2 + 0.01 |q|^2 (or the seed when
 the cube is empty). A far target's solution therefore does not depend on the seed. A seed
-within align_distance (warm starts, tracking) is used as is. Without a table start (empty
-cube, restarts, ``start_table=0``) on the fixed arm: when tool0 is far (> 0.1 m) from the
-target and joint1 would have to swing round (> 0.5 rad), joint1 is first turned to the
+within align_distance (warm starts, tracking) is used as is. Off by default for the rail
+variant (its straight-line tracking got jerkier from table postures). Without a table start
+(empty cube, restarts, ``start_table=0``) on the fixed arm: when tool0 is far (> 0.1 m) from
+the target and joint1 would have to swing round (> 0.5 rad), joint1 is first turned to the
 target's azimuth (an exact one-joint move); off for the rail variant, where it did not pay
 off.
 
@@ -59,6 +60,7 @@ _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 START_TABLE_SIZE = 65536  # configurations in the cold-start table of the fixed arm (0: none)
 TABLE_CELL = 0.1         # m, edge of the position cubes the table is binned in
 TABLE_RNG_SEED = 20261122
+TABLE_POSTURE_WEIGHT = 0.01  # m^2/rad^2: among a cube's entries, prefer small |q|
 _TABLES: dict[tuple, dict] = {}  # start tables by (size, scale, kinematics and soft limits)
 
 
@@ -119,8 +121,8 @@ class DefaultSolver(Solver):
         # joints are surely inside their limits when |q_i| <= _rmin (fast path of the clip)
         self._rmin = kin.safe_range
         self._soft_rmin = float(max(0.0, min(np.min(-self._soft_lo), np.min(self._soft_hi))))
-        if start_table is None:
-            start_table = START_TABLE_SIZE
+        if start_table is None:  # measured: helps the fixed arm; on the rail see docs
+            start_table = START_TABLE_SIZE if kin.variant == "arm" else 0
         self._build_start_table(start_table)
 
     # --- cold starts from a table of (configuration -> tool pose) ---------------------------
@@ -129,7 +131,9 @@ class DefaultSolver(Solver):
         seed: the table, hence every answer, is deterministic), binned by tool position in
         cubes of ``TABLE_CELL`` m. A pose is a feature vector f = [p, k R.ravel()] with
         k = s / sqrt(2): |f - f_i|^2 = |p - p_i|^2 + s^2 theta^2 to second order in the
-        angle theta between R and R_i (the solver's own error metric). Tables are shared
+        angle theta between R and R_i (the solver's own error metric). The lookup minimises
+        |f - f_i|^2 + TABLE_POSTURE_WEIGHT |q_i|^2: central postures (fewer iterations,
+        smoother tracking afterwards, measured) win over marginally nearer poses. Tables are shared
         (read only) by solvers of the same kinematics, soft limits, scale and size."""
         self._k = self.s / math.sqrt(2.0)
         self._cells: dict[tuple[int, int, int], tuple] = {}
@@ -162,9 +166,11 @@ class DefaultSolver(Solver):
         for lo, hi in zip(np.r_[0, bounds], np.r_[bounds, n]):
             fc = feats[lo:hi]
             # transposed copies: f @ F^T is the faster product for these short tables
+            pen = TABLE_POSTURE_WEIGHT * np.einsum("ij,ij->i", qs[lo:hi], qs[lo:hi])
             self._cells[tuple(keys[lo].tolist())] = (
-                qs[lo:hi], np.ascontiguousarray(fc.T), np.einsum("ij,ij->i", fc, fc),
-                np.ascontiguousarray(fc[:, :3].T), np.einsum("ij,ij->i", fc[:, :3], fc[:, :3]))
+                qs[lo:hi], np.ascontiguousarray(fc.T), np.einsum("ij,ij->i", fc, fc) + pen,
+                np.ascontiguousarray(fc[:, :3].T),
+                np.einsum("ij,ij->i", fc[:, :3], fc[:, :3]) + pen)
         _TABLES[key] = self._cells
 
     def _cold_start(self, p: np.ndarray, r: np.ndarray, q: np.ndarray,
