@@ -143,10 +143,14 @@ def test_effort_watchdog_and_torque_mode(rclpy_context, executor, wait_for):
              what="joint2 in current (torque) mode")
     wait_for(lambda: p.diag("mock_driver: joint2")["mode"] == "position", 5.0,
              what="the watchdog to switch joint2 back to position")
-    held = p.position("joint2")
+    # joint_states published before the switch may still be in flight: judge the 30 latest
+    # of the next 40 (0.4 s at the default 100 Hz), which all come after it
+    n0 = len(p.states)
+    wait_for(lambda: len(p.states) >= n0 + 40, 5.0, what="40 joint_states after the switch")
+    tail = [m.position[list(m.name).index("joint2")] for _, m in p.states[n0 + 10:n0 + 40]]
+    held = tail[0]
     assert abs(held) > 0.01                       # it had fallen
-    time.sleep(0.3)
-    assert p.position("joint2") == pytest.approx(held, abs=1e-6)
+    assert tail == pytest.approx([held] * len(tail), abs=1e-9)   # and is held still
 
 
 def test_camera_detections_and_ground_truth(rclpy_context, executor, wait_for):
@@ -167,7 +171,7 @@ def test_sim_time_runs_faster_and_publishes_clock(rclpy_context, executor, wait_
     p = Probe(rclpy_context, executor)
     wait_for(lambda: len(p.clock) > 10, 10.0, what="/clock")
     wall0, c0 = p.clock[-1]
-    time.sleep(1.0)
+    wait_for(lambda: p.clock[-1][0] - wall0 >= 1.0, 5.0, what="1 s of /clock")
     wall1, c1 = p.clock[-1]
     sim = (c1.clock.sec - c0.clock.sec) + 1e-9 * (c1.clock.nanosec - c0.clock.nanosec)
     ratio = sim / (wall1 - wall0)
@@ -182,7 +186,9 @@ def test_rail_variant_homing(rclpy_context, executor, wait_for):
     wait_for(lambda: p.states, 10.0, what="joint_states")
     assert list(p.states[-1][1].name)[0] == "rail"
     p.send(["rail"], [0.3])                        # refused: not homed
-    assert p.diag("mock_driver: rail").get("homed", "false") == "false"
+    wait_for(lambda: p.diag("mock_driver: rail").get("rejected_setpoints") == "1", 5.0,
+             what="the setpoint before homing rejected")
+    assert p.diag("mock_driver: rail")["homed"] == "false"
     r = p.call(contract.RAIL_HOME, wait_for)
     assert r.success
     wait_for(lambda: p.diag("mock_driver: rail").get("homed") == "true", 5.0, what="homed")
