@@ -199,9 +199,10 @@ def test_cold_start_table_gives_a_nearby_configuration_and_spares_warm_starts():
     q0 = np.zeros(9)
     for _ in range(20):
         p, r = _target(ARM, rng.uniform(ARM.lower, ARM.upper))
-        qt = solver._cold_start(p, r, q0, False)
-        if qt is None:  # empty cell (or the ready pose is already close): seed kept
+        qt, decided = solver._cold_start(p, r, q0, False)
+        if qt is q0:  # empty cell (or the ready pose is already close): seed kept
             continue
+        assert decided
         pt, rt = _target(ARM, qt)
         assert np.all(np.abs(pt - p) <= TABLE_CELL * math.sqrt(3))  # same cell
         assert ARM.within_limits(qt) and np.all(qt >= solver._soft_lo)
@@ -213,12 +214,13 @@ def test_cold_start_table_gives_a_nearby_configuration_and_spares_warm_starts():
             + TABLE_POSTURE_WEIGHT * np.sum(qs ** 2, axis=-1)  # noqa: E731
         assert np.min(score(cell[1].T, cell[0])) == pytest.approx(
             score(np.concatenate((pt, rt.ravel() * solver._k)), qt))
-    assert solver._cold_start(p, r, q0, False) is not None  # the last target: a far one
+    assert solver._cold_start(p, r, q0, False)[0] is not q0  # the last target: a far one
     # a target a tracking step away keeps the seed
     q = np.array([0.2, 0.4, -0.3, -0.5, 0.2, 0.6, -0.2, 0.3, 0.1])
     p, r = _target(ARM, q)
-    assert solver._cold_start(p + 0.02, r, q, False) is None
-    assert solver._cold_start(p + 0.02, None, q, True) is None
+    for rot, position_only in ((r, False), (None, True)):
+        start, decided = solver._cold_start(p + 0.02, rot, q, position_only)
+        assert start is q and decided
     assert DefaultSolver(ARM, start_table=0)._cells == {}
     assert DefaultSolver(RAIL)._cells == {}  # off by default on the rail variant
     assert DefaultSolver(ARM, start_table=4096)._cells is solver._cells  # built once

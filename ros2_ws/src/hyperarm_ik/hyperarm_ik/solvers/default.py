@@ -174,11 +174,12 @@ class DefaultSolver(Solver):
         _TABLES[key] = self._cells
 
     def _cold_start(self, p: np.ndarray, r: np.ndarray, q: np.ndarray,
-                    position_only: bool) -> np.ndarray | None:
-        """The start of the first attempt when the seed's tool pose is farther than
-        ``align_distance`` (in the metric above) from the target: the configuration of the
-        target's cell whose tool pose is nearest the target. None: keep the seed (a warm
-        start; also when the target's cell is empty)."""
+                    position_only: bool) -> tuple[np.ndarray, bool]:
+        """(start, decided): the seed itself when its tool pose is within
+        ``align_distance`` (in the metric above) of the target (warm starts, tracking);
+        else the entry of the target's cell that minimises pose distance^2 + w |q|^2.
+        ``decided`` is False only when the target's cell is empty (the seed is returned and
+        the base alignment may still apply)."""
         kin = self.kin
         pin.forwardKinematics(kin.model, kin.data, q)
         m = pin.updateFramePlacement(kin.model, kin.data, kin.tool_id)
@@ -188,16 +189,16 @@ class DefaultSolver(Solver):
         if not position_only:  # |R - R_q|_F^2 = 2 (3 - <R, R_q>)
             d2 += 2.0 * self._k * self._k * (3.0 - float(np.vdot(r, m.rotation)))
         if d2 <= self.align_distance ** 2:
-            return None
+            return q, True
         h = TABLE_CELL
         cell = self._cells.get((math.floor(px / h), math.floor(py / h), math.floor(pz / h)))
         if cell is None:
-            return None
+            return q, False
         qs, ft, n2, pt, pn2 = cell  # ft, pt: features transposed (12, m), (3, m)
         if position_only:
-            return qs[int(np.argmin(pn2 - 2.0 * (p @ pt)))]
+            return qs[int(np.argmin(pn2 - 2.0 * (p @ pt)))], True
         f = np.concatenate((p, r.ravel() * self._k))
-        return qs[int(np.argmin(n2 - 2.0 * (f @ ft)))]
+        return qs[int(np.argmin(n2 - 2.0 * (f @ ft)))], True
 
     # --- secondary motion ----------------------------------------------------------------
     def _z(self, q: np.ndarray) -> np.ndarray | None:
@@ -356,16 +357,14 @@ class DefaultSolver(Solver):
         total = 0
         best_q, best_cost = q, np.inf
         attempts = 0
-        tabled = False
+        decided = False  # the start of the first attempt was chosen by the table logic
         if self._cells:
-            qt = self._cold_start(p, r, q, position_only)
-            if qt is not None:
-                q, tabled = qt, True
+            q, decided = self._cold_start(p, r, q, position_only)
         while True:
             attempts += 1
-            if self.align_base > 0.0 and not tabled:
+            if self.align_base > 0.0 and not decided:
                 q = self._aligned(p, q)
-            tabled = False
+            decided = False
             qa, cost, it, errs = self._attempt(p, r, q, position_only, ptol, otol, deadline,
                                                self.max_iterations)
             total += it
