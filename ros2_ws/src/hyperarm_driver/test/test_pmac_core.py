@@ -157,6 +157,26 @@ def test_configure_writes_ivariables(config: RailConfig) -> None:
         RailAxis(port, config).configure(speed=0.6)
 
 
+def test_configure_never_disables_a_soft_limit_nor_writes_exponents(config: RailConfig) -> None:
+    from dataclasses import replace
+    # a rail from 0 to 0.8 m, slow fine encoder: Ixx14=0 would switch the limit off,
+    # Ixx19 = 2e-05 counts/ms^2 with %g would be written as an exponent
+    rail = replace(config, lower=0.0, upper=0.8, counts_per_metre=1000.0,
+                   max_acceleration=0.02)
+    port = RecordingPort({"I10": ["3713991"]})
+    RailAxis(port, rail).configure()
+    assert "e" not in port.sent[1].lower()
+    sent = dict(kv.split("=") for kv in port.sent[1].split())
+    assert sent["I114"] == "-1" and sent["I113"] == "800"
+    assert float(sent["I119"]) == pytest.approx(2e-05) and sent["I122"] == "0.5"
+    mirrored = replace(config, lower=-0.5, upper=0.0, counts_per_metre=-1000.0)
+    RailAxis(port, mirrored).configure()
+    sent = dict(kv.split("=") for kv in port.sent[-1].split())
+    assert sent["I113"] == "500" and sent["I114"] == "-1"
+    with pytest.raises(RailCommandError, match="too small"):
+        RailAxis(port, replace(config, max_acceleration=1e-12)).configure()
+
+
 def test_read_scales_counts_and_servo_cycles(config: RailConfig) -> None:
     period = servo_period_from_i10(3713991)
     assert period == pytest.approx(0.4427e-3, rel=1e-4)

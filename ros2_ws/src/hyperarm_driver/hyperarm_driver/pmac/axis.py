@@ -120,6 +120,15 @@ class MotorStatus:
             and getattr(self, f.name)]
 
 
+def _decimal(x: float) -> str:
+    """``x`` as a plain decimal with up to 9 places: the PMAC command parser takes no
+    exponent (``%g`` would write 2e-05). RailCommandError if it would round to 0."""
+    text = f"{x:.9f}".rstrip("0").rstrip(".")
+    if float(text) == 0.0:
+        raise RailCommandError(f"value {x!r} too small for the card (rounds to 0)")
+    return text
+
+
 class CommandPort(Protocol):
     """What the axis needs from a client (PmacClient, PmacSerialClient)."""
 
@@ -230,12 +239,15 @@ class RailAxis:
             raise RailCommandError(f"jog speed {v} m/s not within (0, {c.max_velocity:g}] m/s")
         self.read_servo_period()
         cpm = abs(c.counts_per_metre)
-        lim = sorted((c.to_counts(c.lower), c.to_counts(c.upper)))
+        lo, hi = sorted((c.to_counts(c.lower), c.to_counts(c.upper)))
+        # whole counts, rounded inwards; 0 would switch a soft limit off on the card, so a
+        # limit at 0 is written as +1 / -1 count (Turbo PMAC Software Reference, Ixx13/14)
+        pos_limit, neg_limit = math.floor(hi) or 1, math.ceil(lo) or -1
         self.port.command(
-            f"{self._ivar(22)}={v * cpm / 1e3:.6g} "          # counts/ms
-            f"{self._ivar(19)}={c.max_acceleration * cpm / 1e6:.6g} "   # counts/ms^2
+            f"{self._ivar(22)}={_decimal(v * cpm / 1e3)} "          # counts/ms
+            f"{self._ivar(19)}={_decimal(c.max_acceleration * cpm / 1e6)} "   # counts/ms^2
             f"{self._ivar(20)}=0 {self._ivar(21)}=0 "
-            f"{self._ivar(13)}={lim[1]:.6g} {self._ivar(14)}={lim[0]:.6g}")
+            f"{self._ivar(13)}={pos_limit} {self._ivar(14)}={neg_limit}")
 
     def read_ivar(self, n: int) -> float:
         """Read motor I-variable Ixx{n} (n = 0..99)."""
