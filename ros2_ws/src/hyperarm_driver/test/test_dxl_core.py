@@ -107,6 +107,12 @@ def test_commands_are_validated_and_clamped_without_a_port():
         d.command(["joint1", "joint1"], [0.1, 0.2])
     with pytest.raises(CommandError, match="2 positions"):
         d.command(["joint1"], [0.1, 0.2])
+    with pytest.raises(CommandError, match="must be numbers"):
+        d.command(["joint1", "joint2"], [0.1, "up"])
+    with pytest.raises(CommandError, match="must be numbers"):
+        d.command(["joint1"], effort=[None])
+    d.command(["joint2", "joint3"], np.array([0.2, 0.1]))      # numpy arrays are fine
+    assert d.goal_position[1] == 0.2 and d.goal_position[2] == 0.1
     assert d.goal_position[0] == 0.0  # nothing applied by the rejected commands
     rep = d.command(["joint1", "rail", "gripper"], [10.0, 0.3, -1.0])
     assert rep.clamped == ["joint1", "gripper"]

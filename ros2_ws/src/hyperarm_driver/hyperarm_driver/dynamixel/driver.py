@@ -160,6 +160,11 @@ class DynamixelDriver:
         """
         now = time.monotonic() if now is None else now
         n = len(names)
+        try:
+            position = [float(x) for x in position]
+            effort = [float(x) for x in effort]
+        except (TypeError, ValueError) as exc:
+            raise CommandError(f"setpoints must be numbers: {exc}") from None
         if len(position) not in (0, n) or len(effort) not in (0, n):
             raise CommandError(f"{len(position)} positions and {len(effort)} efforts for "
                                f"{n} joint names (each must be 0 or {n})")
@@ -179,8 +184,8 @@ class DynamixelDriver:
             raise CommandError(f"unknown joint(s) {unknown}; known: "
                                f"{self.names + sorted(self.other_joints)}")
         bad = [names[k] for k, _ in idx
-               if (position and not math.isfinite(float(position[k])))
-               or (effort and not math.isfinite(float(effort[k])))]
+               if (position and not math.isfinite(position[k]))
+               or (effort and not math.isfinite(effort[k]))]
         if bad:
             raise CommandError(f"non-finite setpoint for {bad}: command rejected")
         report = CommandReport()
