@@ -127,6 +127,20 @@ def test_startup_reports_missing_servo_and_wrong_model(tmp_path):
     assert not drv.connected
 
 
+def test_emulator_survives_control_clients_that_vanish(emu):
+    import select
+    import socket
+    for send in (b'{"op": "state"}\n', b"not json\n", b""):
+        c = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        c.connect(emu.control_path)
+        c.sendall(send)
+        if send:    # wait for the reply, read a piece of it: closing resets the connection
+            assert select.select([c], [], [], 5.0)[0]
+            c.recv(10)
+        c.close()
+    assert emu.ctl("state")["ok"] and emu.proc.poll() is None
+
+
 def test_open_error_names_the_port(tmp_path):
     drv = DynamixelDriver(DynamixelBus(bus_config_from_description(DESC),
                                        str(tmp_path / "no-such-tty")))

@@ -637,6 +637,8 @@ class PtyEmulator:
                     chunk = conn.recv(65536)
                 except BlockingIOError:
                     continue
+                except OSError:            # reset by a client that went away
+                    chunk = b""
                 if not chunk:
                     conn.close()
                     del self._clients[fd]
@@ -646,9 +648,14 @@ class PtyEmulator:
                     line, _, rest = bytes(buf).partition(b"\n")
                     buf[:] = rest
                     reply = json.dumps(self._on_control_line(line)).encode() + b"\n"
-                    conn.setblocking(True)
-                    conn.sendall(reply)
-                    conn.setblocking(False)
+                    try:
+                        conn.setblocking(True)
+                        conn.sendall(reply)
+                        conn.setblocking(False)
+                    except OSError:        # the client closed before reading its reply
+                        conn.close()
+                        del self._clients[fd]
+                        break
         now = time.monotonic()
         while self._pending and self._pending[0][0] <= now:
             self._write(self._pending.pop(0)[1])
