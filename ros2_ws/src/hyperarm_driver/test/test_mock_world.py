@@ -161,6 +161,46 @@ def test_current_limit_bounds_the_pressing_force(desc, cfg):
     assert 0.0 < results[True] < 0.97 * results[False]
 
 
+def test_sustained_press_matches_the_converged_contact_solution(desc, cfg, monkeypatch):
+    """The contact solve takes shortcuts (at most two linearizations per step, the first
+    one at the last step's deflected joints in a sustained press on a horizontal surface):
+    pressing and dragging the block on the peg top must give the forces and joints of the
+    contact solved to convergence at every step (12 linearizations, 1e-9 rad)."""
+    from hyperarm_driver.mock import joint_sim
+
+    def press(converged: bool) -> list[np.ndarray]:
+        if converged:
+            monkeypatch.setattr(joint_sim, "LINEARIZATIONS", 12)
+            monkeypatch.setattr(joint_sim, "RELINEARIZE", 1e-9)
+        sc, s = picked(desc, cfg)
+        sim, out = sc.sim, []
+        if converged:
+            monkeypatch.setattr(sim, "_warm", None)     # cold start every step
+            monkeypatch.setattr(type(sim), "_contacts", _cold(type(sim)._contacts))
+        target = s["dst_above"] + [0.006, 0.0, 0.0]
+        sc.move_tool(target, 1.0)
+        target[2] = s["dst_top"] + s["half"] - 0.01           # 1 cm into the peg
+        for dy in (0.0, 0.004, -0.004):                        # then drag it sideways
+            sc.move_tool(target + [0.0, dy, 0.0], 1.0)
+            out.append(np.r_[sim.contact_force, sim.position, sim.effort])
+        monkeypatch.undo()
+        return out
+
+    fast, ref = press(False), press(True)
+    for f, r in zip(fast, ref):
+        assert r[2] > 0.5                                      # N: pressing indeed
+        assert f[:3] == pytest.approx(r[:3], abs=2e-3)         # N
+        assert f[3:13] == pytest.approx(r[3:13], abs=1e-5)     # rad
+        assert f[13:] == pytest.approx(r[13:], abs=5e-4)       # N·m
+
+
+def _cold(contacts):
+    def cold(self, q, P, v):
+        self._warm = None
+        return contacts(self, q, P, v)
+    return cold
+
+
 def test_weak_grip_drops_the_block(desc, cfg):
     sc, s = picked(desc, cfg)
     sim = sc.sim

@@ -52,6 +52,8 @@ OVERLOAD_TIME = 2.0        # s at the stall torque before a POSITION servo's ove
 RAIL_FORCE_LIMIT = 200.0   # N, the rail drive's force limit
 CONTACT_DAMPING = 30.0     # N·s/m, against dynamic (torque-mode) joints
 SUBSTEPS = 4               # dynamic sub-steps per step while any joint is dynamic
+LINEARIZATIONS = 2         # quasi-static contact solves per step at most
+RELINEARIZE = 1e-3         # rad: re-linearize when the solution is this far from the point
 
 
 class MockCommandError(MockError):
@@ -163,6 +165,7 @@ class JointSim:
         self._history: deque[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = deque()
         self._anchors: dict[str, np.ndarray] = {}   # friction anchors (xy, m) by contact
         self._contact_rows_used = None
+        self._warm: np.ndarray | None = None       # last step's contact deflection (rad)
         self.require_homing = bool(require_homing)
         self.homed = self.rail is None
         self.homing = False
@@ -456,15 +459,29 @@ class JointSim:
         nk = self.nk
         zero = np.zeros(nk)
         self._contact_rows_used = None
+        warm, self._warm = self._warm, None
         if self.world.state is not BlockState.HELD:
             self.contact_force = np.zeros(3)
             self._anchors.clear()
             return zero, zero
         kinv = np.where(P, 1.0 / self.stiffness[:nk], 0.0)
-        # Quasi-static: linearize at q, solve, re-linearize once at the deflected joints.
-        q_lin, solved = q, None
-        for _ in range(2 if v is None else 1):
+        # Quasi-static: linearize, solve, and re-linearize once at the deflected joints if
+        # the linearization point was more than RELINEARIZE from them. Which contacts there
+        # are is decided at the undeflected q. The first linearization point is q, or, when
+        # every contact there is on a horizontal surface (a constant normal: no geometry to
+        # re-linearize but the arm's) and the block was in contact at the last step, the
+        # last step's deflected joints: in a sustained press one solve is then enough.
+        if warm is not None:
+            at_q = self.world.contacts(self._tool_at(q))
+            if not at_q or not all(c.frictional for c in at_q):
+                warm = None
+        q_lin, solved = (q, None) if warm is None else (q + warm, None)
+        # (a warm start that missed gets the cold start's number of re-linearizations)
+        for _ in range((LINEARIZATIONS + (warm is not None)) if v is None else 1):
             rows = self._contact_rows(q_lin)
+            if rows is None and q_lin is not q:   # contact lost where it was: try q itself
+                q_lin = q
+                rows = self._contact_rows(q)
             if rows is None:
                 break
             contacts, jr, p0, owner, tangential, points = rows
@@ -472,8 +489,8 @@ class JointSim:
             f = self._solve_contacts(jr, p0, owner, tangential, kinv, v)
             solved = contacts, jr, p0, f, owner, tangential, points, q_lin
             deflection = kinv * (jr.T @ f)
-            if np.abs(deflection).max() < 1e-3:   # rad: re-linearizing would change ~nothing
-                break
+            if np.abs(q + deflection - q_lin).max() < RELINEARIZE:  # rad: re-linearizing
+                break                                                # would change ~nothing
             q_lin = q + deflection
         if solved is None:
             self.contact_force = np.zeros(3)
@@ -494,7 +511,9 @@ class JointSim:
             for kind in list(self._anchors):
                 if kind not in kinds:
                     del self._anchors[kind]
-        self.contact_force = sum((f[i] * self._row_dirs[i] for i in range(len(f))), np.zeros(3))
+        if v is None:
+            self._warm = dq
+        self.contact_force = np.asarray(self._row_dirs).T @ f
         return dq, jr.T @ f
 
     def _contact_rows(self, q: np.ndarray):
@@ -502,8 +521,7 @@ class JointSim:
         Jacobian rows (m/rad) of each constrained direction, their interferences (m), the
         contact each row belongs to, which rows are tangential, and the contact points."""
         qt = q + self.offset[:self.nk]
-        pin.framesForwardKinematics(self.model, self.data, qt)
-        tool = self.data.oMf[self.tool_id].homogeneous
+        tool = self._tool_at(q)
         contacts = self.world.contacts(tool)
         if not contacts:
             return None
@@ -530,40 +548,60 @@ class JointSim:
         """Forces (N) of the contact rows: penalty springs in series with the servo springs,
         (I/k_env + J K⁻¹ Jᵀ) f = p0 over the active rows; a contact whose normal force would
         pull is dropped; tangential forces outside the friction cone are set on its edge
-        (sliding) and the other rows re-solved with them fixed."""
+        (sliding) and the other rows re-solved with them fixed.
+
+        The rows come as built by :meth:`_contact_rows`: per contact its normal row, then its
+        tangential rows if any. The systems are tiny (3-6 rows), so the bookkeeping is done
+        on Python lists: numpy's per-call overhead would dominate."""
         k_env = self.cfg.world.contact_stiffness
         mu = self.cfg.world.friction
         m = len(p0)
-        a_full = np.eye(m) / k_env + (jr * kinv) @ jr.T
-        damp = CONTACT_DAMPING * (jr @ v) if v is not None else np.zeros(m)
-        active = np.ones(m, dtype=bool)
-        fixed = np.zeros(m, dtype=bool)
+        a_full = (jr * kinv) @ jr.T
+        a_full.flat[::m + 1] += 1.0 / k_env
+        damp = CONTACT_DAMPING * (jr @ v) if v is not None else None
+        # per contact: its normal row and its tangential rows
+        groups: list[tuple[int, list[int]]] = []
+        for i in range(m):
+            if tangential[i]:
+                groups[-1][1].append(i)
+            else:
+                groups.append((i, []))
+        active = list(range(len(groups)))
+        fixed: set[int] = set()
         f = np.zeros(m)
-        for _ in range(2 * int(owner.max()) + 4):
-            free = active & ~fixed
-            f[~active] = 0.0
-            rhs = p0[free] - a_full[np.ix_(free, fixed)] @ f[fixed]
-            f[free] = np.linalg.solve(a_full[np.ix_(free, free)], rhs) - damp[free]
-            pulling = [int(owner[i]) for i in np.flatnonzero(active & ~tangential & (f < 0.0))]
+        for _ in range(2 * len(groups) + 2):
+            rows = [i for c in active for i in (groups[c][0], *groups[c][1])]
+            free = [i for i in rows if i not in fixed]
+            held = [i for i in rows if i in fixed]
+            f_new = np.zeros(m)
+            f_new[held] = f[held]
+            f = f_new                                   # rows of dropped contacts: 0
+            if not free:
+                break
+            rhs = p0[free]
+            if held:
+                rhs = rhs - a_full[np.ix_(free, held)] @ f[held]
+            f[free] = np.linalg.solve(a_full[np.ix_(free, free)], rhs)
+            if damp is not None:
+                f[free] -= damp[free]
+            pulling = [c for c in active if f[groups[c][0]] < 0.0]
             if pulling:
-                for ci in pulling:
-                    active &= owner != ci
-                fixed &= active
+                active = [c for c in active if c not in pulling]
                 continue
             changed = False
-            for ci in set(owner[active & tangential].tolist()):
-                t = np.flatnonzero((owner == ci) & tangential)
-                fn = f[np.flatnonzero((owner == ci) & ~tangential)[0]]
-                ft = f[t]
-                norm = float(np.linalg.norm(ft))
+            for c in active:
+                n, t = groups[c]
+                if not t:
+                    continue
+                fn = float(f[n])
+                norm = math.hypot(*(float(f[i]) for i in t))
                 if norm > mu * fn * (1.0 + 1e-9):
-                    f[t] = ft * (mu * fn / norm)
-                    if not fixed[t].all():
-                        fixed[t] = True
+                    f[t] *= mu * fn / norm
+                    if not fixed.issuperset(t):
+                        fixed.update(t)
                         changed = True
             if not changed:
                 break
-        f[~active] = 0.0
         return f
 
     def _limit_efforts(self, q: np.ndarray, P: np.ndarray, dq: np.ndarray, gen: np.ndarray,
@@ -601,7 +639,7 @@ class JointSim:
             over |= newly
         dq = kinv_u * (jr.T @ f)
         dq[over] = dq_s
-        self.contact_force = sum((f[i] * self._row_dirs[i] for i in range(m)), np.zeros(3))
+        self.contact_force = np.asarray(self._row_dirs).T @ f
         return dq, np.clip(tau_new, -lim, lim)
 
     def _overload(self, dt: float, P: np.ndarray, effort: np.ndarray) -> None:
@@ -617,10 +655,14 @@ class JointSim:
             self.inject_error(self.names[i], "overload")
             self._saturated_for[i] = 0.0
 
+    def _tool_at(self, q: np.ndarray) -> np.ndarray:
+        """True pose of tool0 (offsets included) at chain positions ``q`` (encoder values);
+        leaves ``self.data`` at that configuration."""
+        pin.framesForwardKinematics(self.model, self.data, q + self.offset[:self.nk])
+        return self.data.oMf[self.tool_id].homogeneous
+
     def _update_tool(self) -> None:
-        qt = self.position[:self.nk] + self.offset[:self.nk]
-        pin.framesForwardKinematics(self.model, self.data, qt)
-        self._tool = self.data.oMf[self.tool_id].homogeneous.copy()
+        self._tool = self._tool_at(self.position[:self.nk])
 
     def _contact_angle(self) -> float:
         """Gripper angle (rad) at which the fingers touch the block."""
