@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
-import yaml
+from hyperarm_description.model import check_number, check_vector, read_yaml
 
 __all__ = [
     "MockError",
@@ -41,23 +41,16 @@ class MockConfigError(MockError, ValueError):
     """The work-cell YAML is missing a field or holds an invalid value."""
 
 
+# The number checks are the robot description's (hyperarm_description.model), raising this
+# module's error; here they are wrapped with the key lookup and the default.
 def _num(raw: Mapping[str, Any], key: str, where: str, default: float | None = None, *,
          positive: bool = False, nonneg: bool = False) -> float:
     if key not in raw:
         if default is None:
             raise MockConfigError(f"{where}.{key}: missing")
         return float(default)
-    value = raw[key]
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise MockConfigError(f"{where}.{key}: expected a number, got {value!r}")
-    out = float(value)
-    if not math.isfinite(out):
-        raise MockConfigError(f"{where}.{key}: must be finite, got {value!r}")
-    if positive and out <= 0.0:
-        raise MockConfigError(f"{where}.{key}: must be > 0, got {out:g}")
-    if nonneg and out < 0.0:
-        raise MockConfigError(f"{where}.{key}: must be >= 0, got {out:g}")
-    return out
+    return check_number(raw[key], f"{where}.{key}", positive=positive, nonneg=nonneg,
+                        error=MockConfigError)
 
 
 def _vec(raw: Mapping[str, Any], key: str, where: str, n: int,
@@ -66,10 +59,7 @@ def _vec(raw: Mapping[str, Any], key: str, where: str, n: int,
         if default is None:
             raise MockConfigError(f"{where}.{key}: missing")
         return default
-    value = raw[key]
-    if not isinstance(value, (list, tuple)) or len(value) != n:
-        raise MockConfigError(f"{where}.{key}: expected a list of {n} numbers, got {value!r}")
-    return tuple(_num({"v": v}, "v", f"{where}.{key}[{i}]") for i, v in enumerate(value))
+    return check_vector(raw[key], f"{where}.{key}", n, error=MockConfigError)
 
 
 def _section(raw: Mapping[str, Any], key: str, where: str) -> Mapping[str, Any]:
@@ -350,12 +340,4 @@ def default_workcell_path() -> Path:
 def load_mock_config(path: str | Path | None = None) -> MockConfig:
     """Load and validate a work-cell YAML (``None`` or ``''`` = the packaged default)."""
     p = Path(path) if path else default_workcell_path()
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise MockConfigError(f"cannot read work-cell file {p}: {exc.strerror}") from exc
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise MockConfigError(f"{p}: not valid YAML: {exc}") from exc
-    return parse_mock_config(data, source=str(p))
+    return parse_mock_config(read_yaml(p, "work-cell file", MockConfigError), source=str(p))

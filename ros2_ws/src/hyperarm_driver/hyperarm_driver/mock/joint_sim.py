@@ -89,6 +89,10 @@ class StateSample:
     effort: np.ndarray
 
 
+_AXES = np.eye(3)
+_AXES.flags.writeable = False
+
+
 def _skew(r: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
 
@@ -535,9 +539,8 @@ class JointSim:
             if c.frictional:
                 anchor = self._anchors.setdefault(c.kind, c.point[:2].copy())
                 for axis in (0, 1):
-                    d = np.eye(3)[axis]
-                    rows.append(d @ jp); p0.append(anchor[axis] - c.point[axis])
-                    owner.append(ci); tangential.append(True); dirs.append(d)
+                    rows.append(jp[axis]); p0.append(anchor[axis] - c.point[axis])
+                    owner.append(ci); tangential.append(True); dirs.append(_AXES[axis])
         self._row_dirs = dirs
         return (contacts, np.array(rows), np.array(p0), np.array(owner),
                 np.array(tangential), points)

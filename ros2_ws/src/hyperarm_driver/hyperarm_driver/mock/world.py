@@ -69,6 +69,10 @@ class WorldEvent:
     detail: str
 
 
+_UP = np.array([0.0, 0.0, 1.0])
+_UP.flags.writeable = False
+
+
 def _yaw_only(rot: np.ndarray) -> np.ndarray:
     yaw = math.atan2(rot[1, 0], rot[0, 0])
     c, s = math.cos(yaw), math.sin(yaw)
@@ -81,6 +85,7 @@ class World:
     def __init__(self, cfg: WorldConfig) -> None:
         self.cfg = cfg
         self._half = np.array(cfg.block.size) / 2.0
+        self._corner = math.hypot(self._half[0], self._half[1])   # m, centre to a corner
         self._pegs = {p.name: p for p in cfg.pegs}
         self.events: list[WorldEvent] = []
         self.state = BlockState.ON_PEG
@@ -136,12 +141,17 @@ class World:
     def _touches_top(self, peg: str, block_pose: np.ndarray) -> bool:
         """Whether the peg's top disc meets the block's bottom face (outside the hole)."""
         p = self._pegs[peg]
-        if self.misalignment(peg, block_pose) <= self.cfg.block.hole_radius - p.radius:
+        ex, ey = p.xy[0] - float(block_pose[0, 3]), p.xy[1] - float(block_pose[1, 3])
+        e = math.hypot(ex, ey)
+        if e <= self.cfg.block.hole_radius - p.radius:
             return False  # the disc is inside the hole
-        rot = _yaw_only(block_pose[:3, :3])  # tilt ignored: the hole is vertical
-        local = rot.T @ (np.array([p.xy[0], p.xy[1], 0.0]) - block_pose[:3, 3])
-        dx = max(abs(local[0]) - self._half[0], 0.0)
-        dy = max(abs(local[1]) - self._half[1], 0.0)
+        if e >= self._corner + p.radius:
+            return False  # beyond the block's corners
+        # the peg's axis in the block's frame; tilt ignored: the hole is vertical
+        yaw = math.atan2(float(block_pose[1, 0]), float(block_pose[0, 0]))
+        c, s = math.cos(yaw), math.sin(yaw)
+        dx = max(abs(c * ex + s * ey) - self._half[0], 0.0)
+        dy = max(abs(-s * ex + c * ey) - self._half[1], 0.0)
         return math.hypot(dx, dy) < p.radius
 
     # -- contacts of the held block -----------------------------------------------------
@@ -153,7 +163,7 @@ class World:
         centre = pose[:3, 3]
         bottom = centre[2] - self._half[2]
         out: list[Contact] = []
-        up = np.array([0.0, 0.0, 1.0])
+        up = _UP
         depth = self.cfg.table_height - bottom
         if depth > 0.0:
             out.append(Contact("table", up, depth, np.array([centre[0], centre[1], bottom]),
