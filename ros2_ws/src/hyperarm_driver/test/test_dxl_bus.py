@@ -15,7 +15,8 @@ from hyperarm_description.model import load_description
 from hyperarm_driver.dynamixel.bus import DynamixelBus
 from hyperarm_driver.dynamixel.config import BusConfig, bus_config_from_description
 from hyperarm_driver.dynamixel.driver import DynamixelDriver
-from hyperarm_driver.dynamixel.errors import CommandError, PortOpenError, StartupError
+from hyperarm_driver.dynamixel.errors import (CommandError, CommError, PortOpenError,
+                                               StartupError)
 from hyperarm_driver.dynamixel.testing import EmulatorProcess
 
 pytestmark = pytest.mark.emulator
@@ -44,10 +45,23 @@ def make_driver(emu: EmulatorProcess, config: BusConfig | None = None, **kw) -> 
     return DynamixelDriver(bus, **kw)
 
 
+def connect(drv: DynamixelDriver, timeout: float = 10.0) -> None:
+    """``drv.connect()``, tried again while it fails on timeouts: the emulator is another
+    process, which a loaded machine can starve past the SDK's few-ms reply timeouts."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            drv.connect()
+            return
+        except CommError:
+            if time.monotonic() > deadline:
+                raise
+
+
 def torque_on_joint4(emu: EmulatorProcess, effort: float, **kw) -> DynamixelDriver:
     """A connected driver, torque on, joint4 in current mode with ``effort`` (N·m)."""
     drv = make_driver(emu, **kw)
-    drv.connect()
+    connect(drv)
     drv.set_torque(True)
     drv.command(["joint4"], effort=[effort])
     drv.cycle()
@@ -101,7 +115,7 @@ def test_startup_configures_every_servo_torque_off(emu):
     other.close()
     assert (servo(emu, 3)["drive_mode"], servo(emu, 3)["homing_offset"]) == (1, 1024)
     drv = make_driver(emu)
-    drv.connect()
+    connect(drv)
     assert drv.connected and drv.bus.fast
     for j in bus_config_from_description(DESC).joints:
         s = servo(emu, j.id)
@@ -152,7 +166,7 @@ def test_motion_in_position_mode_and_plain_sync_read(tmp_path):
     with EmulatorProcess(workdir=tmp_path) as e:
         bus = DynamixelBus(bus_config_from_description(DESC), e.link, fast_sync_read=False)
         drv = DynamixelDriver(bus)
-        drv.connect()
+        connect(drv)
         assert not bus.fast
         drv.set_torque(True)
         drv.command(["joint1", "joint5", "joint9"], [0.4, -0.6, 1.0])
@@ -188,7 +202,7 @@ def test_current_mode_and_watchdog_hold(emu):
 
 def test_current_based_position_and_gripper_grip_force(emu):
     drv = make_driver(emu)
-    drv.connect()
+    connect(drv)
     drv.set_torque(True)
     # joint2 position with a 1.0 N·m limit -> current-based position, goal current = limit
     drv.command(["joint2"], [0.3], [1.0])
@@ -217,7 +231,7 @@ def test_current_based_position_and_gripper_grip_force(emu):
                                       (5, "overload")])
 def test_hardware_errors_are_decoded_by_joint_and_smart_reboot(emu, bit, name):
     drv = make_driver(emu)
-    drv.connect()
+    connect(drv)
     drv.set_torque(True)
     emu.ctl("fault", id=6, bits=1 << bit)
     run_until(drv, lambda s: s.hardware_error[5] != 0, 1.0, "error bit")
@@ -235,7 +249,7 @@ def test_hardware_errors_are_decoded_by_joint_and_smart_reboot(emu, bit, name):
 
 def test_crc_corruption_and_dropped_replies_are_retried(emu):
     drv = make_driver(emu)
-    drv.connect()
+    connect(drv)
     before = drv.bus.stats.retries
     emu.ctl("corrupt", count=1)
     assert drv.cycle() is not None
@@ -262,7 +276,7 @@ def test_crc_corruption_and_dropped_replies_are_retried(emu):
 @pytest.mark.parametrize("policy,torque", [("hold", 1), ("release", 0)])
 def test_shutdown_policy(emu, policy, torque):
     drv = make_driver(emu)
-    drv.connect()
+    connect(drv)
     drv.set_torque(True)
     drv.command(["joint5"], effort=[0.3])
     drv.cycle()
@@ -280,7 +294,7 @@ def test_shutdown_after_a_transaction_interrupted_by_ctrl_c(emu, policy, torque)
     """Ctrl-C raises KeyboardInterrupt inside the SDK, which leaves its port flagged busy
     (every later call: "Port is in use!"); the shutdown policy must still be applied."""
     drv = make_driver(emu)
-    drv.connect()
+    connect(drv)
     drv.set_torque(True)
     drv.command(["joint5"], effort=[0.3])
     drv.cycle()
@@ -294,7 +308,7 @@ def test_shutdown_after_a_transaction_interrupted_by_ctrl_c(emu, policy, torque)
 
 def test_port_loss_detected_and_reconnect_with_torque_off(emu):
     drv = make_driver(emu, reconnect_period=0.1)
-    drv.connect()
+    connect(drv)
     drv.set_torque(True)
     drv.command(["joint1"], [0.2])
     drv.cycle()
@@ -357,7 +371,7 @@ def test_a_bus_watchdog_trip_is_seen_and_the_joint_held(emu):
 
 def test_bad_commands_never_reach_the_wire(emu):
     drv = make_driver(emu)
-    drv.connect()
+    connect(drv)
     drv.set_torque(True)
     emu.ctl("write_log", clear=True)
     with pytest.raises(CommandError):
@@ -394,7 +408,7 @@ def _tick_bounds(config: BusConfig):
 def test_direction_and_zero_offset_on_the_wire(emu):
     cfg = mirrored_config()
     drv = make_driver(emu, cfg)
-    drv.connect()
+    connect(drv)
     bounds = _tick_bounds(cfg)
     for j in cfg.joints:
         s = servo(emu, j.id)
@@ -444,7 +458,7 @@ def test_property_no_generated_command_puts_a_goal_outside_limits_on_the_wire(tm
     bounds = _tick_bounds(cfg)
     with EmulatorProcess(workdir=tmp_path) as e:
         drv = make_driver(e, cfg)
-        drv.connect()
+        connect(drv)
         drv.set_torque(True)
         seen = []
 
@@ -477,7 +491,7 @@ def test_property_no_generated_command_puts_a_goal_outside_limits_on_the_wire(tm
 
 def test_silent_bus_is_detected_without_losing_the_port(emu):
     drv = make_driver(emu)
-    drv.connect()
+    connect(drv)
     assert drv.cycle() is not None and drv.silent_for() < 0.2
     emu.ctl("rates", drop_rate=1.0)    # servos powered off: the port works, nobody answers
     t0 = time.monotonic()
