@@ -293,8 +293,8 @@ class MockDriver(Node):
     # -- diagnostics ------------------------------------------------------------------------
     def _publish_diagnostics(self) -> None:
         arr = DiagnosticArray()
-        arr.header.stamp = self._time(self._sim.time)
-        with self._lock:
+        with self._lock:   # the simulation thread steps the time: read it with the statuses
+            arr.header.stamp = self._time(self._sim.time)
             statuses = mock_diagnostics(self._sim, self._stats, self._diag_period, self._speed)
         for d in statuses:
             st = DiagnosticStatus(name=d.name, hardware_id=d.hardware_id, level=_LEVELS[d.level],

@@ -180,7 +180,7 @@ def test_sustained_press_matches_the_converged_contact_solution(desc, cfg, monke
         target = s["dst_above"] + [0.006, 0.0, 0.0]
         sc.move_tool(target, 1.0)
         target[2] = s["dst_top"] + s["half"] - 0.01           # 1 cm into the peg
-        for dy in (0.0, 0.004, -0.004):                        # then drag it sideways
+        for dy in (0.0, 0.004):                                # then drag it sideways
             sc.move_tool(target + [0.0, dy, 0.0], 1.0)
             out.append(np.r_[sim.contact_force, sim.position, sim.effort])
         monkeypatch.undo()
