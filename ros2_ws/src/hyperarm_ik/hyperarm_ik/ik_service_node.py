@@ -6,10 +6,8 @@ success=false and a message naming the problem. Diagnostics on /diagnostics at 1
 """
 from __future__ import annotations
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
@@ -17,6 +15,7 @@ from hyperarm_description import contract
 from hyperarm_description.joints import JointStateError
 from hyperarm_description.model import VARIANTS, DescriptionError, load_description
 from hyperarm_description.qos import qos_for
+from hyperarm_description.ros_main import run_node
 from hyperarm_interfaces.srv import SolveIK
 
 from .errors import IKError
@@ -131,17 +130,7 @@ class IkServiceNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = IkServiceNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(IkServiceNode, args)
 
 
 if __name__ == "__main__":
