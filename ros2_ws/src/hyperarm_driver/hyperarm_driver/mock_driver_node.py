@@ -210,7 +210,7 @@ class MockDriver(Node):
         self._pub.publish(msg)
         for event in self._sim.take_events():
             log = self.get_logger().warn if event.kind in (
-                "watchdog", "dropped", "hardware_error") else self.get_logger().info
+                "watchdog", "dropped", "hardware_error", "underpowered") else self.get_logger().info
             log(f"{event.kind}: {event.detail}")
         self._stats.cycles += 1
         self._stats.cycle_times.append(time.monotonic() - start)

@@ -97,6 +97,23 @@ def test_gravity_effort_reported_in_position_mode(sim):
     assert sim.effort[:9] == pytest.approx(gravity, abs=1e-9)
 
 
+def test_current_limit_below_the_gravity_load_is_reported(sim):
+    """The mock does not make an under-powered servo sag, but says that the robot would."""
+    run(sim, 0.05)
+    load = abs(sim.effort[1])                          # joint2 holds the horizontal arm
+    sim.command(["joint2"], [0.0], [0.5 * load])
+    run(sim, 0.05)
+    events = [e for e in sim.take_events() if e.kind == "underpowered"]
+    assert len(events) == 1 and events[0].detail.startswith("joint2: current limit")
+    run(sim, 0.05)
+    assert not [e for e in sim.take_events() if e.kind == "underpowered"]   # once
+    sim.command(["joint2"], [0.0], [2.0 * load])       # enough: no report
+    run(sim, 0.05)
+    sim.command(["joint2"], [0.0], [0.5 * load])       # under-powered again: reported again
+    run(sim, 0.05)
+    assert [e.kind for e in sim.take_events()].count("underpowered") == 1
+
+
 def test_torque_mode_against_gravity(desc):
     """Joint 2 in torque mode: the RNEA gravity torque holds it, no torque lets it fall the
     way gravity pulls, twice the torque lifts it the other way (the others hold)."""

@@ -170,6 +170,7 @@ class JointSim:
         self._anchors: dict[str, np.ndarray] = {}   # friction anchors (xy, m) by contact
         self._contact_rows_used = None
         self._warm: np.ndarray | None = None       # last step's contact deflection (rad)
+        self._underpowered: set[str] = set()       # joints whose current limit < their load
         self.require_homing = bool(require_homing)
         self.homed = self.rail is None
         self.homing = False
@@ -354,6 +355,7 @@ class JointSim:
         self.position[:nk] = qk
         self.effort[:nk] = effort
         self._overload(dt, P, effort)
+        self._check_underpowered(P, tau_id)
         if self.homing:
             i = self._index[self.rail]
             if self.mode[i] is ControlMode.OFF:
@@ -644,6 +646,22 @@ class JointSim:
         dq[over] = dq_s
         self.contact_force = np.asarray(self._row_dirs).T @ f
         return dq, np.clip(tau_new, -lim, lim)
+
+    def _check_underpowered(self, P: np.ndarray, tau_id: np.ndarray) -> None:
+        """A current-limited (CURRENT_POSITION) servo whose limit is below its own gravity
+        and inertia load would sag on the robot; the mock holds it (not modelled), so it
+        reports an ``underpowered`` event when a joint becomes so (once, until it recovers)
+        and the node logs it as a warning: a task relying on it would fail on the robot."""
+        nk = self.nk
+        cur = np.array([m is ControlMode.CURRENT_POSITION for m in self.mode[:nk]])
+        weak = P & cur & (np.abs(tau_id) > self.limit[:nk])
+        now = {self.names[i] for i in np.flatnonzero(weak)}
+        for name in sorted(now - self._underpowered):
+            i = self._index[name]
+            self.events.append(WorldEvent(
+                "underpowered", f"{name}: current limit {self.limit[i]:.3g} N·m below its load "
+                f"{abs(tau_id[i]):.3g} N·m: the real servo would sag (the mock holds it)"))
+        self._underpowered = now
 
     def _overload(self, dt: float, P: np.ndarray, effort: np.ndarray) -> None:
         """A POSITION servo at its torque limit for OVERLOAD_TIME s: overload error."""
