@@ -20,7 +20,6 @@ import pinocchio as pin
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Pose
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
@@ -36,10 +35,38 @@ from hyperarm_description.ros_main import declare_robot_description, run_node
 from hyperarm_interfaces.msg import Detections
 from hyperarm_interfaces.srv import Reboot
 
+from .common import OneOf, ParamSpec, Range, declare_parameters
 from .mock.camera import Camera, Frame, pose_from_xyz_rpy
 from .mock.config import MockError, load_mock_config
 from .mock.diagnostics import BusStats, mock_diagnostics
 from .mock.joint_sim import JointSim
+
+class _SimSpeed:
+    """0 (real time) or a speed-up within 0.1..100."""
+
+    def check(self, value: float) -> str | None:
+        return None if value == 0.0 or 0.1 <= value <= 100.0 else \
+            "must be 0 (real time) or within 0.1..100"
+
+    def text(self) -> str:
+        return " (0, or 0.1..100)"
+
+
+PARAMETERS: ParamSpec = {
+    "rate": (100.0, "simulation step and joint_states rate, Hz", Range(1.0, 1000.0)),
+    "command_timeout": (0.5, "effort watchdog: torque-controlled joints hold their position "
+                             "when no effort command came for this long, s",
+                        Range(0.05, 10.0)),
+    "torque_on_start": (True, "enable torque at start (the mock's default: true)", None),
+    "shutdown_torque": ("hold", "on shutdown: 'hold' or 'release' (logged only)",
+                        OneOf(("hold", "release"))),
+    "require_homing": (True, "rail variant: refuse rail setpoints until rail/home completed",
+                       None),
+    "diagnostics_period": (1.0, "/diagnostics period, s", Range(0.1, 10.0)),
+    "workcell_file": ("", "work-cell YAML ('' = the packaged config/workcell.yaml)", None),
+    "sim_speed": (0.0, "0 = real time; > 0 = run at this multiple of real time and publish "
+                       "/clock", _SimSpeed()),  # type: ignore[dict-item]
+}
 
 _LEVELS = {"OK": DiagnosticStatus.OK, "WARN": DiagnosticStatus.WARN,
            "ERROR": DiagnosticStatus.ERROR}
@@ -128,38 +155,8 @@ class MockDriver(Node):
             f"{timing}; work cell {cfg.source}; torque {'on' if p['torque_on_start'] else 'off'}")
 
     def _declare_parameters(self) -> dict:
-        specs = {
-            "rate": (100.0, "simulation step and joint_states rate, Hz (1..1000)"),
-            "command_timeout": (0.5, "effort watchdog: torque-controlled joints hold their "
-                                     "position when no effort command came for this long, "
-                                     "s (0.05..10)"),
-            "torque_on_start": (True, "enable torque at start (the mock's default: true)"),
-            "shutdown_torque": ("hold", "on shutdown: 'hold' or 'release' (logged only)"),
-            "require_homing": (True, "rail variant: refuse rail setpoints until rail/home "
-                                     "completed"),
-            "diagnostics_period": (1.0, "/diagnostics period, s (0.1..10)"),
-            "workcell_file": ("", "work-cell YAML ('' = the packaged config/workcell.yaml)"),
-            "sim_speed": (0.0, "0 = real time; > 0 = run at this multiple of real time and "
-                               "publish /clock (0.1..100)"),
-        }
-        out = {}
-        for name, (default, text) in specs.items():
-            self.declare_parameter(name, default, ParameterDescriptor(description=text,
-                                                                      read_only=True))
-            out[name] = self.get_parameter(name).value
-        checks = [
-            (1.0 <= out["rate"] <= 1000.0, "rate must be within 1..1000 Hz"),
-            (0.05 <= out["command_timeout"] <= 10.0, "command_timeout must be 0.05..10 s"),
-            (out["shutdown_torque"] in ("hold", "release"),
-             "shutdown_torque must be 'hold' or 'release'"),
-            (0.1 <= out["diagnostics_period"] <= 10.0, "diagnostics_period must be 0.1..10 s"),
-            (out["sim_speed"] == 0.0 or 0.1 <= out["sim_speed"] <= 100.0,
-             "sim_speed must be 0 (real time) or within 0.1..100"),
-        ]
-        for ok, text in checks:
-            if not ok:
-                raise SystemExit(f"mock_driver: {text}")
-        return out
+        # the real drivers' helper: wrong types and values end the node with a clear message
+        return declare_parameters(self, PARAMETERS)
 
     # -- time and the simulation loop -----------------------------------------------------
     def _run(self) -> None:

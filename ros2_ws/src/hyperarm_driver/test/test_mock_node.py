@@ -200,9 +200,12 @@ def test_rail_variant_homing(rclpy_context, executor, wait_for):
 
 @pytest.mark.parametrize("params, message", [
     ({"workcell_file": "/nonexistent/workcell.yaml"}, "cannot read work-cell file"),
-    ({"rate": 0.0}, "rate must be within 1..1000 Hz"),
-    ({"sim_speed": -1.0}, "sim_speed must be 0 (real time) or within 0.1..100"),
-    ({"shutdown_torque": "drop"}, "shutdown_torque must be 'hold' or 'release'"),
+    ({"rate": 0.0}, "parameter rate=0.0 not within 1..1000"),
+    ({"rate": "fast"}, "parameter rate must be a number, got 'fast'"),
+    ({"command_timeout": float("nan")}, "parameter command_timeout=nan must be finite"),
+    ({"sim_speed": -1.0}, "parameter sim_speed=-1.0 must be 0 (real time) or within 0.1..100"),
+    ({"shutdown_torque": "drop"}, "parameter shutdown_torque='drop' not one of hold, release"),
+    ({"torque_on_start": 1}, "parameter torque_on_start must be a bool"),
     ({"variant": "tripod"}, "unknown variant 'tripod'"),
 ])
 def test_bad_parameters_stop_with_a_clear_message(rclpy_context, params, message):
