@@ -177,7 +177,9 @@ class MockDriver(Node):
                 with self._lock:
                     self._tick(steps)
             except Exception as exc:  # noqa: BLE001 - context gone at shutdown: stop quietly
-                if self.context.ok():
+                if self.context.ok():   # a bug: say so loudly, joint_states stop
+                    self.get_logger().fatal(f"simulation loop failed, joint_states stop: "
+                                            f"{exc!r}")
                     raise
                 self.get_logger().debug(f"simulation loop stopped: {exc}")
                 return
