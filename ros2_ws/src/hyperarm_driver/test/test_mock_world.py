@@ -215,6 +215,28 @@ def test_weak_grip_drops_the_block(desc, cfg):
         [0.35, 0.0, cfg.world.table_height + s["half"]], abs=1e-4)
 
 
+def test_stalled_position_mode_grip_overloads_and_drops_the_block(desc, cfg):
+    """Gripping in plain position mode with the goal deep inside the block holds the servo at
+    its stall torque: after OVERLOAD_TIME it raises an overload error, drops its torque and
+    the block, as a Dynamixel does (hence current-based position for grasping)."""
+    from hyperarm_driver.mock.joint_sim import OVERLOAD_TIME
+
+    stiff = dataclasses.replace(cfg, servo=dataclasses.replace(cfg.servo,
+                                                               gripper_stiffness=20.0))
+    sc, _ = picked(desc, stiff)                      # grasped current-limited: fine
+    sim = sc.sim
+    sim.take_events()
+    sc.grip(0.0, seconds=0.5)                        # position mode, goal inside the block
+    assert sim.world.state is BlockState.HELD
+    assert abs(sim.effort[-1]) == pytest.approx(sim.stall[-1])   # at its stall torque
+    sc.run(OVERLOAD_TIME - 0.5 - 0.1)
+    assert not sim.errors and sim.world.state is BlockState.HELD
+    sc.run(0.2)
+    assert sim.errors == {"gripper": "overload"}
+    assert [e.kind for e in sim.take_events()] == ["hardware_error", "dropped"]
+    assert sim.world.state is not BlockState.HELD
+
+
 def test_no_grasp_when_too_weak_or_nothing_between_fingers(desc, cfg):
     sim = JointSim(desc, cfg)
     sc, s = Scenario(sim), sites(cfg)

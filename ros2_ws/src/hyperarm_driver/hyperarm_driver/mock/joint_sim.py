@@ -354,7 +354,6 @@ class JointSim:
         self.velocity[:nk] = v
         self.position[:nk] = qk
         self.effort[:nk] = effort
-        self._overload(dt, P, effort)
         self._check_underpowered(P, tau_id)
         if self.homing:
             i = self._index[self.rail]
@@ -366,6 +365,7 @@ class JointSim:
         self._update_tool()
         self.world.update_held(self._tool)
         self._gripper(dt)
+        self._overload(dt, held)
         self.events.extend(self.world.take_events())
         self._record()
 
@@ -663,16 +663,18 @@ class JointSim:
                 f"{abs(tau_id[i]):.3g} N·m: the real servo would sag (the mock holds it)"))
         self._underpowered = now
 
-    def _overload(self, dt: float, P: np.ndarray, effort: np.ndarray) -> None:
-        """A POSITION servo at its torque limit for OVERLOAD_TIME s: overload error."""
-        nk = self.nk
-        stalled = P & (np.abs(effort) >= self.limit[:nk] * (1.0 - 1e-9))
+    def _overload(self, dt: float, held: np.ndarray) -> None:
+        """A POSITION servo (arm, gripper; rail) at its torque limit for OVERLOAD_TIME s:
+        overload error, torque off. E.g. a gripper closed on the block in plain position
+        mode, goal inside the block: the real servo overloads, hence current-based position
+        for grasping."""
+        stalled = held & (np.abs(self.effort) >= self.limit * (1.0 - 1e-9))
         if not stalled.any():
             self._saturated_for[:] = 0.0
             return
-        stalled &= np.array([m is ControlMode.POSITION for m in self.mode[:nk]])
-        self._saturated_for[:nk] = np.where(stalled, self._saturated_for[:nk] + dt, 0.0)
-        for i in np.flatnonzero(self._saturated_for[:nk] >= OVERLOAD_TIME):
+        stalled &= np.array([m is ControlMode.POSITION for m in self.mode])
+        self._saturated_for = np.where(stalled, self._saturated_for + dt, 0.0)
+        for i in np.flatnonzero(self._saturated_for >= OVERLOAD_TIME):
             self.inject_error(self.names[i], "overload")
             self._saturated_for[i] = 0.0
 
