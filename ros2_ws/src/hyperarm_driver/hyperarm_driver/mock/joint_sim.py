@@ -653,9 +653,10 @@ class JointSim:
         reports an ``underpowered`` event when a joint becomes so (once, until it recovers)
         and the node logs it as a warning: a task relying on it would fail on the robot."""
         nk = self.nk
-        cur = np.array([m is ControlMode.CURRENT_POSITION for m in self.mode[:nk]])
-        weak = P & cur & (np.abs(tau_id) > self.limit[:nk])
-        now = {self.names[i] for i in np.flatnonzero(weak)}
+        cur = [i for i in range(nk) if self.mode[i] is ControlMode.CURRENT_POSITION]
+        if not cur and not self._underpowered:
+            return                                  # the usual case: nothing current-limited
+        now = {self.names[i] for i in cur if P[i] and abs(tau_id[i]) > self.limit[i]}
         for name in sorted(now - self._underpowered):
             i = self._index[name]
             self.events.append(WorldEvent(
