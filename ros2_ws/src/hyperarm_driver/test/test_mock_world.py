@@ -162,8 +162,8 @@ def test_current_limit_bounds_the_pressing_force(desc, cfg):
 
 
 def test_sustained_press_matches_the_converged_contact_solution(desc, cfg, monkeypatch):
-    """The contact solve takes shortcuts (at most two linearizations per step, the first
-    one at the last step's deflected joints in a sustained press on a horizontal surface):
+    """The contact solve takes shortcuts (few linearizations per step, usually one, at the
+    last step's deflected joints in a sustained press on a horizontal surface):
     pressing and dragging the block on the peg top must give the forces and joints of the
     contact solved to convergence at every step (12 linearizations, 1e-9 rad)."""
     from hyperarm_driver.mock import joint_sim
