@@ -26,9 +26,12 @@ __all__ = [
     "CameraSpec",
     "RobotDescription",
     "VARIANTS",
+    "check_number",
+    "check_vector",
     "default_description_path",
     "load_description",
     "parse_angle",
+    "read_yaml",
 ]
 
 VARIANTS = ("arm", "rail_arm")
@@ -68,17 +71,24 @@ def parse_angle(value: Any, where: str) -> float:
     return out
 
 
-def _num(value: Any, where: str, *, positive: bool = False, nonneg: bool = False) -> float:
+def check_number(value: Any, where: str, *, positive: bool = False, nonneg: bool = False,
+                 error: type[Exception] = DescriptionError) -> float:
+    """``value`` as a finite float (bools refused), optionally > 0 or >= 0; else raises
+    ``error`` naming ``where`` (a dotted path). Shared with other YAML loaders (the mock's
+    work cell), which pass their own error class."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise DescriptionError(f"{where}: expected a number, got {value!r}")
+        raise error(f"{where}: expected a number, got {value!r}")
     out = float(value)
     if not math.isfinite(out):
-        raise DescriptionError(f"{where}: must be finite, got {value!r}")
+        raise error(f"{where}: must be finite, got {value!r}")
     if positive and out <= 0.0:
-        raise DescriptionError(f"{where}: must be > 0, got {out}")
+        raise error(f"{where}: must be > 0, got {out}")
     if nonneg and out < 0.0:
-        raise DescriptionError(f"{where}: must be >= 0, got {out}")
+        raise error(f"{where}: must be >= 0, got {out}")
     return out
+
+
+_num = check_number
 
 
 def _req(mapping: Any, key: str, where: str) -> Any:
@@ -89,10 +99,16 @@ def _req(mapping: Any, key: str, where: str) -> Any:
     return mapping[key]
 
 
-def _vec3(value: Any, where: str) -> tuple[float, float, float]:
-    if not isinstance(value, Sequence) or isinstance(value, str) or len(value) != 3:
-        raise DescriptionError(f"{where}: expected a list of 3 numbers, got {value!r}")
-    return tuple(_num(v, f"{where}[{i}]") for i, v in enumerate(value))  # type: ignore[return-value]
+def check_vector(value: Any, where: str, n: int = 3, *,
+                 error: type[Exception] = DescriptionError) -> tuple[float, ...]:
+    """``value`` as a tuple of ``n`` finite floats (a list in YAML); else raises ``error``
+    naming ``where`` (and the index of a bad element)."""
+    if not isinstance(value, Sequence) or isinstance(value, str) or len(value) != n:
+        raise error(f"{where}: expected a list of {n} numbers, got {value!r}")
+    return tuple(check_number(v, f"{where}[{i}]", error=error) for i, v in enumerate(value))
+
+
+_vec3 = check_vector
 
 
 @dataclass(frozen=True)
@@ -420,12 +436,17 @@ def default_description_path() -> Path:
 def load_description(path: str | Path | None = None, variant: str = "arm") -> RobotDescription:
     """Load and validate the description. ``path`` defaults to the packaged YAML."""
     p = Path(path) if path else default_description_path()
+    return parse_description(read_yaml(p, "robot description"), variant=variant, source=str(p))
+
+
+def read_yaml(path: Path, what: str, error: type[Exception] = DescriptionError) -> Any:
+    """The parsed YAML of file ``path`` (a ``what``, for the message); an unreadable file or
+    invalid YAML raises ``error``. Shared with other YAML loaders (the mock's work cell)."""
     try:
-        text = p.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8")
     except OSError as exc:
-        raise DescriptionError(f"cannot read robot description {p}: {exc.strerror}") from exc
+        raise error(f"cannot read {what} {path}: {exc.strerror}") from exc
     try:
-        data = yaml.safe_load(text)
+        return yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise DescriptionError(f"{p}: not valid YAML: {exc}") from exc
-    return parse_description(data, variant=variant, source=str(p))
+        raise error(f"{path}: not valid YAML: {exc}") from exc
