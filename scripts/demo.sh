@@ -14,8 +14,16 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST
 LOGS="$(mktemp -d)"
 pids=()
 cleanup() {
+  # Ctrl-C for every node, then up to 10 s each to exit cleanly; a node that does not is
+  # named and killed, so the demo never hangs on its way out.
   for pid in "${pids[@]}"; do kill -INT "$pid" 2>/dev/null || true; done
-  for pid in "${pids[@]}"; do wait "$pid" 2>/dev/null || true; done
+  for pid in "${pids[@]}"; do
+    if ! timeout 10 tail --pid="$pid" -f /dev/null; then
+      echo "demo: process $pid did not exit on SIGINT (logs in $LOGS); killing it" >&2
+      kill -KILL "$pid" 2>/dev/null || true
+    fi
+    wait "$pid" 2>/dev/null || true
+  done
 }
 trap cleanup EXIT
 

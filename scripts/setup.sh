@@ -42,6 +42,12 @@ if [ -f /opt/ros/jazzy/setup.bash ]; then
   PREFIX=""
 else
   PY="$(pick_python)"
+  # The ROS 2 Jazzy wheels on PyPI are built for CPython 3.11 only.
+  if [ "$("$PY" -c 'import sys; print("%d.%d" % sys.version_info[:2])')" != "3.11" ]; then
+    echo "[setup] without /opt/ros/jazzy, hyperarm needs Python 3.11 (the ROS 2 Jazzy PyPI" \
+         "wheels are cp311); found $("$PY" --version 2>&1). Install python3.11 or set PYTHON=." >&2
+    exit 1
+  fi
   if [ ! -x "$VENV/bin/python" ]; then
     log "creating $VENV with $PY"
     "$PY" -m venv "$VENV"

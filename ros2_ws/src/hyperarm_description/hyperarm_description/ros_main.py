@@ -22,7 +22,8 @@ __all__ = ["run_node", "declare_robot_description"]
 def run_node(factory: Callable[[], Node], args: list[str] | None = None,
              executor: Callable[[], Executor] | None = None) -> None:
     """Spin the node made by ``factory`` until shutdown; ``executor`` builds a custom one."""
-    rclpy.init(args=args)
+    context = rclpy.get_default_context()
+    rclpy.init(args=args, context=context)
     node = None
     ex = executor() if executor is not None else None
     try:
@@ -34,9 +35,15 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None,
             ex.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        # Ctrl-C shuts the context down while callbacks may still be running: a publish or
+        # a wait set made in that window fails with an RCLError. That is the shutdown, not
+        # a bug; an exception while the context is still up is one, and is raised.
+        if context.ok():
+            raise
     finally:
         if ex is not None:
-            ex.shutdown()
+            ex.shutdown(timeout_sec=2.0)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

@@ -134,6 +134,12 @@ class TaskNode(Node):
         return result
 
 
+    def destroy_node(self) -> None:
+        # The action server first: its pending tasks must not outlive the node's handles.
+        self._server.destroy()
+        super().destroy_node()
+
+
 def main(args: list[str] | None = None) -> None:
     run_node(TaskNode, args, executor=lambda: MultiThreadedExecutor(num_threads=3))
 
