@@ -4,19 +4,22 @@
 description, check) and validates them, so that a wrong value *or a wrong type* (``-p
 rate:=50`` for a float parameter, ``-p port:=1e6`` for an int) ends the node with a clear
 message instead of a traceback. :func:`diagnostic_status` builds one DiagnosticStatus.
+:func:`answer_set_torque` and :func:`answer_reboot` fill the ``set_torque`` and ``reboot``
+responses the same way for every driver (the mock included), so a client cannot tell them
+apart.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Iterable, Mapping
+from typing import Any, Callable, Iterable, Mapping
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 
 __all__ = ["Range", "OneOf", "NonEmpty", "ParamSpec", "declare_parameters",
-           "diagnostic_status"]
+           "diagnostic_status", "answer_set_torque", "answer_reboot"]
 
 
 @dataclass(frozen=True)
@@ -108,3 +111,34 @@ def diagnostic_status(name: str, hardware_id: str, level: int, message: str,
     return DiagnosticStatus(level=bytes([level]), name=name, message=message,
                             hardware_id=hardware_id,
                             values=[KeyValue(key=k, value=str(v)) for k, v in values])
+
+
+def answer_set_torque(node: Node, enable: bool, action: Callable[[bool], Any],
+                      errors: tuple[type[Exception], ...], response: Any) -> Any:
+    """Run ``action(enable)`` for std_srvs/SetBool ``set_torque``: success, or
+    success=false with the error's message (logged) when it raises one of ``errors``."""
+    try:
+        action(bool(enable))
+    except errors as exc:
+        response.success, response.message = False, f"set_torque {enable}: {exc}"
+        node.get_logger().error(response.message)
+        return response
+    response.success, response.message = True, f"torque {'on' if enable else 'off'}"
+    node.get_logger().info(response.message)
+    return response
+
+
+def answer_reboot(node: Node, joints: list[str], action: Callable[[list[str]], list[str]],
+                  errors: tuple[type[Exception], ...], response: Any) -> Any:
+    """Run ``action(joints)`` (returns the joints rebooted) for hyperarm_interfaces/Reboot."""
+    try:
+        response.rebooted = action(list(joints))
+    except errors as exc:
+        response.success, response.message = False, f"reboot: {exc}"
+        node.get_logger().error(response.message)
+        return response
+    response.success = True
+    response.message = (f"rebooted {response.rebooted} (torque off)" if response.rebooted
+                        else "no joint in hardware error: nothing rebooted")
+    node.get_logger().info(response.message)
+    return response

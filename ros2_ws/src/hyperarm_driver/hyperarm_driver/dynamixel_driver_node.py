@@ -15,7 +15,8 @@ from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import run_node
 from hyperarm_interfaces.srv import Reboot
 
-from .common import NonEmpty, OneOf, ParamSpec, Range, declare_parameters, diagnostic_status
+from .common import (NonEmpty, OneOf, ParamSpec, Range, answer_reboot, answer_set_torque,
+                     declare_parameters, diagnostic_status)
 from .dynamixel.bus import DynamixelBus, ftdi_latency_timer
 from .dynamixel.config import bus_config_from_description
 from .dynamixel.driver import DynamixelDriver
@@ -147,28 +148,10 @@ class DynamixelDriverNode(Node):
 
     # -- services ----------------------------------------------------------------------------
     def _on_set_torque(self, req: SetBool.Request, res: SetBool.Response) -> SetBool.Response:
-        try:
-            self._drv.set_torque(bool(req.data))
-        except DynamixelError as exc:
-            res.success, res.message = False, f"set_torque {req.data}: {exc}"
-            self.get_logger().error(res.message)
-            return res
-        res.success, res.message = True, f"torque {'on' if req.data else 'off'}"
-        self.get_logger().info(res.message)
-        return res
+        return answer_set_torque(self, req.data, self._drv.set_torque, (DynamixelError,), res)
 
     def _on_reboot(self, req: Reboot.Request, res: Reboot.Response) -> Reboot.Response:
-        try:
-            res.rebooted = self._drv.reboot(list(req.joints))
-        except DynamixelError as exc:
-            res.success, res.message = False, f"reboot: {exc}"
-            self.get_logger().error(res.message)
-            return res
-        res.success = True
-        res.message = (f"rebooted {res.rebooted} (torque off)" if res.rebooted
-                       else "no joint in hardware error: nothing rebooted")
-        self.get_logger().info(res.message)
-        return res
+        return answer_reboot(self, req.joints, self._drv.reboot, (DynamixelError,), res)
 
     def _on_hold(self, req: Trigger.Request, res: Trigger.Response) -> Trigger.Response:
         try:

@@ -18,7 +18,7 @@ import time
 import numpy as np
 import pinocchio as pin
 from builtin_interfaces.msg import Time
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Pose
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import PublisherEventCallbacks
@@ -35,7 +35,8 @@ from hyperarm_description.ros_main import declare_robot_description, run_node
 from hyperarm_interfaces.msg import Detections
 from hyperarm_interfaces.srv import Reboot
 
-from .common import OneOf, ParamSpec, Range, declare_parameters
+from .common import (OneOf, ParamSpec, Range, answer_reboot, answer_set_torque,
+                     declare_parameters, diagnostic_status)
 from .mock.camera import Camera, Frame, pose_from_xyz_rpy
 from .mock.config import MockError, load_mock_config
 from .mock.diagnostics import BusStats, mock_diagnostics
@@ -68,8 +69,7 @@ PARAMETERS: ParamSpec = {
                        "/clock", _SimSpeed()),  # type: ignore[dict-item]
 }
 
-_LEVELS = {"OK": DiagnosticStatus.OK, "WARN": DiagnosticStatus.WARN,
-           "ERROR": DiagnosticStatus.ERROR}
+_LEVELS = {"OK": 0, "WARN": 1, "ERROR": 2}  # diagnostic_msgs/DiagnosticStatus levels
 _MAX_CATCH_UP = 5  # simulation steps per timer tick at most in real time
 
 
@@ -247,30 +247,16 @@ class MockDriver(Node):
                                    throttle_duration_sec=1.0)
 
     def _on_set_torque(self, req: SetBool.Request, res: SetBool.Response) -> SetBool.Response:
-        try:
+        def action(enable: bool) -> None:
             with self._lock:
-                self._sim.set_torque(bool(req.data))
-        except MockError as exc:
-            res.success, res.message = False, f"set_torque {req.data}: {exc}"
-            self.get_logger().error(res.message)
-            return res
-        res.success, res.message = True, f"torque {'on' if req.data else 'off'}"
-        self.get_logger().info(res.message)
-        return res
+                self._sim.set_torque(enable)
+        return answer_set_torque(self, req.data, action, (MockError,), res)
 
     def _on_reboot(self, req: Reboot.Request, res: Reboot.Response) -> Reboot.Response:
-        try:
+        def action(joints: list[str]) -> list[str]:
             with self._lock:
-                res.rebooted = self._sim.reboot(list(req.joints))
-        except (JointStateError, MockError) as exc:
-            res.success, res.message = False, f"reboot: {exc}"
-            self.get_logger().error(res.message)
-            return res
-        res.success = True
-        res.message = (f"rebooted {res.rebooted} (torque off)" if res.rebooted
-                       else "no joint in hardware error: nothing rebooted")
-        self.get_logger().info(res.message)
-        return res
+                return self._sim.reboot(joints)
+        return answer_reboot(self, req.joints, action, (JointStateError, MockError), res)
 
     def _on_hold(self, req: Trigger.Request, res: Trigger.Response) -> Trigger.Response:
         with self._lock:
@@ -295,11 +281,8 @@ class MockDriver(Node):
         with self._lock:   # the simulation thread steps the time: read it with the statuses
             arr.header.stamp = self._time(self._sim.time)
             statuses = mock_diagnostics(self._sim, self._stats, self._diag_period, self._speed)
-        for d in statuses:
-            st = DiagnosticStatus(name=d.name, hardware_id=d.hardware_id, level=_LEVELS[d.level],
-                                  message=d.message)
-            st.values = [KeyValue(key=k, value=v) for k, v in d.values.items()]
-            arr.status.append(st)
+        arr.status = [diagnostic_status(d.name, d.hardware_id, _LEVELS[d.level], d.message,
+                                        d.values.items()) for d in statuses]
         self._diag.publish(arr)
 
     def destroy_node(self) -> None:
