@@ -23,13 +23,29 @@ from typing import Any, Callable
 
 import pytest
 
-_DOMAIN_BASE = 100 + (os.getpid() % 50) * 2  # domains 100..199+, distinct per pytest run
+def _domain_range() -> tuple[int, int]:
+    """Domains this pytest run may use: ``HYPERARM_TEST_DOMAINS=lo-hi`` (inclusive), so that
+    test runs going on at the same time on one machine can be given disjoint ranges;
+    100-231 by default (all valid ROS 2 domain IDs on Linux are 0-232)."""
+    text = os.environ.get("HYPERARM_TEST_DOMAINS", "100-231")
+    try:
+        lo, hi = (int(part) for part in text.split("-"))
+    except ValueError:
+        raise RuntimeError(f"HYPERARM_TEST_DOMAINS={text!r}: expected 'lo-hi', e.g. 100-150")
+    if not 0 <= lo <= hi <= 232:
+        raise RuntimeError(f"HYPERARM_TEST_DOMAINS={text!r}: need 0 <= lo <= hi <= 232")
+    return lo, hi
+
+
+_DOMAIN_LO, _DOMAIN_HI = _domain_range()
+_DOMAIN_START = os.getpid()  # a different starting point per pytest run
 _domain_counter = [0]
 
 
 def _next_domain() -> int:
     _domain_counter[0] += 1
-    return 100 + ((_DOMAIN_BASE + _domain_counter[0]) % 132)  # stays within 100..231
+    span = _DOMAIN_HI - _DOMAIN_LO + 1
+    return _DOMAIN_LO + (_DOMAIN_START + _domain_counter[0]) % span
 
 
 @pytest.fixture

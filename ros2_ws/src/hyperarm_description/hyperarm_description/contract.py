@@ -22,6 +22,9 @@ JOINT_COMMAND = "joint_command"        # sensor_msgs/JointState, setpoints by jo
 TOOL_POSE = "tool_pose"                # geometry_msgs/PoseStamped, fk_node
 HYBRID_GOAL = "hybrid_goal"            # hyperarm_interfaces/HybridGoal -> hybrid_force node
 EE_WRENCH = "ee_wrench"                # geometry_msgs/WrenchStamped, estimated at tool0
+EE_WRENCH_BASE = "ee_wrench_base"      # geometry_msgs/WrenchStamped, same estimate in base_link
+TOOL_WRENCH_TRUTH = "debug/tool_wrench_truth"  # mock only: true wrench at tool0 (WrenchStamped)
+CONTACTS_TRUTH = "debug/contacts"      # mock only: per-link contacts (diagnostic_msgs/DiagnosticArray)
 DETECTIONS = "detections"              # hyperarm_interfaces/Detections, in camera_link
 DETECTIONS_TRUTH = "debug/detections_truth"  # mock only: ground truth, same type
 DIAGNOSTICS = "/diagnostics"           # diagnostic_msgs/DiagnosticArray (absolute)
@@ -33,6 +36,15 @@ SET_TORQUE = "set_torque"              # std_srvs/SetBool: true = torque on
 REBOOT = "reboot"                      # hyperarm_interfaces/Reboot
 HOLD = "hold"                          # std_srvs/Trigger: stop where you are
 RAIL_HOME = "rail/home"                # std_srvs/Trigger (rail drivers)
+# On rail_arm every service has one owner: the arm driver serves SET_TORQUE/HOLD/REBOOT for
+# the arm and gripper; the rail driver serves its own under rail/.
+RAIL_SET_TORQUE = "rail/set_torque"    # std_srvs/SetBool (rail drivers)
+RAIL_HOLD = "rail/hold"                # std_srvs/Trigger (rail drivers)
+# Hybrid force node. While it is enabled it is the only publisher of arm joint_command; the
+# task node sends HYBRID_GOAL then, and joint_command only after disabling it.
+HYBRID_ENABLE = "hybrid_force/enable"  # std_srvs/SetBool
+HYBRID_TARE = "hybrid_force/tare"      # std_srvs/Trigger: capture the wrench estimate's bias
+HYBRID_COMPLIANCE = "hybrid_force/compliance"  # std_srvs/SetBool: whole-arm compliance mode
 
 # Actions (relative to the namespace)
 RUN_TASK = "run_task"                  # hyperarm_interfaces/RunTask
