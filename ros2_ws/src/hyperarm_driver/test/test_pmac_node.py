@@ -42,9 +42,10 @@ class Probe:
                                       qos_for(contract.DIAGNOSTICS))
         self.pub = self.node.create_publisher(JointState, contract.JOINT_COMMAND,
                                               qos_for(contract.JOINT_COMMAND))
+        # the rail driver's own services (the arm driver owns hold and set_torque)
         self.clients = {"home": self.node.create_client(Trigger, contract.RAIL_HOME),
-                        "hold": self.node.create_client(Trigger, contract.HOLD),
-                        "torque": self.node.create_client(SetBool, contract.SET_TORQUE)}
+                        "hold": self.node.create_client(Trigger, contract.RAIL_HOLD),
+                        "torque": self.node.create_client(SetBool, contract.RAIL_SET_TORQUE)}
         self._types = {"home": Trigger, "hold": Trigger, "torque": SetBool}
         executor.add_node(self.node)
 
@@ -80,6 +81,8 @@ def make_node(rclpy_context, executor, **params):
 
     from hyperarm_driver.pmac_rail_driver_node import PmacRailDriver
 
+    # the watchdog is tested on its own (below); here a slow, loaded test host must not trip it
+    params.setdefault("watchdog_timeout", 1.0)
     node = PmacRailDriver(context=rclpy_context, parameter_overrides=[
         Parameter(k, value=v) for k, v in params.items()])
     executor.add_node(node)
@@ -160,7 +163,7 @@ def test_node_reports_faults(rclpy_context, executor, emu, wait_for) -> None:
     emu.set_disturbance(1, 0)
     emu.set_amp_fault(1, True)
     r = probe.call("torque", wait_for, data=True)
-    assert not r.success and "amp_fault" in r.message
+    assert not r.success and "amplifier fault" in r.message
     wait_for(lambda: (d := probe.diag()) and d["amp_fault"] == "true" and d["level"] == 2,
              2.0, what="amp fault reported")
     emu.set_amp_fault(1, False)
@@ -197,7 +200,9 @@ def test_node_link_loss_and_reconnect(rclpy_context, executor, emu, wait_for) ->
 @pytest.mark.node
 @pytest.mark.parametrize("params", [dict(rate=1000.0), dict(timeout=0.5), dict(motor=33),
                                     dict(variant="arm"), dict(counts_per_metre=math.nan),
-                                    dict(port="1025"), dict(motor=1.0), dict(host="")])
+                                    dict(port="1025"), dict(motor=1.0), dict(host=""),
+                                    dict(configure_card=False),          # watchdog needs it
+                                    dict(rate=5.0, watchdog_timeout=0.1)])  # < 2 polls
 def test_node_rejects_bad_parameters(rclpy_context, params) -> None:
     from rclpy.parameter import Parameter
 
