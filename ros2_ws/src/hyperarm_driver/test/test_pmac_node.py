@@ -224,3 +224,72 @@ def test_installed_emulator_and_driver(launch, rclpy_context, executor, wait_for
     assert probe.rail() == pytest.approx(0.01)
     assert probe.call("torque", wait_for, data=True).success
     wait_for(lambda: "connected to PMAC" in drv.output(), 5.0, what="driver log")
+
+
+def _free_port() -> int:
+    import socket
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.e2e
+def test_installed_driver_safety_on_the_emulator(launch, rclpy_context, executor,
+                                                 wait_for) -> None:
+    """Through the installed pmac_rail_driver (default watchdog, 100 ms): an unreachable
+    card is logged with its reason and retry period (throttled); a killed motor stays killed
+    whatever is streamed, latched on /diagnostics after the cause clears; cutting the link
+    mid-move, the card stops the rail within 100 ms plus its deceleration."""
+    port = _free_port()                        # nothing listens there yet
+    drv = launch("hyperarm_driver", "pmac_rail_driver",
+                 params={"port": port, "reconnect_period": 0.2, "require_homing": False,
+                         "diagnostics_period": 0.1})
+    wait_for(lambda: "Connection refused" in drv.output(), 15.0, what="reason in the log")
+    assert "retrying every 0.2 s" in drv.output()
+    time.sleep(1.0)                            # 5 more attempts: the same reason, not logged
+    assert drv.output().count("Connection refused") == 1
+
+    with PmacEmulator(port=port, start_position=2000, limits=(-CPM, CPM)) as emu:
+        probe = Probe(rclpy_context, executor)
+        wait_for(lambda: "connected to PMAC" in drv.output(), 10.0, what="connected")
+        assert emu.plcs[10].enabled                          # the safety PLC downloaded
+        assert probe.call("torque", wait_for, data=True).success
+
+        # 1. stream at 200 Hz; a momentary fatal following error kills the motor
+        k = 0
+        while emu.motor(1).vel == 0:
+            probe.command(["rail"], [0.02 + 1e-4 * k])
+            k += 1
+            time.sleep(0.005)
+        enables = emu.motor(1).enables
+        emu.set_disturbance(1, 2500)
+        emu.set_disturbance(1, 0)
+        for j in range(100):
+            probe.command(["rail"], [0.03 + 1e-4 * j])
+            time.sleep(0.005)
+        assert not emu.motor(1).closed_loop and emu.motor(1).enables == enables
+        wait_for(lambda: (d := probe.diag()) and "fatal following error" in d["latched_faults"],
+                 2.0, what="fault latched on /diagnostics")
+        d = probe.diag()
+        assert d["level"] == 2 and d["amp_enabled"] == "false" and d["torque"] == "off"
+        assert drv.output().count("rail fault latched") == 1
+        wait_for(lambda: "setpoint rejected" in drv.output() and "latched" in drv.output(),
+                 2.0, what="rejection logged")
+
+        # 2. torque on again; cut the link at full speed
+        assert probe.call("torque", wait_for, data=True).success
+        cruise = emu.motor(1).ivars[22] * 1e3
+        probe.command(["rail"], [0.9])
+        wait_for(lambda: emu.motor(1).vel >= 0.999 * cruise, 5.0, what="full speed")
+        emu.mute = True
+        m = emu.motor(1)
+        t_cut, v = m.now, m.vel
+        wait_for(lambda: emu.motor(1).vel == 0 and emu.motor(1).mode == "idle", 3.0,
+                 what="stopped by the card")
+        m = emu.motor(1)
+        assert m.motion_ended_at - t_cut <= 0.1 + v / (m.ivars[19] * 1e6) + 0.01
+        assert m.closed_loop and m.actual - m.ref < 0.9 * CPM - 1000
+        wait_for(lambda: "PMAC link lost" in drv.output(), 2.0, what="link loss logged")
+        emu.mute = False
+        wait_for(lambda: "reconnected to PMAC" in drv.output(), 5.0, what="reconnected")
+        wait_for(lambda: not emu.motor(1).closed_loop, 2.0, what="torque off after reconnect")
