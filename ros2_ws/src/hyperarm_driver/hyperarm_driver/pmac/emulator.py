@@ -77,9 +77,10 @@ class _CmdError(Exception):
 
 
 def _fmt(x: float) -> str:
+    """A value as the card prints it: decimal, no exponent, no trailing zeros."""
     if float(x).is_integer():
         return str(int(x))
-    return f"{x:.4f}".rstrip("0").rstrip(".")
+    return f"{x:.10f}".rstrip("0").rstrip(".")
 
 
 def _motor_address_defaults(m: int) -> dict[int, float]:
