@@ -15,7 +15,7 @@ from hyperarm_driver.pmac.emulator import CID, DATE, VERSION, PmacEmulator
 
 pytestmark = pytest.mark.emulator
 
-remote = pytest.importorskip("dls_pmaclib.dls_pmacremote")
+import dls_pmaclib.dls_pmacremote as remote  # noqa: E402 (a pinned test dependency)
 
 
 @pytest.fixture
