@@ -186,10 +186,9 @@ class MotorSim:
         """Jog to a position in motor counts (relative to the motor zero).
 
         Like every jog command on the card, this closes the loop of a killed motor first
-        (Turbo PMAC Software Reference, O{constant}: "closed-loop control ... can be
-        re-established with the J command"; J/ "restores position control if the motor's
-        servo loop has been opened"). The rail driver therefore never sends a jog to a motor
-        it has not enabled itself; see driver.py.
+        (PMAC Software Reference, O{constant}: "Closed-loop control for the motor can be
+        re-established with the J command"). The rail driver therefore never sends a jog to
+        a motor it has not enabled itself; see driver.py and watchdog.py.
         """
         self.enable_if_needed()
         if not self.closed_loop:

@@ -1,9 +1,10 @@
 """The on-card safety PLC the rail driver downloads at configure: host watchdog and fault latch.
 
 The Turbo PMAC finishes a jog on its own if the host goes away, and every jog command closes
-the loop of a killed motor (Software Reference: J/ "restores position control if the motor's
-servo loop has been opened"; O{constant}: "closed-loop control ... can be re-established
-with the J command"). So the card itself must
+the loop of a killed motor (PMAC Software Reference, O{constant}: "Closed-loop control for
+the motor can be re-established with the J command"), clearing its fault flags ("changes
+from 1 to 0 when the offending motor is re-enabled", Turbo PMAC Software Reference,
+coordinate-system status). So the card itself must
 
 1. stop the rail when the host is gone: the driver increments a heartbeat P-variable in
    every poll; the PLC re-arms a countdown timer (Isx11, decremented every servo cycle)
