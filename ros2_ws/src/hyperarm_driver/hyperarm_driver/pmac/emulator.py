@@ -34,6 +34,7 @@ Only 127.0.0.1 is ever bound.
 from __future__ import annotations
 
 import argparse
+import collections
 import math
 import re
 import signal
@@ -336,7 +337,8 @@ class PmacEmulator:
         self.refuse = False    # close new connections at once
         self.busy = 0          # answer the next n command lines with NUL (busy, not run)
         self.requests = 0
-        self.log: list[str] = []   # every command line executed from a port, in order
+        # the last command lines received from a port, in order (for tests and debugging)
+        self.log: collections.deque[str] = collections.deque(maxlen=10000)
 
     # -- life cycle -----------------------------------------------------------------------
     @property
