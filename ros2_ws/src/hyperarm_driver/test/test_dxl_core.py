@@ -123,6 +123,51 @@ def test_commands_are_validated_and_clamped_without_a_port():
     assert d.control[3] == "current_based_position" and d.goal_effort[3] == 1.5
 
 
+def test_nan_in_any_joint_rejects_the_whole_message_even_another_drivers():
+    # issue 17: {joint1: 0.9, rail: NaN} moved joint1; the contract (docs/architecture.md)
+    # rejects a message with NaN/inf whole, whatever joint carries it
+    d = _driver()
+    for pos, eff in (([0.9, math.nan], []), ([0.9, 0.1], [0.5, math.inf]),
+                     ([], [0.5, -math.inf])):
+        with pytest.raises(CommandError, match=r"non-finite setpoint for \['rail'\]") as info:
+            d.command(["joint1", "rail"], pos, eff)
+        assert info.value.reason == "non_finite"
+    assert d.goal_position[0] == 0.0 and d.control[0] == "current_based_position"
+
+
+def test_effort_zero_means_the_default_limit_and_position_classes_share_one_mode():
+    """docs/architecture.md, joint_command: effort 0 (or none) with a position = no extra
+    limit, the joint's default limit; every position-class command is current-based
+    position; a position-only command after a position+effort one has the default limit."""
+    d = _driver()
+    default = d.max_effort[3]
+    grip = d.config.index("gripper")
+    d.command(["joint4", "gripper"], [0.2, 0.5], [0.0, -0.0])
+    assert d.control[3] == d.control[grip] == "current_based_position"
+    assert d.goal_effort[3] == default > 1.0
+    assert d.goal_effort[grip] == load_description().gripper.grip_effort
+    d.command(["joint4"], [0.2], [-1.5])           # the sign of a limit does not matter
+    assert d.goal_effort[3] == 1.5 and d.control[3] == "current_based_position"
+    d.command(["joint4"], [0.3])                    # position only: back to the default
+    assert d.goal_effort[3] == default and d.control[3] == "current_based_position"
+    d.command(["joint4"], effort=[0.0])             # effort only 0: zero torque
+    assert d.control[3] == "current" and d.goal_effort[3] == 0.0
+    with pytest.raises(CommandError) as info:
+        d.command(["joint4", "joint4"], [0.1, 0.1])
+    assert info.value.reason == "duplicate"
+
+
+def test_reason_throttle_is_per_reason():
+    from hyperarm_driver.log_throttle import ReasonThrottle
+    t = ReasonThrottle(1.0)
+    assert t.allow("duplicate", now=0.0) and not t.allow("duplicate", now=0.4)
+    assert t.allow("unknown_joint", now=0.5)       # another reason is not hidden
+    assert not t.allow("duplicate", now=0.9) and t.suppressed("duplicate") == 2
+    assert t.allow("duplicate", now=1.0) and t.suppressed("duplicate") == 0
+    with pytest.raises(ValueError):
+        ReasonThrottle(math.nan)
+
+
 def test_bus_goal_conversion_clamps_into_tick_limits():
     cfg = bus_config_from_description(load_description())
     bus = DynamixelBus(cfg, "/nonexistent")

@@ -42,6 +42,9 @@ POSITION_TAU = 0.03          # s, first-order time constant of the position loop
 POSITION_GAIN = 4.0          # raw current per tick of position error (position loop)
 CURRENT_TO_VEL = 2.0         # ticks/s per raw current unit in current mode (free load)
 REBOOT_TIME = 0.05           # s a rebooted servo stays silent
+TICK = 0.005                 # s, the emulator advances its servos at least this often
+STARVED = 0.03               # s: a longer gap between two loop turns means the emulator
+                             # process was not scheduled (a real servo never stalls)
 _GOAL_REGS = ("goal_position", "goal_current")
 
 
@@ -52,13 +55,17 @@ def _reg_bytes(name: str, value: int) -> bytes:
 
 @dataclass
 class WriteRecord:
-    """One write the emulator received into a goal register (after indirect resolution)."""
+    """One write the emulator received into a goal register, Torque Enable or Operating
+    Mode (after indirect resolution): the instruction that carried it and when (monotonic
+    s)."""
 
     id: int
     register: str
     value: int
     accepted: bool
     mode: int
+    inst: int = 0
+    t: float = 0.0
 
 
 class EmulatedServo:
@@ -77,6 +84,7 @@ class EmulatedServo:
         self.last_rx = time.monotonic()   # last instruction packet seen (Bus Watchdog)
         self.temperature = 36
         self.voltage = 120      # 0.1 V
+        self.overshoot = -float("inf")   # largest excursion past Min/Max Position Limit, ticks
         self._set_eeprom_defaults()
         self._set_ram_defaults()
 
@@ -206,6 +214,10 @@ class EmulatedServo:
             code = p2.ERR_RESULT_FAIL
         if val("operating_mode", new) not in self.model.modes:
             return self.status_error(p2.ERR_DATA_RANGE)
+        if log is not None:
+            for name in ("torque_enable", "operating_mode"):
+                if touches(name):
+                    log.append(WriteRecord(self.id, name, val(name, new), True, mode))
         self.table[:] = new
         return self.status_error(code)
 
@@ -268,6 +280,8 @@ class EmulatedServo:
                 new = self.obstacle
                 self.vel = 0.0
         self.pos = new
+        self.overshoot = max(self.overshoot, new - self.get("max_position_limit"),
+                             self.get("min_position_limit") - new)
         if mode != OperatingMode.CURRENT and self.vel == 0.0 and self.obstacle is None \
                 and new == self.get("goal_position"):
             self.current = 0.0
@@ -299,8 +313,18 @@ class EmulatedBus:
         self.baud = 1_000_000
         self._rng = random.Random(seed)
         self._last = time.monotonic()
+        self.frozen = 0.0          # s of emulator starvation skipped (see freeze)
 
     # -- time ------------------------------------------------------------------------------
+    def freeze(self, seconds: float) -> None:
+        """The emulator process was not scheduled for ``seconds``: its servos do not move
+        over that time (packets that queued up meanwhile are handled as if just in time)."""
+        seconds = max(0.0, seconds)
+        self._last += seconds
+        self.frozen += seconds
+        for s in self.servos.values():   # nor does their Bus Watchdog count it
+            s.last_rx += seconds
+
     def advance(self, now: float | None = None) -> None:
         now = time.monotonic() if now is None else now
         dt = min(max(0.0, now - self._last), 1.0)
@@ -343,7 +367,10 @@ class EmulatedBus:
             for s in self.servos.values():   # every instruction packet feeds Bus Watchdog
                 s.last_rx = now
             self.instructions[pkt.instruction] = self.instructions.get(pkt.instruction, 0) + 1
+            n0 = len(self.write_log)
             self._handle(pkt, now, out)
+            for rec in self.write_log[n0:]:
+                rec.inst, rec.t = pkt.instruction, now
         return out
 
     def _handle(self, pkt: p2.Packet, now: float, out: list[bytes]) -> None:
@@ -474,6 +501,10 @@ class EmulatedBus:
                 self.servos[int(cmd["id"])].pos = float(cmd["position"])
             elif op == "register":        # poke any register, as Dynamixel Wizard would
                 self.servos[int(cmd["id"])]._set(str(cmd["name"]), int(cmd["value"]))
+            elif op == "overshoot":       # largest excursion past the limits, then reset
+                s = self.servos[int(cmd["id"])]
+                value, s.overshoot = s.overshoot, -float("inf")
+                return {"ok": True, "ticks": value if value > -float("inf") else None}
             elif op == "state":
                 self.advance()
                 return {"ok": True, "servos": {str(i): self._state(s)
@@ -484,7 +515,7 @@ class EmulatedBus:
                     self.write_log.clear()
                 return {"ok": True, "log": log}
             elif op == "stats":
-                return {"ok": True, "packets": self.reader.packets,
+                return {"ok": True, "packets": self.reader.packets, "frozen_s": self.frozen,
                         "crc_errors": self.reader.crc_errors,
                         "instructions": {hex(k): v for k, v in self.instructions.items()}}
             elif op != "ping":
@@ -521,6 +552,7 @@ class PtyEmulator:
         self._ctl_srv: socket.socket | None = None
         self._clients: dict[int, tuple[socket.socket, bytearray]] = {}
         self._stop = False
+        self._last_turn: float | None = None
 
     def open(self) -> str:
         """Create the pty (and the link); returns the device path."""
@@ -605,13 +637,18 @@ class PtyEmulator:
             fds.append(self._ctl_srv.fileno())
         if self.master is not None:
             fds.append(self.master)
-        timeout = 0.05
+        if self._last_turn is not None and now - self._last_turn > STARVED:
+            self.bus.freeze(now - self._last_turn)    # not scheduled between two turns
+        self.bus.advance(now)
+        timeout = TICK
         if self._pending:
             timeout = max(0.0, min(timeout, self._pending[0][0] - now))
         if self._back_at is not None:
             timeout = max(0.0, min(timeout, self._back_at - now))
         readable, _, _ = select.select(fds, [], [], timeout)
-        now = time.monotonic()
+        before, now = now, time.monotonic()
+        if now - before > timeout + STARVED:    # runnable, but not scheduled, in select
+            self.bus.freeze(now - before - timeout)
         for fd in readable:
             if fd == self.master:
                 try:
@@ -659,6 +696,7 @@ class PtyEmulator:
         now = time.monotonic()
         while self._pending and self._pending[0][0] <= now:
             self._write(self._pending.pop(0)[1])
+        self._last_turn = time.monotonic()
 
     def _write(self, data: bytes) -> None:
         if self.master is None:
