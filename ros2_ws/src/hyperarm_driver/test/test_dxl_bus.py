@@ -117,7 +117,13 @@ def test_startup_configures_every_servo_torque_off(emu):
     assert (servo(emu, 3)["drive_mode"], servo(emu, 3)["homing_offset"]) == (1, 1024)
     drv = make_driver(emu)
     connect(drv)
-    assert drv.connected and drv.bus.fast
+    # the arm's MX(2.0) servos (IDs 1-6) do not answer Fast Sync Read, as on real hardware:
+    # the driver falls back to plain Sync Read and says so
+    assert drv.connected and not drv.bus.fast
+    events = drv.pop_events()
+    assert any(level == logging.WARNING and "Fast Sync Read (0x8A) failed" in e
+               and "using plain Sync Read" in e for level, e in events), events
+    assert emu.ctl("stats")["instructions"].get("0x82", 0) > 0
     for j in bus_config_from_description(DESC).joints:
         s = servo(emu, j.id)
         assert s["torque_enable"] == 0 and s["return_delay_time"] == 0
@@ -163,19 +169,30 @@ def test_open_error_names_the_port(tmp_path):
         drv.connect()
 
 
-def test_motion_in_position_mode_and_plain_sync_read(tmp_path):
-    with EmulatorProcess(workdir=tmp_path) as e:
-        bus = DynamixelBus(bus_config_from_description(DESC), e.link, fast_sync_read=False)
+def all_x_config() -> BusConfig:
+    """The description's bus with its MX servos (IDs 1-6) replaced by XM430-W350s."""
+    from hyperarm_driver.dynamixel.control_table import model_by_name
+    xm = model_by_name("XM430-W350")
+    cfg = bus_config_from_description(DESC)
+    return BusConfig(tuple(replace(j, model=xm) if j.model.series == "MX" else j
+                           for j in cfg.joints))
+
+
+def test_motion_in_position_mode_and_fast_sync_read_on_x_servos(tmp_path):
+    args = [a for i in range(1, 7) for a in ("--model", f"{i}=XM430-W350")]
+    with EmulatorProcess(*args, workdir=tmp_path) as e:
+        bus = DynamixelBus(all_x_config(), e.link)
         drv = DynamixelDriver(bus)
         connect(drv)
-        assert not bus.fast
+        assert bus.fast and not drv.pop_events()
         drv.set_torque(True)
         drv.command(["joint1", "joint5", "joint9"], [0.4, -0.6, 1.0])
         st = run_until(drv, lambda s: abs(s.position[0] - 0.4) < 2e-3
                        and abs(s.position[4] + 0.6) < 2e-3 and abs(s.position[8] - 1.0) < 2e-3,
                        5.0, "joints to reach their goals")
         assert np.allclose(st.position[[1, 2, 3, 5, 6, 7]], 0.0, atol=2e-3)
-        assert e.ctl("stats")["instructions"].get("0x82", 0) > 0  # plain SYNC_READ used
+        stats = e.ctl("stats")["instructions"]
+        assert stats.get("0x8a", 0) > 0 and stats.get("0x82", 0) == 0   # FAST SYNC READ
 
 
 def test_current_mode_and_watchdog_hold(emu):

@@ -44,12 +44,32 @@ def test_stuffing_round_trip_and_reader_decodes(params):
     assert out == [p2.Packet(7, p2.INST_WRITE, params)]
 
 
-def test_reader_drops_bad_crc_and_resynchronises():
+def test_reader_flags_bad_crc_and_resynchronises():
     good = p2.build_packet(3, p2.INST_READ, bytes([132, 0, 4, 0]))
     bad = good[:-1] + bytes([good[-1] ^ 1])
     r = p2.PacketReader()
     got = r.feed(bad[:5]) + r.feed(bad[5:] + b"\x12" + good)
-    assert [pk.id for pk in got] == [3] and r.crc_errors == 1
+    assert [(pk.id, pk.crc_ok) for pk in got] == [(3, False), (3, True)]
+    assert r.crc_errors == 1 and r.packets == 1
+
+
+def test_reader_drops_an_incomplete_packet_after_the_frame_timeout():
+    """issue 16: a corrupt length field (4080) must not deafen the bus until 4 KB came in
+    and then replay what was buffered; a servo drops the incomplete packet after a timeout."""
+    ping = p2.build_packet(1, p2.INST_PING)
+    corrupt = bytearray(p2.build_packet(1, p2.INST_WRITE, bytes([65, 0, 1])))
+    corrupt[5:7] = (4080).to_bytes(2, "little")
+    r = p2.PacketReader()
+    assert r.feed(bytes(corrupt), now=0.0) == []
+    assert r.feed(ping, now=0.01) == []          # within the timeout: part of that packet
+    assert r.feed(ping, now=0.01 + p2.FRAME_TIMEOUT + 0.001) == [p2.Packet(1, p2.INST_PING, b"")]
+    assert r.timeouts == 1
+    # steady traffic does not keep an incomplete packet alive: the timeout runs from its start
+    r = p2.PacketReader()
+    r.feed(bytes(corrupt), now=0.0)
+    for k in range(1, 10):
+        got = r.feed(ping, now=k * 0.02)
+    assert got == [p2.Packet(1, p2.INST_PING, b"")] and r.timeouts == 1
 
 
 def test_model_table_and_error_decoding():
@@ -232,11 +252,11 @@ def test_emulated_bus_watchdog_stops_a_torque_servo_on_a_silent_bus():
 
 
 def test_emulated_bus_instructions_byte_exact():
-    bus = EmulatedBus([EmulatedServo(1, model_by_name("MX-64")),
+    bus = EmulatedBus([EmulatedServo(1, model_by_name("XM430-W210")),
                        EmulatedServo(2, model_by_name("XM540-W270"))])
     # broadcast ping: both answer, in ID order, with their model numbers
     got = _status(bus, p2.build_packet(p2.BROADCAST_ID, p2.INST_PING))
-    assert [(pk.id, pk.params[1] | pk.params[2] << 8) for pk in got] == [(1, 311), (2, 1120)]
+    assert [(pk.id, pk.params[1] | pk.params[2] << 8) for pk in got] == [(1, 1030), (2, 1120)]
     # SYNC WRITE goal positions, then SYNC READ and BULK READ them back
     _status(bus, p2.build_packet(p2.BROADCAST_ID, p2.INST_SYNC_WRITE, bytes([116, 0, 4, 0])
                                  + bytes([1]) + (1000).to_bytes(4, "little")
@@ -247,7 +267,7 @@ def test_emulated_bus_instructions_byte_exact():
     got = _status(bus, p2.build_packet(p2.BROADCAST_ID, p2.INST_BULK_READ,
                                        bytes([2, 116, 0, 4, 0, 1, 0, 0, 2, 0])))
     assert [(pk.id, int.from_bytes(pk.params[1:], "little")) for pk in got] == [(2, 3000),
-                                                                               (1, 311)]
+                                                                               (1, 1030)]
     # FAST SYNC READ: one packet, ID 0xFE, segments ERR ID DATA CRC, running CRC
     (raw,) = bus.feed(p2.build_packet(p2.BROADCAST_ID, p2.INST_FAST_SYNC_READ,
                                       bytes([116, 0, 4, 0, 1, 2])), now=0.0)
@@ -255,10 +275,12 @@ def test_emulated_bus_instructions_byte_exact():
     assert raw[9] == 1 and int.from_bytes(raw[10:14], "little") == 1000
     assert raw[14] | raw[15] << 8 == p2.crc16(raw[:14])
     assert raw[17] == 2 and raw[-2] | raw[-1] << 8 == p2.crc16(raw[:-2])
-    # an instruction with a bad CRC gets no answer at all
-    bad = bytearray(p2.build_packet(1, p2.INST_PING))
+    # an instruction with a bad CRC: a CRC Error status (Protocol 2.0 error 0x03), no action
+    bad = bytearray(p2.build_packet(1, p2.INST_WRITE, bytes([65, 0, 1])))
     bad[-1] ^= 0xFF
-    assert bus.feed(bytes(bad), now=0.0) == [] and bus.reader.crc_errors == 1
+    (st,) = _status(bus, bytes(bad))
+    assert st.error == p2.ERR_CRC and bus.reader.crc_errors == 1
+    assert bus.servos[1].get("led") == 0
     # REBOOT: status first, then RAM reset (error cleared, torque off) and silent 50 ms
     bus.servos[1].raise_error(0x08)
     (st,) = _status(bus, p2.build_packet(1, p2.INST_REBOOT))

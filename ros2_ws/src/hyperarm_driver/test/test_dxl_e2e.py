@@ -60,11 +60,17 @@ class Client:
         return fut.result()
 
 
+def _connect(path: str) -> EmulatorControl | None:
+    try:
+        return EmulatorControl(path)
+    except (FileNotFoundError, ConnectionRefusedError):   # not bound / not listening yet
+        return None
+
+
 def start(launch, tmp_path, wait_for, executor, rclpy_context, **params):
     link, ctl = str(tmp_path / "ttyDXL"), str(tmp_path / "ctl")
     emu = launch("hyperarm_driver", "dxl_emulator", "--link", link, "--control", ctl)
-    wait_for(lambda: (tmp_path / "ctl").exists(), 20.0, what="emulator control socket")
-    control = EmulatorControl(ctl)
+    control = wait_for(lambda: _connect(ctl), 20.0, what="emulator control socket")
     drv = launch("hyperarm_driver", "dynamixel_driver",
                  params={"port": link, "diagnostics_period": 0.2, **params})
     client = Client(executor, rclpy_context)
@@ -80,6 +86,11 @@ def servo(control, sid: int) -> dict:
 def test_e2e_command_rules_torque_state_and_logs(launch, tmp_path, wait_for, executor,
                                                  rclpy_context):
     emu, control, drv, client = start(launch, tmp_path, wait_for, executor, rclpy_context)
+    # issue 16: the arm's MX(2.0) servos refuse Fast Sync Read; the node warns and falls back
+    wait_for(lambda: re.search(r"\[WARN\].*Fast Sync Read \(0x8A\) failed at start-up.*"
+                               r"using plain Sync Read", drv.output()), 10.0,
+             what="fallback warning")
+    assert client.diag["dynamixel_driver: bus"]["sync_read"] == "plain"
     # torque off: a command is dropped and logged (throttled), nothing moves
     client.send(["joint1"], [0.5])
     wait_for(lambda: "joint_command for ['joint1'] dropped: torque is off" in drv.output(),

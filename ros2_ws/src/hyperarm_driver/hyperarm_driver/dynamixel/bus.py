@@ -338,7 +338,6 @@ class DynamixelBus:
                 # MX(2.0) firmware does not implement Fast Sync Read (0x8A): no reply
                 self.fast = False
                 self.fast_error = f"Fast Sync Read (0x8A) failed at start-up ({exc})"
-                _log.warning("%s; using plain sync read", self.fast_error)
         self.read_state()
 
     # -- cycle -------------------------------------------------------------------------------

@@ -142,7 +142,7 @@ class DynamixelDriver:
     # -- helpers -----------------------------------------------------------------------------
     def _event(self, text: str, level: int = logging.INFO) -> None:
         self.events.append((level, text))
-        _log.log(level, text)
+        _log.debug(text)     # the node logs the events (pop_events) at their level
 
     def pop_events(self) -> list[tuple[int, str]]:
         """Events since the last call: (logging level, text)."""
