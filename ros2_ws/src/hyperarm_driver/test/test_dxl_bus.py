@@ -643,3 +643,18 @@ def test_torque_mode_brakes_before_the_limits_in_a_fuzz(emu):
         assert closest[i] < 0.1, (cfg.joints[i].name, closest[i])   # the limits were tested
         over = emu.ctl("overshoot", id=cfg.joints[i].id)["ticks"]
         assert over is not None and over <= 10.0, (cfg.joints[i].name, over)
+
+
+def test_the_configured_baud_rate_is_used(tmp_path):
+    """Servos at 57600 bit/s (Baud Rate 1) answer a driver at 57600 and nobody at the SDK's
+    default 1 Mbit/s: the emulator hears only at each servo's own rate."""
+    cfg = bus_config_from_description(DESC)
+    spec = ",".join(f"{j.id}:{j.model.name}@57600" for j in cfg.joints)
+    with EmulatorProcess("--servos", spec, workdir=tmp_path) as e:
+        drv = DynamixelDriver(DynamixelBus(cfg, e.link, baud=57600))
+        connect(drv)
+        assert drv.cycle() is not None and drv.bus.baud == 57600
+        drv.shutdown("release")
+        fast = DynamixelDriver(DynamixelBus(cfg, e.link, baud=1_000_000))
+        with pytest.raises(StartupError, match="missing: joint1 .ID 1., joint2"):
+            fast.connect()

@@ -152,7 +152,8 @@ class DynamixelBus:
         """Open the port at ``baud``; PortOpenError naming the port if impossible."""
         port = PortHandler(self.port_name)
         try:
-            ok = port.openPort()
+            ok = port.setBaudRate(self.baud)    # opens the port at this rate (openPort()
+            # would use the SDK's default, 1 Mbit/s, whatever ``baud`` says)
         except _PORT_ERRORS as exc:
             raise PortOpenError(f"cannot open Dynamixel port {self.port_name}: {exc}") from exc
         if not ok:
