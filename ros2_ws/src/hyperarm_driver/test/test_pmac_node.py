@@ -218,12 +218,21 @@ def test_installed_emulator_and_driver(launch, rclpy_context, executor, wait_for
     emu = launch("hyperarm_driver", "pmac_emulator", "--port", "0", "--start-position", "2000")
     port = wait_for(lambda: re.search(r"127\.0\.0\.1:(\d+)", emu.output()), 10.0,
                     what="emulator port").group(1)
-    drv = launch("hyperarm_driver", "pmac_rail_driver", params={"port": int(port)})
+    drv = launch("hyperarm_driver", "pmac_rail_driver",
+                 params={"port": int(port), "diagnostics_period": 0.1})
     probe = Probe(rclpy_context, executor)
     wait_for(lambda: probe.rail() is not None, 20.0, what="rail on joint_states")
     assert probe.rail() == pytest.approx(0.01)
     assert probe.call("torque", wait_for, data=True).success
     wait_for(lambda: "connected to PMAC" in drv.output(), 5.0, what="driver log")
+    # rejections are throttled per reason: a second reason is logged at once, a repeated
+    # one is not (log_period 10 s); one joint_command at a time (depth 1)
+    for k, pos in enumerate((1.7, math.nan, 1.8, math.nan, -1.9)):
+        probe.command(["rail"], [pos])
+        wait_for(lambda: (d := probe.diag()) and int(d["rejected_setpoints"]) == k + 1, 5.0,
+                 what=f"rejection {k + 1}")
+    out = drv.output()
+    assert out.count("outside the soft limits") == 1 and out.count("not finite") == 1, out
 
 
 def _free_port() -> int:
@@ -249,10 +258,20 @@ def test_installed_driver_safety_on_the_emulator(launch, rclpy_context, executor
     time.sleep(1.0)                            # 5 more attempts: the same reason, not logged
     assert drv.output().count("Connection refused") == 1
 
-    with PmacEmulator(port=port, start_position=2000, limits=(-CPM, CPM)) as emu:
+    emu = PmacEmulator(port=port, start_position=2000, limits=(-CPM, CPM))
+    emu.globals.update({3: 1.0, 6: 0.0})       # factory framing: the driver must set I3/I6
+    with emu:
         probe = Probe(rclpy_context, executor)
         wait_for(lambda: "connected to PMAC" in drv.output(), 10.0, what="connected")
         assert emu.plcs[10].enabled                          # the safety PLC downloaded
+        assert (emu.globals[3], emu.globals[6]) == (2.0, 1.0)
+        # a busy card (NUL replies) and an unsolicited <STX> line are no link loss
+        emu.busy = 5
+        emu.execute("I64=1")
+        emu.send_message("HELLO FROM A PLC")
+        wait_for(lambda: "message from the card: 'HELLO FROM A PLC'" in drv.output(), 5.0,
+                 what="the card's message in the log")
+        assert emu.busy == 0 and "link lost" not in drv.output()
         assert probe.call("torque", wait_for, data=True).success
 
         # 1. stream at 200 Hz; a momentary fatal following error kills the motor

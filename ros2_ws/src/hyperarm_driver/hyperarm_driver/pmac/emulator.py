@@ -325,7 +325,8 @@ class PmacEmulator:
         self.plcs: dict[int, plclang.PlcProgram] = {}
         self._timers: dict[int, tuple[float, float]] = {}   # I5s11/I5s12: (value, set at)
         self._messages: list[str] = []
-        self._internal = _Port()
+        self._internal = _Port()      # execute() without a port (tests, the API)
+        self._plc_port = _Port()      # CMD"..." of PLC programs
         self._lock = threading.RLock()
         self._t0 = time.monotonic()
         self._t = self._t0            # simulated time (monotonic clock), advanced lazily
@@ -475,7 +476,7 @@ class PmacEmulator:
     def _plc_command(self, text: str) -> None:
         """A CMD"..." of a PLC program: an on-line command from the card itself."""
         try:
-            self._execute(plclang.squeeze(text), [], self._internal)
+            self._execute(plclang.squeeze(text), [], self._plc_port)
         except (_CmdError, plclang.PlcSyntaxError):
             pass
 
