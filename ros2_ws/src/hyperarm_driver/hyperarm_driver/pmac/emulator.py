@@ -62,7 +62,9 @@ _MOTOR_DEFAULTS = {0: 1.0, 11: 32000.0, 12: 16000.0, 13: 0.0, 14: 0.0, 19: 0.015
 # Motor I-variables holding addresses (reported in hex while I9 bit 1 is set).
 _MOTOR_ADDRESS_IVARS = (1, 2, 3, 4, 5, 10, 24, 25, 42, 43, 81, 82, 83, 91)
 _GLOBAL_ADDRESS_IVARS = (20, 21, 22, 23, 24)
-# Integer I-variables with a range 0..2**bits-1: a larger value keeps its low bits.
+# Integer I-variables with a range 0..2**bits-1. Turbo PMAC User Manual, "Limited Range": "an
+# attempt to assign an out-of-range value does not cause an error. The value is automatically
+# rolled over to within the range by modulo arithmetic (truncation)": I3=5 gives 5 mod 4 = 1.
 _GLOBAL_BITS = {3: 2, 6: 2, 9: 2, 63: 1, 64: 1}
 _MOTOR_BITS = {0: 1}
 _RE_VAR = re.compile(r"([PQMI])(\d+)")
@@ -517,8 +519,10 @@ class PmacEmulator:
 
     def _get_ivar(self, k: int) -> float:
         if _is_timer(k):
+            # Software Reference, Isx11: "count down one unit per servo cycle ... until it
+            # reaches its maximum negative value of -8,388,608. It will not roll over."
             value, at = self._timers.get(k, (0.0, self._t))
-            return value - (self._t - at) / self.servo_period
+            return float(max(-8388608, value - math.floor((self._t - at) / self.servo_period)))
         mot = self.motors.get(k // 100) if 100 <= k < 3300 else None
         if mot is not None:
             return mot.ivars.get(k % 100, 0.0)
@@ -526,7 +530,7 @@ class PmacEmulator:
 
     def _set_ivar(self, k: int, v: float) -> None:
         if _is_timer(k):
-            self._timers[k] = (v, self._t)
+            self._timers[k] = (float(int(v)), self._t)     # a signed 24-bit integer
             return
         mot = self.motors.get(k // 100) if 100 <= k < 3300 else None
         bits = _MOTOR_BITS.get(k % 100) if mot is not None else _GLOBAL_BITS.get(k)
@@ -543,8 +547,6 @@ class PmacEmulator:
                    else k in _GLOBAL_ADDRESS_IVARS)
         if is_addr and int(self.globals[9]) & 2:
             return f"${int(value):X}"
-        if _is_timer(k):
-            value = float(math.floor(value))
         return _fmt(value)
 
     # -- command interpreter --------------------------------------------------------------

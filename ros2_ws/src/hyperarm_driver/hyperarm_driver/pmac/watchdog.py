@@ -7,7 +7,8 @@ from 1 to 0 when the offending motor is re-enabled", Turbo PMAC Software Referen
 coordinate-system status). So the card itself must
 
 1. stop the rail when the host is gone: the driver increments a heartbeat P-variable in
-   every poll; the PLC re-arms a countdown timer (Isx11, decremented every servo cycle)
+   every poll; the PLC re-arms a countdown timer (Isx11: "Isx11 will count down one unit per
+   servo cycle", Software Reference; "multiply [ms] by 8,388,608 and divide by I10")
    whenever the heartbeat changes, and when the timer runs out while the host has torque on
    (the "armed" P-variable is 1) it disarms and issues ``#nJ/`` (decelerate at the jog
    acceleration and hold, servo on);
