@@ -53,6 +53,8 @@ PARAMETERS: ParamSpec = {
     "watchdog_plc": (10, "PLC program number of the safety PLC", Range(1, 31)),
     "watchdog_pvar": (8001, "first of the three P-variables of the safety PLC (heartbeat, "
                             "seen, armed)", Range(0, 8189)),
+    "watchdog_mvar": (8140, "first of the two M-variables of the safety PLC (status bits)",
+                      Range(0, 8190)),
     "log_period": (10.0, "the same problem (unreachable card, rejected setpoint reason) is "
                          "logged at most once per this period, s", Range(0.1, 3600.0)),
     "diagnostics_period": (0.5, "/diagnostics period, s", Range(0.1, 10.0)),
@@ -89,7 +91,8 @@ class PmacRailDriver(Node):
                                      "downloads the safety PLC); set watchdog_timeout:=0.0")
                 pv = int(p["watchdog_pvar"])
                 watchdog = WatchdogConfig(plc=int(p["watchdog_plc"]), heartbeat=pv, seen=pv + 1,
-                                          armed=pv + 2, timeout=float(p["watchdog_timeout"]))
+                                          armed=pv + 2, mvar=int(p["watchdog_mvar"]),
+                                          timeout=float(p["watchdog_timeout"]))
             self._driver = RailDriver(RailAxis(client, config, watchdog=watchdog),
                                       rate=float(p["rate"]),
                                       reconnect_period=float(p["reconnect_period"]),
