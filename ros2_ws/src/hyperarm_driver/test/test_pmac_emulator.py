@@ -392,7 +392,8 @@ def test_serial_client_on_a_pty(emu) -> None:
 
 
 # -- reply forms of a real card -------------------------------------------------------------
-def test_busy_nul_is_retried_not_a_link_loss(client, emu) -> None:
+def test_busy_nul_is_retried_not_a_link_loss(emu) -> None:
+    client = PmacClient("127.0.0.1", emu.port, timeout=1.0)   # (a loaded host: no stall)
     emu.busy = 3                                   # three NUL replies, then the answer
     assert client.command("#1P") == ["2000"]
     assert client.busy_replies == 3 and client.connects == 1
@@ -402,6 +403,7 @@ def test_busy_nul_is_retried_not_a_link_loss(client, emu) -> None:
         client.command("#1P")
     emu.busy = 0
     assert client.command("#1P") == ["2000"]
+    client.close()
 
 
 def test_stx_message_then_the_reply_via_getbuffer(client, emu) -> None:
