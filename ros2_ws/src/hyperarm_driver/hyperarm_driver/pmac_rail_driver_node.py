@@ -23,7 +23,7 @@ from hyperarm_description.ros_main import run_node
 from .common import NonEmpty, ParamSpec, Range, declare_parameters, diagnostic_status
 from .pmac.axis import RailAxis, RailConfig
 from .pmac.client import PmacClient
-from .pmac.driver import ReasonThrottle, RailDriver
+from .pmac.driver import ReasonThrottle, RailDriver, check_command
 from .pmac.errors import PmacError, RailError
 from .pmac.watchdog import WatchdogConfig
 
@@ -139,10 +139,9 @@ class PmacRailDriver(Node):
         if self._joint not in names:
             return                     # other drivers' joints
         try:
-            if names.count(self._joint) > 1:
-                self._driver.reject(f"{self._joint!r} named twice in one joint_command")
-            if len(msg.position) != len(names):
-                self._driver.reject(f"{len(msg.position)} positions for {len(names)} names")
+            problem = check_command(names, msg.position, msg.effort, self._joint)
+            if problem:
+                self._driver.reject(problem)
             self._driver.set_target(msg.position[names.index(self._joint)])
         except RailError as exc:
             # throttled per reason (numbers aside), so that one problem never hides another

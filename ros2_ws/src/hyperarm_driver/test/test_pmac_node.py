@@ -59,9 +59,10 @@ class Probe:
         wait_for(fut.done, 5.0, what=f"answer of {cli.srv_name}")
         return fut.result()
 
-    def command(self, names, positions) -> None:
+    def command(self, names, positions, efforts=()) -> None:
         from sensor_msgs.msg import JointState
-        self.pub.publish(JointState(name=list(names), position=[float(p) for p in positions]))
+        self.pub.publish(JointState(name=list(names), position=[float(p) for p in positions],
+                                    effort=[float(e) for e in efforts]))
 
     def rail(self) -> float | None:
         for m in reversed(self.states):
@@ -121,15 +122,23 @@ def test_node_homing_setpoints_and_services(rclpy_context, executor, emu, wait_f
     probe.command(["joint1"], [0.5])           # no rail: ignored
     # out of range / non-finite / malformed: rejected, nothing sent
     requests = emu.requests
-    for i, (names, pos) in enumerate(((["rail"], [1.7]), (["rail"], [math.nan]),
-                                      (["rail"], [-math.inf]), (["rail", "rail"], [0.1, 0.1]),
-                                      (["joint1", "rail"], [0.1]))):
-        probe.command(names, pos)    # (one at a time: joint_command keeps only the newest)
+    for i, (names, pos, eff) in enumerate((
+            (["rail"], [1.7], []), (["rail"], [math.nan], []), (["rail"], [-math.inf], []),
+            (["rail", "rail"], [0.1, 0.1], []), (["joint1", "rail"], [0.1], []),
+            (["joint1", "rail"], [math.nan, 0.1], []),       # NaN for another joint: whole
+            (["joint1", "rail"], [0.2, 0.1], [0.0, math.inf]),
+            (["rail"], [0.1], [2.0]),                        # the rail takes no effort
+            (["joint1", "rail"], [0.2, 0.1], [1.0]))):       # effort length mismatch
+        probe.command(names, pos, eff)   # (one at a time: joint_command keeps the newest)
         wait_for(lambda: int(probe.diag()["rejected_setpoints"]) == 3 + i, 2.0,
                  what=f"rejection of {names} {pos}")
     time.sleep(0.1)
     assert emu.motor(1).mode == "idle" and emu.motor(1).target == pytest.approx(0.04 * CPM)
     assert emu.requests > requests               # (polling went on meanwhile)
+
+    # effort 0 for the rail (and any effort for another joint) is no limit: accepted
+    probe.command(["joint1", "rail"], [0.3, 0.05], [1.0, 0.0])
+    wait_for(lambda: abs(probe.rail() - 0.05) < 1e-6, 3.0, what="rail at 0.05 m")
 
     # hold during a move stops short of the target
     probe.command(["rail"], [-0.15])

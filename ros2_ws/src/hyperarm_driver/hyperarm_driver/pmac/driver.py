@@ -20,23 +20,50 @@ logs it once. Callers (the ROS node) read :meth:`RailDriver.snapshot` and call
 """
 from __future__ import annotations
 
+import math
 import threading
 import time
 import traceback
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass, replace
-from typing import Callable, NoReturn
+from typing import Callable, NoReturn, Sequence
 
 from .axis import MotorStatus, RailAxis, RailState
 from .errors import PmacCommandError, PmacError, PmacLinkError, PmacProtocolError, \
     RailCommandError, RailError
 
-__all__ = ["RailDriver", "DriverSnapshot", "REQUESTS", "OK", "WARN", "ERROR", "ReasonThrottle"]
+__all__ = ["RailDriver", "DriverSnapshot", "REQUESTS", "OK", "WARN", "ERROR", "ReasonThrottle",
+           "check_command"]
 
 OK, WARN, ERROR = 0, 1, 2          # diagnostic levels (diagnostic_msgs/DiagnosticStatus)
 REQUESTS = ("home", "hold", "enable", "kill")
 Logger = Callable[[str, str], None]   # (level: "info" | "warn" | "error", message)
+
+
+def check_command(names: Sequence[str], positions: Sequence[float],
+                  efforts: Sequence[float], joint: str) -> str | None:
+    """Why a ``joint_command`` that names ``joint`` is rejected whole, or None.
+
+    The contract (docs/architecture.md): a malformed message (length mismatch, NaN/inf in
+    any joint's value, duplicate names) is rejected whole, so that no driver applies part of
+    it while another refuses it; the rail is position-controlled: an effort for it other
+    than 0 (0 or an empty effort array = no extra limit) is refused.
+    """
+    if names.count(joint) > 1:
+        return f"{joint!r} named twice in one joint_command"
+    if len(positions) != len(names):
+        return f"{len(positions)} positions for {len(names)} names"
+    if len(efforts) not in (0, len(names)):
+        return f"{len(efforts)} efforts for {len(names)} names"
+    for kind, values in (("position", positions), ("effort", efforts)):
+        for name, v in zip(names, values):
+            if not math.isfinite(v):
+                return f"{kind} of {name!r} is not finite ({v}): the whole message is rejected"
+    if efforts and efforts[names.index(joint)] != 0.0:
+        return (f"effort {efforts[names.index(joint)]:g} for {joint!r} refused: the rail is "
+                "position-controlled (send 0 or no effort)")
+    return None
 
 
 class ReasonThrottle:
