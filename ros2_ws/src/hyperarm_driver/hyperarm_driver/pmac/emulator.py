@@ -69,6 +69,10 @@ _GLOBAL_BITS = {3: 2, 6: 2, 9: 2, 63: 1, 64: 1}
 _MOTOR_BITS = {0: 1}
 _RE_VAR = re.compile(r"([PQMI])(\d+)")
 _RE_INT = re.compile(r"\d+")
+# Status bits an M-variable can read without building the whole status (same as status()).
+_FAST_BITS = {("Y", 2): lambda m: m.fatal_fe, ("Y", 3): lambda m: m.amp_fault,
+              ("Y", 10): lambda m: m.homed, ("X", 19): lambda m: m.closed_loop,
+              ("X", 18): lambda m: not m.closed_loop}
 _RE_STATUS_MDEF = re.compile(r"([XY]):\$?([0-9A-F]+),(\d+)(?:,1)?")
 _RE_MDEF = re.compile(r"\*|[XYDLF]:\$?[0-9A-F]+(?:,\d+)*(?:,[SU])?")
 
@@ -513,6 +517,9 @@ class PmacEmulator:
             k, off = divmod(addr - base, 0x80)
             mot = self.motors.get(k + 1)
             if off == 0 and mot is not None and 0 <= bit < 24:
+                fast = _FAST_BITS.get((space, bit))     # (PLC scans read these every ms)
+                if fast is not None:
+                    return float(bool(fast(mot)))
                 st = mot.status()
                 return float((st.word1 if space == "X" else st.word2) >> bit & 1)
         return self.mvars.get(n, 0.0)
