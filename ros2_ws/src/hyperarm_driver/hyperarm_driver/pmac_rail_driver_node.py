@@ -8,8 +8,6 @@ reports on ``/diagnostics``. Parameters and behaviour: docs/pmac.md.
 """
 from __future__ import annotations
 
-import re
-
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -23,7 +21,8 @@ from hyperarm_description.ros_main import run_node
 from .common import NonEmpty, ParamSpec, Range, declare_parameters, diagnostic_status
 from .pmac.axis import RailAxis, RailConfig
 from .pmac.client import PmacClient
-from .pmac.driver import ReasonThrottle, RailDriver, check_command
+from .log_throttle import ReasonThrottle
+from .pmac.driver import RailDriver, check_command, reason_key
 from .pmac.errors import PmacError, RailError
 from .pmac.watchdog import WatchdogConfig
 
@@ -145,7 +144,7 @@ class PmacRailDriver(Node):
             self._driver.set_target(msg.position[names.index(self._joint)])
         except RailError as exc:
             # throttled per reason (numbers aside), so that one problem never hides another
-            if self._rejections.allow(re.sub(r"[-+]?[\d.]+(e[-+]?\d+)?", "#", str(exc))):
+            if self._rejections.allow(reason_key(str(exc))):
                 self.get_logger().error(f"rail setpoint rejected, nothing sent: {exc}")
 
     def _publish_state(self) -> None:

@@ -281,42 +281,72 @@ def test_installed_driver_safety_on_the_emulator(launch, rclpy_context, executor
         wait_for(lambda: "message from the card: 'HELLO FROM A PLC'" in drv.output(), 5.0,
                  what="the card's message in the log")
         assert emu.busy == 0 and "link lost" not in drv.output()
-        assert probe.call("torque", wait_for, data=True).success
+
+        def stream_until(cond, base: float, timeout: float = 5.0) -> None:
+            deadline, k = time.monotonic() + timeout, 0
+            while not cond():                       # 200 Hz setpoints, as a task sends them
+                assert time.monotonic() < deadline, "no motion: " + drv.output()[-1500:]
+                probe.command(["rail"], [base + 1e-4 * (k % 100)])
+                k += 1
+                time.sleep(0.005)
+
+        def tripped_since(mark: int) -> bool:
+            # the watchdog stops the rail when the host is 100 ms late: on an overloaded test
+            # host that can happen before the event under test; the step is then run again
+            return "watchdog PLC tripped" in drv.output()[mark:]
 
         # 1. stream at 200 Hz; a momentary fatal following error kills the motor
-        k = 0
-        while emu.motor(1).vel == 0:
-            probe.command(["rail"], [0.02 + 1e-4 * k])
-            k += 1
-            time.sleep(0.005)
-        enables = emu.motor(1).enables
-        emu.set_disturbance(1, 2500)
-        emu.set_disturbance(1, 0)
-        for j in range(100):
-            probe.command(["rail"], [0.03 + 1e-4 * j])
-            time.sleep(0.005)
+        for _ in range(3):
+            mark = len(drv.output())
+            assert probe.call("torque", wait_for, data=True).success
+            stream_until(lambda: emu.motor(1).vel != 0, 0.02)
+            enables = emu.motor(1).enables
+            emu.set_disturbance(1, 2500)
+            emu.set_disturbance(1, 0)
+            t_end = time.monotonic() + 0.5
+            stream_until(lambda: time.monotonic() > t_end, 0.03)
+            if not tripped_since(mark):
+                break
+        else:
+            pytest.fail("the watchdog tripped before the fault three times: " + drv.output())
         assert not emu.motor(1).closed_loop and emu.motor(1).enables == enables
         wait_for(lambda: (d := probe.diag()) and "fatal following error" in d["latched_faults"],
                  2.0, what="fault latched on /diagnostics")
         d = probe.diag()
         assert d["level"] == 2 and d["amp_enabled"] == "false" and d["torque"] == "off"
-        assert drv.output().count("rail fault latched") == 1
-        wait_for(lambda: "setpoint rejected" in drv.output() and "latched" in drv.output(),
-                 2.0, what="rejection logged")
+        assert drv.output()[mark:].count("rail fault latched") == 1
+        wait_for(lambda: "setpoint rejected" in drv.output()[mark:] and
+                 "latched" in drv.output()[mark:], 2.0, what="rejection logged")
 
         # 2. torque on again; cut the link at full speed
-        assert probe.call("torque", wait_for, data=True).success
         cruise = emu.motor(1).ivars[22] * 1e3
-        probe.command(["rail"], [0.9])
-        wait_for(lambda: emu.motor(1).vel >= 0.999 * cruise, 5.0, what="full speed")
-        emu.mute = True
-        m = emu.motor(1)
-        t_cut, v = m.now, m.vel
+        for _ in range(3):
+            wait_for(lambda: (d := probe.diag()) and d["link"] == "up", 5.0, what="link up")
+            mark = len(drv.output())
+            assert probe.call("torque", wait_for, data=True).success
+            start = (emu.motor(1).actual - emu.motor(1).ref) / CPM
+            target = -0.9 if start > 0 else 0.9     # (where a previous try left the carriage)
+            probe.command(["rail"], [target])
+            try:
+                wait_for(lambda: abs(emu.motor(1).vel) >= 0.999 * cruise, 5.0,
+                         what="full speed")
+            except AssertionError:
+                if not tripped_since(mark):
+                    raise AssertionError("no full speed: " + drv.output()[-1500:]) from None
+                continue
+            emu.mute = True
+            m = emu.motor(1)
+            t_cut, v = m.now, abs(m.vel)
+            if not tripped_since(mark):
+                break
+            emu.mute = False
+        else:
+            pytest.fail("the watchdog tripped before the cut three times: " + drv.output())
         wait_for(lambda: emu.motor(1).vel == 0 and emu.motor(1).mode == "idle", 3.0,
                  what="stopped by the card")
         m = emu.motor(1)
         assert m.motion_ended_at - t_cut <= 0.1 + v / (m.ivars[19] * 1e6) + 0.01
-        assert m.closed_loop and m.actual - m.ref < 0.9 * CPM - 1000
+        assert m.closed_loop and abs(m.actual - m.ref - target * CPM) > 1000   # short of it
         wait_for(lambda: "PMAC link lost" in drv.output(), 2.0, what="link loss logged")
         emu.mute = False
         wait_for(lambda: "reconnected to PMAC" in drv.output(), 5.0, what="reconnected")

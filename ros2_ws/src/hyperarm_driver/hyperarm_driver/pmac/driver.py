@@ -21,6 +21,7 @@ logs it once. Callers (the ROS node) read :meth:`RailDriver.snapshot` and call
 from __future__ import annotations
 
 import math
+import re
 import threading
 import time
 import traceback
@@ -29,16 +30,23 @@ from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass, replace
 from typing import Callable, NoReturn, Sequence
 
+from ..log_throttle import ReasonThrottle
 from .axis import MotorStatus, RailAxis, RailState
 from .errors import PmacCommandError, PmacError, PmacLinkError, PmacProtocolError, \
     RailCommandError, RailError
 
-__all__ = ["RailDriver", "DriverSnapshot", "REQUESTS", "OK", "WARN", "ERROR", "ReasonThrottle",
-           "check_command"]
+__all__ = ["RailDriver", "DriverSnapshot", "REQUESTS", "OK", "WARN", "ERROR", "check_command",
+           "reason_key"]
 
 OK, WARN, ERROR = 0, 1, 2          # diagnostic levels (diagnostic_msgs/DiagnosticStatus)
 REQUESTS = ("home", "hold", "enable", "kill")
 Logger = Callable[[str, str], None]   # (level: "info" | "warn" | "error", message)
+
+
+def reason_key(message: str) -> str:
+    """A throttling key: the message with its numbers taken out (a value or address that
+    changes does not make a new reason, a different kind of problem does)."""
+    return re.sub(r"[-+]?\d[\d.]*(e[-+]?\d+)?", "#", message)
 
 
 def check_command(names: Sequence[str], positions: Sequence[float],
@@ -64,28 +72,6 @@ def check_command(names: Sequence[str], positions: Sequence[float],
         return (f"effort {efforts[names.index(joint)]:g} for {joint!r} refused: the rail is "
                 "position-controlled (send 0 or no effort)")
     return None
-
-
-class ReasonThrottle:
-    """Lets a message through at once when its reason is new, else at most once per
-    ``period`` s per reason, so that throttling one problem never hides another."""
-
-    def __init__(self, period: float) -> None:
-        self.period = float(period)
-        self._last: dict[str, float] = {}
-        self._lock = threading.Lock()
-
-    def allow(self, reason: str, now: float | None = None) -> bool:
-        t = time.monotonic() if now is None else now
-        with self._lock:
-            last = self._last.get(reason)
-            if last is not None and t - last < self.period:
-                return False
-            self._last[reason] = t
-            if len(self._last) > 256:          # forget the oldest reasons
-                for k in sorted(self._last, key=self._last.get)[:128]:
-                    del self._last[k]
-            return True
 
 
 @dataclass(frozen=True)
@@ -226,7 +212,7 @@ class RailDriver:
             traceback.print_exc()
 
     def _log_throttled(self, level: str, reason: str, message: str) -> None:
-        if self._throttle.allow(reason):
+        if self._throttle.allow(reason_key(reason)):
             self._log(level, message)
 
     # -- life cycle -----------------------------------------------------------------------
