@@ -533,10 +533,14 @@ class EmulatedBus:
         inst, prm = pkt.instruction, pkt.params
         broadcast = pkt.id == p2.BROADCAST_ID
         if inst == p2.INST_PING:
-            for s in sorted(self._addressed(pkt.id, now), key=lambda s: s.id):
+            found = self._addressed(pkt.id, now)
+            for s in sorted(found, key=lambda s: s.id):
                 data = _reg_bytes("model_number", s.model.number) + bytes(
                     [s.get("firmware_version")])
-                self._emit(s.id, p2.build_status(s.id, s.status_error(), data), out)
+                reply = p2.build_status(s.id, s.status_error(), data)
+                if sum(o.id == s.id for o in found) > 1:     # same ID: they collide
+                    reply = reply[:-2] + bytes([reply[-2] ^ 0xA5, reply[-1]])
+                self._emit(s.id, reply, out)
             return
         targets = self._addressed(pkt.id, now)
         supported = [s for s in targets if inst in _INSTRUCTIONS[s.model.series]]
