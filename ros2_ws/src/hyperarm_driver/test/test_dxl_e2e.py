@@ -118,6 +118,19 @@ def test_e2e_command_rules_torque_state_and_logs(launch, tmp_path, wait_for, exe
                              - CFG.joints[1].rad_to_ticks_float(0.3)) <= 2 and servo(control, 2),
                  10.0, what="joint2 at 0.3 rad")
     assert s["operating_mode"] == 5 and s["goal_current"] == CFG.joints[1].model.current_limit
+    # position + effort 1 N·m: that limit; then position only: the default limit again, and
+    # no operating-mode switch (no torque-off) on the way
+    j2 = CFG.joints[1]
+    limit = round(1.0 / j2.model.torque_constant / j2.model.current_unit)
+    control("write_log", clear=True)
+    client.send(["joint2"], [0.2], [1.0])
+    wait_for(lambda: servo(control, 2)["goal_current"] == limit, 10.0, what="1 N·m limit")
+    client.send(["joint2"], [0.25])
+    s = wait_for(lambda: servo(control, 2)["goal_current"] == j2.model.current_limit
+                 and servo(control, 2), 10.0, what="default limit after position only")
+    assert s["operating_mode"] == 5 and s["torque_enable"] == 1
+    assert not [r for r in control("write_log")["log"]
+                if r["id"] == 2 and r["register"] in ("torque_enable", "operating_mode")]
     # overload: the servo turns its torque off by itself; /diagnostics says so
     control("fault", id=3, bits=0x20)
     d = wait_for(lambda: client.diag.get("dynamixel_driver: joint3", {}).get("torque") == "off"
@@ -176,6 +189,11 @@ def test_e2e_torque_fuzz_near_limits_and_mode_switches(launch, tmp_path, wait_fo
         else:
             client.send(["joint5", "joint8"], effort=effort)
         time.sleep(0.01)
+    # back to position control, settled, before the write log is read (no switch in flight)
+    client.send(["joint5", "joint8"], [j5.upper - 0.3, j8.lower + 0.3])
+    wait_for(lambda: all(servo(control, i)["operating_mode"] == 5
+                         and servo(control, i)["torque_enable"] == 1 for i in (5, 8)), 10.0,
+             what="joints back in current-based position, torque on")
     for sid, j in ((5, j5), (8, j8)):
         over = control("overshoot", id=sid)["ticks"]
         assert over is not None and over <= 10.0, (j.name, over)

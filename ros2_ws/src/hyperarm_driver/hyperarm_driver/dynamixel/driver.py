@@ -398,6 +398,9 @@ class DynamixelDriver:
                 self.bus.set_mode(i, want, int(ticks[i]), int(current[i]))
                 self._event(f"{self.config.joints[i].name}: operating mode -> {c}",
                             logging.DEBUG)
+        for i in self.bus.restore_torque(st.hardware_error):
+            self._event(f"{self.config.joints[i].name}: torque back on after an interrupted "
+                        "mode switch", logging.WARNING)
         self.bus.write_goals(ticks, current)
 
     # -- diagnostics -------------------------------------------------------------------------
