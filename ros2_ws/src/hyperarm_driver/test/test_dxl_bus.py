@@ -719,3 +719,21 @@ def test_a_mode_switch_interrupted_by_a_lost_reply_gets_its_torque_back(emu):
     run_until(drv, lambda st: st.torque[3], 3.0, "torque back on joint4")
     s = servo(emu, 4)
     assert s["torque_enable"] == 1 and s["operating_mode"] == 0 and not drv.bus.pending_on[3]
+
+
+def test_a_failed_read_stops_the_torque_of_joints_in_current_mode(emu):
+    """No state, no brake before a limit: a joint in current mode stops pushing (goal current
+    0) while the sync read fails, and gets its torque command again when it is back."""
+    drv = torque_on_joint4(emu, 0.5)
+    assert servo(emu, 4)["goal_current"] > 0
+    emu.ctl("rates", drop_rate=1.0)          # the servos stop answering
+    drv.command(["joint4"], effort=[0.5])
+    assert drv.cycle() is None
+    s = wait_servo(emu, 4, lambda s: s["goal_current"] == 0, 2.0, "goal current 0")
+    assert s["operating_mode"] == 0 and s["torque_enable"] == 1
+    emu.ctl("rates", drop_rate=0.0)
+
+    def pushing(_st) -> bool:
+        drv.command(["joint4"], effort=[0.5])
+        return servo(emu, 4)["goal_current"] > 0
+    run_until(drv, pushing, 3.0, "torque command back")
