@@ -602,7 +602,7 @@ def test_alternating_command_kinds_switch_modes_rarely_and_briefly(emu):
     """issue 17: each operating-mode switch turns the torque off for a few ms. Position-class
     commands share current-based position; only effort-only <-> position switches (to 0 and
     back to 5), and a switch never leaves the torque off past the cycle it happens in."""
-    drv = make_driver(emu)
+    drv = make_driver(emu, command_timeout=10.0)   # (the effort watchdog is not under test)
     connect(drv)
     torque_on(drv)
     drv.cycle()

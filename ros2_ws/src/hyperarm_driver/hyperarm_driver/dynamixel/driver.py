@@ -266,7 +266,7 @@ class DynamixelDriver:
         return report
 
     def hold(self) -> None:
-        """Every joint: hold the present position in its configured mode."""
+        """Every joint: hold the present position (current-based position, default limit)."""
         if self.state is None:
             raise PortLostError("no state: port down")
         self._reset_goals_to_present()
