@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import threading
 import time
+import traceback
 
 import numpy as np
 import pinocchio as pin
@@ -69,6 +70,9 @@ PARAMETERS: ParamSpec = {
                        "/clock", _SimSpeed()),  # type: ignore[dict-item]
 }
 
+# Simulation events logged as warnings (a task relying on them would fail on the robot); the
+# others (grasped, released, threaded, unthreaded, homed, ...) are logged as info.
+WARNING_EVENTS = frozenset({"watchdog", "dropped", "hardware_error", "underpowered"})
 _LEVELS = {"OK": 0, "WARN": 1, "ERROR": 2}  # diagnostic_msgs/DiagnosticStatus levels
 _MAX_CATCH_UP = 5  # simulation steps per timer tick at most in real time
 
@@ -142,6 +146,8 @@ class MockDriver(Node):
         # Callbacks (commands, services, diagnostics) share the simulation under _lock.
         self._lock = threading.Lock()
         self._stop = threading.Event()
+        self._failure: BaseException | None = None
+        self._failed = self.create_guard_condition(self._on_failure)
         self._loop = threading.Thread(target=self._run, name="mock_driver-sim", daemon=True)
         self._loop.start()
         if self.get_parameter("use_sim_time").value and self._speed == 0.0:
@@ -176,12 +182,14 @@ class MockDriver(Node):
             try:
                 with self._lock:
                     self._tick(steps)
-            except Exception as exc:  # noqa: BLE001 - context gone at shutdown: stop quietly
-                if self.context.ok():   # a bug: say so loudly, joint_states stop
-                    self.get_logger().fatal(f"simulation loop failed, joint_states stop: "
-                                            f"{exc!r}")
-                    raise
-                self.get_logger().debug(f"simulation loop stopped: {exc}")
+            except Exception as exc:  # noqa: BLE001 - a bug, or the context gone at shutdown
+                if self.context.ok() and not self._stop.is_set():
+                    # a bug: log the traceback once, then end the node (non-zero exit) from
+                    # the executor's thread: no half-alive node that answers but never moves
+                    self.get_logger().fatal("simulation loop failed, the node exits:\n"
+                                            + traceback.format_exc())
+                    self._failure = exc
+                    self._failed.trigger()
                 return
             next_tick += self._dt
             delay = next_tick - time.monotonic()
@@ -208,11 +216,16 @@ class MockDriver(Node):
         msg.effort = s.effort.tolist()
         self._pub.publish(msg)
         for event in self._sim.take_events():
-            log = self.get_logger().warn if event.kind in (
-                "watchdog", "dropped", "hardware_error", "underpowered") else self.get_logger().info
-            log(f"{event.kind}: {event.detail}")
+            self._log_event(event.kind, event.detail)
         self._stats.cycles += 1
         self._stats.cycle_times.append(time.monotonic() - start)
+
+    def _log_event(self, kind: str, detail: str) -> None:
+        """One call site per severity: rclpy raises if one call site logs at two."""
+        if kind in WARNING_EVENTS:
+            self.get_logger().warn(f"{kind}: {detail}")
+        else:
+            self.get_logger().info(f"{kind}: {detail}")
 
     def _time(self, t: float) -> Time:
         """Stamp of simulated time ``t`` (s): itself on sim time; in real time the node
@@ -221,6 +234,10 @@ class MockDriver(Node):
             return _stamp(t)
         now = self.get_clock().now().nanoseconds * 1e-9
         return _stamp(now - (self._sim.time - t))
+
+    def _on_failure(self) -> None:
+        """Executor thread: the simulation loop died (its traceback is logged): end."""
+        raise SystemExit(f"mock_driver: simulation loop failed: {self._failure!r}")
 
     def _publish_frame(self, frame: Frame) -> None:
         for pub, poses in ((self._det, frame.detected), (self._truth, frame.truth)):

@@ -49,6 +49,7 @@ __all__ = ["ControlMode", "CommandReport", "StateSample", "MockCommandError", "J
            "OVERLOAD_TIME", "RAIL_FORCE_LIMIT"]
 
 OVERLOAD_TIME = 2.0        # s at the stall torque before a POSITION servo's overload error
+OVERLOAD_FRACTION = 0.98   # of the torque limit: "at the limit" for the overload count
 RAIL_FORCE_LIMIT = 200.0   # N, the rail drive's force limit
 CONTACT_DAMPING = 30.0     # N·s/m, against dynamic (torque-mode) joints
 SUBSTEPS = 4               # dynamic sub-steps per step while any joint is dynamic
@@ -668,13 +669,15 @@ class JointSim:
         """A POSITION servo (arm, gripper; rail) at its torque limit for OVERLOAD_TIME s:
         overload error, torque off. E.g. a gripper closed on the block in plain position
         mode, goal inside the block: the real servo overloads, hence current-based position
-        for grasping."""
-        stalled = held & (np.abs(self.effort) >= self.limit * (1.0 - 1e-9))
-        if not stalled.any():
-            self._saturated_for[:] = 0.0
+        for grasping. The time at the limit is a leaky count (+dt at >= 98 % of the limit,
+        -dt below), as a servo's thermal load: a servo that yields step after step against
+        a contact, touching its limit every other step, overloads too."""
+        stalled = held & (np.abs(self.effort) >= self.limit * OVERLOAD_FRACTION)
+        if not stalled.any() and not self._saturated_for.any():
             return
         stalled &= np.array([m is ControlMode.POSITION for m in self.mode])
-        self._saturated_for = np.where(stalled, self._saturated_for + dt, 0.0)
+        self._saturated_for = np.where(stalled, self._saturated_for + dt,
+                                       np.maximum(self._saturated_for - dt, 0.0))
         for i in np.flatnonzero(self._saturated_for >= OVERLOAD_TIME):
             self.inject_error(self.names[i], "overload")
             self._saturated_for[i] = 0.0
