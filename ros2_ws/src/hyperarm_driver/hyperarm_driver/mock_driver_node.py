@@ -20,7 +20,7 @@ import numpy as np
 import pinocchio as pin
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import Pose
+from geometry_msgs.msg import Pose, WrenchStamped
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
@@ -126,6 +126,10 @@ class MockDriver(Node):
         self._truth = self.create_publisher(Detections, contract.DETECTIONS_TRUTH,
                                             qos_for(contract.DETECTIONS_TRUTH),
                                             event_callbacks=quiet)
+        self._wrench = self.create_publisher(WrenchStamped, contract.TOOL_WRENCH_TRUTH,
+                                             qos_for(contract.TOOL_WRENCH_TRUTH),
+                                             event_callbacks=quiet)
+        self._tool_frame = desc.tool_frame
         self._clock_pub = None
         if self._speed > 0.0:
             self._clock_pub = self.create_publisher(ClockMsg, contract.CLOCK, QoSProfile(
@@ -133,11 +137,16 @@ class MockDriver(Node):
                 durability=DurabilityPolicy.VOLATILE), event_callbacks=quiet)
         self.create_subscription(JointState, contract.JOINT_COMMAND, self._on_command,
                                  qos_for(contract.JOINT_COMMAND))
+        # One owner per service (docs/architecture.md): set_torque, hold, reboot act on the
+        # arm and the gripper; on rail_arm the rail has its own under rail/.
+        self._servos = [n for n in self._sim.names if n != self._sim.rail]
         self.create_service(SetBool, contract.SET_TORQUE, self._on_set_torque)
         self.create_service(Reboot, contract.REBOOT, self._on_reboot)
         self.create_service(Trigger, contract.HOLD, self._on_hold)
         if self._sim.rail is not None:
             self.create_service(Trigger, contract.RAIL_HOME, self._on_home)
+            self.create_service(SetBool, contract.RAIL_SET_TORQUE, self._on_rail_torque)
+            self.create_service(Trigger, contract.RAIL_HOLD, self._on_rail_hold)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(self._diag_period / max(self._speed, 1.0), self._publish_diagnostics,
                           clock=steady)
@@ -215,6 +224,14 @@ class MockDriver(Node):
         msg.velocity = s.velocity.tolist()
         msg.effort = s.effort.tolist()
         self._pub.publish(msg)
+        w = self._sim.tool_wrench
+        wrench = WrenchStamped()
+        wrench.header.stamp = self._time(self._sim.time)   # the truth now (no latency)
+        wrench.header.frame_id = self._tool_frame
+        (wrench.wrench.force.x, wrench.wrench.force.y, wrench.wrench.force.z,
+         wrench.wrench.torque.x, wrench.wrench.torque.y, wrench.wrench.torque.z) = \
+            (float(v) for v in w)
+        self._wrench.publish(wrench)
         for event in self._sim.take_events():
             self._log_event(event.kind, event.detail)
         self._stats.cycles += 1
@@ -266,18 +283,35 @@ class MockDriver(Node):
     def _on_set_torque(self, req: SetBool.Request, res: SetBool.Response) -> SetBool.Response:
         def action(enable: bool) -> None:
             with self._lock:
-                self._sim.set_torque(enable)
+                self._sim.set_torque(enable, self._servos)
         return answer_set_torque(self, req.data, action, (MockError,), res)
+
+    def _on_rail_torque(self, req: SetBool.Request, res: SetBool.Response) -> SetBool.Response:
+        def action(enable: bool) -> None:
+            with self._lock:
+                self._sim.set_torque(enable, [self._sim.rail])
+        return answer_set_torque(self, req.data, action, (MockError,), res)
+
+    def _on_rail_hold(self, req: Trigger.Request, res: Trigger.Response) -> Trigger.Response:
+        with self._lock:
+            held = self._sim.hold([self._sim.rail])
+        res.success = bool(held)
+        res.message = "rail holding its present position" if held else \
+            "rail amplifier not enabled: rail/set_torque true first"
+        return res
 
     def _on_reboot(self, req: Reboot.Request, res: Reboot.Response) -> Reboot.Response:
         def action(joints: list[str]) -> list[str]:
+            if self._sim.rail in joints:
+                raise JointStateError(f"{self._sim.rail} is not a servo of this driver "
+                                      "(the rail: rail/set_torque, rail/hold, rail/home)")
             with self._lock:
                 return self._sim.reboot(joints)
         return answer_reboot(self, req.joints, action, (JointStateError, MockError), res)
 
     def _on_hold(self, req: Trigger.Request, res: Trigger.Response) -> Trigger.Response:
         with self._lock:
-            self._sim.hold()
+            self._sim.hold(self._servos)
         res.success, res.message = True, "holding the present position"
         return res
 

@@ -27,9 +27,10 @@ def desc():
 
 @pytest.fixture(scope="module")
 def cfg():
-    c = load_mock_config()
+    c = load_mock_config()   # ideal servos here: the current model has its own tests
     return dataclasses.replace(c, imperfections=dataclasses.replace(
-        c.imperfections, repeatability=0.0, seed=1))
+        c.imperfections, repeatability=0.0, seed=1),
+        current=dataclasses.replace(c.current, enabled=False))
 
 
 def sites(cfg):
@@ -215,18 +216,34 @@ def test_weak_grip_drops_the_block(desc, cfg):
         [0.35, 0.0, cfg.world.table_height + s["half"]], abs=1e-4)
 
 
-def test_stalled_position_mode_grip_overloads_and_drops_the_block(desc, cfg):
-    """Gripping in plain position mode with the goal deep inside the block holds the servo at
-    its stall torque: after OVERLOAD_TIME it raises an overload error, drops its torque and
-    the block, as a Dynamixel does (hence current-based position for grasping)."""
+def test_position_only_close_grips_with_grip_effort_like_the_driver(desc, cfg):
+    """The Dynamixel driver's rule (docs/dynamixel.md): a position-only gripper command runs
+    current-based position with ``gripper.grip_effort`` as its limit; closing, the servo
+    reports a negative effort of that size; no overload however long it holds."""
+    from hyperarm_driver.mock.joint_sim import OVERLOAD_TIME, ControlMode
+
+    sc, _ = picked(desc, cfg)
+    sim = sc.sim
+    sim.take_events()
+    sc.grip(0.0, seconds=0.5)                        # position only, goal inside the block
+    assert sim.mode[-1] is ControlMode.CURRENT_POSITION
+    assert sim.state().effort[-1] == pytest.approx(-desc.gripper.grip_effort)
+    sc.run(OVERLOAD_TIME + 0.5)
+    assert not sim.errors and sim.world.state is BlockState.HELD
+
+
+def test_stall_torque_grip_overloads_and_drops_the_block(desc, cfg):
+    """Gripping with the stall torque as the limit, goal deep inside the block, holds the
+    servo at its stall torque: after OVERLOAD_TIME it raises an overload error, drops its
+    torque and the block, as a Dynamixel does."""
     from hyperarm_driver.mock.joint_sim import OVERLOAD_TIME
 
     stiff = dataclasses.replace(cfg, servo=dataclasses.replace(cfg.servo,
                                                                gripper_stiffness=20.0))
-    sc, _ = picked(desc, stiff)                      # grasped current-limited: fine
+    sc, _ = picked(desc, stiff)                      # grasped with the grip torque: fine
     sim = sc.sim
     sim.take_events()
-    sc.grip(0.0, seconds=0.5)                        # position mode, goal inside the block
+    sc.grip(0.0, effort=sim.stall[-1], seconds=0.5)
     assert sim.world.state is BlockState.HELD
     assert abs(sim.effort[-1]) == pytest.approx(sim.stall[-1])   # at its stall torque
     sc.run(OVERLOAD_TIME - 0.5 - 0.1)

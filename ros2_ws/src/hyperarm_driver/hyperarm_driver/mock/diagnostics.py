@@ -35,7 +35,7 @@ class BusStats:
 
 def _mode_name(sim: JointSim, i: int) -> str:
     mode = sim.mode[i]
-    return ControlMode.POSITION.value if mode is ControlMode.OFF else mode.value
+    return sim._hold_mode(i).value if mode is ControlMode.OFF else mode.value
 
 
 def mock_diagnostics(sim: JointSim, stats: BusStats, period: float, sim_speed: float,

@@ -115,6 +115,12 @@ class World:
             return tool_pose @ self._grasp  # type: ignore[operator]
         return self._pose.copy()
 
+    def grasp_transform(self) -> np.ndarray:
+        """tool0 -> block (4x4) while held; WorldError otherwise."""
+        if self._grasp is None:
+            raise WorldError("the block is not held")
+        return self._grasp.copy()
+
     def grasp_point(self, tool_pose: np.ndarray) -> np.ndarray:
         return tool_pose[:3, :3] @ np.asarray(self.cfg.grasp.offset) + tool_pose[:3, 3]
 
