@@ -130,6 +130,10 @@ class MockDriver(Node):
                                              qos_for(contract.TOOL_WRENCH_TRUTH),
                                              event_callbacks=quiet)
         self._tool_frame = desc.tool_frame
+        self._contacts = self.create_publisher(DiagnosticArray, contract.CONTACTS_TRUTH,
+                                               qos_for(contract.CONTACTS_TRUTH),
+                                               event_callbacks=quiet)
+        self._touching = False
         self._clock_pub = None
         if self._speed > 0.0:
             self._clock_pub = self.create_publisher(ClockMsg, contract.CLOCK, QoSProfile(
@@ -232,6 +236,10 @@ class MockDriver(Node):
          wrench.wrench.torque.x, wrench.wrench.torque.y, wrench.wrench.torque.z) = \
             (float(v) for v in w)
         self._wrench.publish(wrench)
+        touching = bool(self._sim.link_contacts)
+        if touching or self._touching:   # while links touch a pole, and once when they stop
+            self._publish_contacts(msg.header.stamp)
+        self._touching = touching
         for event in self._sim.take_events():
             self._log_event(event.kind, event.detail)
         self._stats.cycles += 1
@@ -252,16 +260,28 @@ class MockDriver(Node):
         now = self.get_clock().now().nanoseconds * 1e-9
         return _stamp(now - (self._sim.time - t))
 
+    def _publish_contacts(self, stamp: Time) -> None:
+        """debug/contacts: one status per link capsule touching a pole (none: empty)."""
+        arr = DiagnosticArray()
+        arr.header.stamp = stamp
+        arr.status = [diagnostic_status(
+            f"{self.get_name()}: contact {link}", pole, 0, f"{link} on {pole}",
+            [("link", link), ("pole", pole), ("depth_mm", f"{1e3 * depth:.2f}"),
+             ("force_N", " ".join(f"{v:.3f}" for v in force))])
+            for link, pole, depth, force in self._sim.link_contacts]
+        self._contacts.publish(arr)
+
     def _on_failure(self) -> None:
         """Executor thread: the simulation loop died (its traceback is logged): end."""
         raise SystemExit(f"mock_driver: simulation loop failed: {self._failure!r}")
 
     def _publish_frame(self, frame: Frame) -> None:
-        for pub, poses in ((self._det, frame.detected), (self._truth, frame.truth)):
+        detected = () if frame.dropped else frame.detected   # a camera dropout: no detections
+        for pub, poses in ((self._det, detected), (self._truth, frame.truth)):
             msg = Detections()
             msg.header.stamp = self._time(frame.stamp)
             msg.header.frame_id = self._frame_id
-            msg.names = list(frame.names)
+            msg.names = list(frame.names) if poses else []
             msg.poses = [_pose(m) for m in poses]
             pub.publish(msg)
 

@@ -91,7 +91,8 @@ _KNOWN = {
                                 "velocity_noise", "effort_noise", "state_latency",
                                 "command_latency", "seed"}),
     "world": WORLD_KEYS | MOCK_WORLD_KEYS,
-    "camera": frozenset({"rate", "position_noise", "orientation_noise", "latency", "seed"}),
+    "camera": frozenset({"rate", "position_noise", "orientation_noise", "latency", "seed",
+                         "dropouts"}),
 }
 
 
@@ -216,6 +217,13 @@ class CameraConfig:
     orientation_noise: float = 0.0
     latency: float = 0.0
     seed: int | None = None
+    #: camera faults: (start s, duration s or None = for good) of simulated time during
+    #: which images carry no detections (the ground truth topic goes on)
+    dropouts: tuple[tuple[float, float | None], ...] = ()
+
+    def dropped(self, t: float) -> bool:
+        """Whether an image taken at simulated time ``t`` (s) falls in a dropout."""
+        return any(t >= a and (d is None or t < a + d) for a, d in self.dropouts)
 
 
 @dataclass(frozen=True)
@@ -238,11 +246,28 @@ def _seed(raw: Mapping[str, Any], where: str) -> int | None:
     return value
 
 
+def _dropouts(raw: Any) -> tuple[tuple[float, float | None], ...]:
+    """``camera.dropouts``: a list of {start: s, duration: s or null (for good)}."""
+    if raw is None:
+        return ()
+    if not isinstance(raw, list):
+        raise MockConfigError("camera.dropouts: expected a list of {start, duration}")
+    out = []
+    for i, rd in enumerate(raw):
+        w = f"camera.dropouts[{i}]"
+        if not isinstance(rd, Mapping):
+            raise MockConfigError(f"{w}: expected a mapping {{start, duration}}")
+        _reject_unknown(rd, frozenset({"start", "duration"}), w)
+        start = _num(rd, "start", w, nonneg=True)
+        dur = rd.get("duration")
+        out.append((start, None if dur is None else
+                    check_number(dur, f"{w}.duration", positive=True, error=MockConfigError)))
+    return tuple(out)
+
+
 def _world(raw: Mapping[str, Any]) -> WorldConfig:
     w = "world"
     spec = parse_world(raw, w, extra_keys=MOCK_WORLD_KEYS, error=MockConfigError)
-    if spec.block is None:
-        raise MockConfigError(f"{w}.block: missing or not a mapping")
     rg = raw.get("grasp", {}) or {}
     if not isinstance(rg, Mapping):
         raise MockConfigError(f"{w}.grasp: expected a mapping")
@@ -311,7 +336,7 @@ def parse_mock_config(data: Any, source: str = "<data>") -> MockConfig:
         position_noise=_num(rc, "position_noise", "camera", 0.0, nonneg=True),
         orientation_noise=_num(rc, "orientation_noise", "camera", 0.0, nonneg=True),
         latency=_num(rc, "latency", "camera", 0.0, nonneg=True),
-        seed=_seed(rc, "camera"))
+        seed=_seed(rc, "camera"), dropouts=_dropouts(rc.get("dropouts")))
     if camera.rate > 1000.0:
         raise MockConfigError(f"camera.rate: at most 1000 Hz, got {camera.rate:g}")
     return MockConfig(servo=servo, imperfections=imp, world=_world(rw), camera=camera,

@@ -54,7 +54,9 @@ RAIL_FORCE_LIMIT = 200.0   # N, the rail drive's force limit
 FRICTION_VELOCITY = 0.02   # rad/s, below which Coulomb friction acts as a steep damper
 CONTACT_DAMPING = 30.0     # N·s/m, against dynamic (torque-mode) joints
 SUBSTEPS = 4               # dynamic sub-steps per step while any joint is dynamic
-LINEARIZATIONS = 2         # quasi-static contact solves per step at most
+LINEARIZATIONS = 6         # quasi-static contact solves per step at most (stops when converged)
+HARD_DEPTH = 0.001         # m: contacts deeper than this are on the stiff branch
+HARD_FACTOR = 50.0         # the stiff branch's stiffness / contact_stiffness
 RELINEARIZE = 1e-3         # rad: re-linearize when the solution is this far from the point
 
 
@@ -152,6 +154,13 @@ class JointSim:
         self._tool_in_joint = tool_frame.placement.homogeneous
         self._bare_inertia = pin.Inertia(self.model.inertias[self._payload_joint])
         self.payload = False                       # the held block's inertia is in the model
+        # poles: the links' capsules (hyperarm_description) meet them
+        self._poles = bool(self.cfg.world.poles)
+        self._capsules = [(c.name, c.radius, self.model.getFrameId(c.frame), c.endpoints())
+                          for c in desc.capsules] if self._poles else []
+        self.link_contacts: list[tuple[str, str, float, np.ndarray]] = []
+        self._pole_normals: dict[str, np.ndarray] = {}   # ongoing link contacts' sides
+        self._link_rows: list = []
         self.world = World(self.cfg.world)
         imp = self.cfg.imperfections
         self._rng = np.random.default_rng(imp.seed)
@@ -310,6 +319,8 @@ class JointSim:
         mode = ControlMode.CURRENT_POSITION if goals else ControlMode.TORQUE
 
         def apply() -> None:
+            imp = self.cfg.imperfections
+            new_move = False
             for n, i in zip(names, idx):
                 if self.mode[i] is ControlMode.OFF:
                     continue  # torque went off while the command was in flight
@@ -330,11 +341,14 @@ class JointSim:
                 self._gap_hold[i] = False
                 self._set_limit(i, values.get(n, self.default_limit[i]))
                 self.goal[i] = goals[n]
-                imp = self.cfg.imperfections
                 if self._arm[i] and abs(goals[n] - self._anchor[i]) > imp.move_threshold:
-                    self._anchor[i] = goals[n]
-                    sigma = imp.repeatability
-                    self.offset[i] = self._rng.normal(0.0, sigma) if sigma > 0.0 else 0.0
+                    new_move = True
+                self._anchor[i] = goals[n]
+            if new_move and imp.repeatability > 0.0:
+                # one draw per move, for every arm joint (the backlash of the whole arm
+                # settles anew); streamed small setpoints continue the same move
+                arm = np.flatnonzero(self._arm)
+                self.offset[arm] = self._rng.normal(0.0, imp.repeatability, len(arm))
 
         self._schedule(apply)
         return CommandReport(applied=tuple(names), clamped=tuple(clamped), mode=mode)
@@ -514,11 +528,13 @@ class JointSim:
         if rows is None or self.world.state is not BlockState.HELD:
             self.tool_wrench = np.zeros(6)
             return
-        dirs, points, owner, f = rows
+        dirs, points, owner, f, block = rows
         tool = self._tool
         force = np.zeros(3)
         torque = np.zeros(3)
         for r, fr in enumerate(f):
+            if not block[r]:
+                continue                  # a link on a pole: not on the block
             fv = dirs[r] * fr
             force += fv
             torque += np.cross(points[owner[r]] - tool[:3, 3], fv)
@@ -598,7 +614,8 @@ class JointSim:
         # term c = F_c / max(|v|, FRICTION_VELOCITY), steep near rest: static friction)
         c_d = damping + self.coulomb[:nk][D] / np.maximum(np.abs(v[D]), FRICTION_VELOCITY)
         mdd = m[np.ix_(D, D)] + h * np.diag(c_d)
-        rows = self._contact_rows(q) if self.world.state is BlockState.HELD else None
+        rows = self._contact_rows(q) if self.world.state is BlockState.HELD or self._poles \
+            else None
         kinv = np.where(P, 1.0 / self.stiffness[:nk], 0.0)
         q0 = q.copy()
         for _ in range(SUBSTEPS):
@@ -630,7 +647,7 @@ class JointSim:
         zero = np.zeros(nk)
         self._contact_rows_used = None
         warm, self._warm = self._warm, None
-        if self.world.state is not BlockState.HELD:
+        if self.world.state is not BlockState.HELD and not self._poles:
             self.contact_force = np.zeros(3)
             self._last_rows = None
             self._anchors.clear()
@@ -644,18 +661,26 @@ class JointSim:
         # last step's deflected joints: in a sustained press one solve is then enough.
         if warm is not None:
             at_q = self.world.contacts(self._tool_at(q))
-            if not at_q or not all(c.frictional for c in at_q):
+            # (links on a pole: linearized where they are, near the pole's surface)
+            if (not at_q and not self.link_contacts) or not all(c.frictional for c in at_q):
                 warm = None
         q_lin, solved = (q, None) if warm is None else (q + warm, None)
+        side = None
         # (a warm start that missed gets the cold start's number of re-linearizations)
         for _ in range((LINEARIZATIONS + (warm is not None)) if v is None else 1):
-            rows = self._contact_rows(q_lin)
+            # re-linearizing, the threaded peg's side is the plane of its normal at q (a
+            # linear solution may overshoot the curved side, even past the axis)
+            rows = self._contact_rows(q_lin, side if q_lin is not q else None)
             if rows is None and q_lin is not q:   # contact lost where it was: try q itself
                 q_lin = q
                 rows = self._contact_rows(q)
             if rows is None:
                 break
             contacts, jr, p0, owner, tangential, points = rows
+            if q_lin is q:
+                side = next((c.normal for c in contacts if c.kind.startswith("peg_side:")
+                             and self.world.peg and c.kind.endswith(":" + self.world.peg)),
+                            None)
             p0 = p0 + jr @ (q_lin - q)             # the interference at the undeflected q
             f = self._solve_contacts(jr, p0, owner, tangential, kinv, v)
             solved = contacts, jr, p0, f, owner, tangential, points, q_lin
@@ -666,11 +691,20 @@ class JointSim:
         if solved is None:
             self.contact_force = np.zeros(3)
             self._last_rows = None
+            self.link_contacts = []
+            if v is None:
+                self._pole_normals = {}
             self._anchors.clear()
             return zero, zero
         contacts, jr, p0, f, owner, tangential, points, q_used = solved
-        self._contact_rows_used = jr, p0, f
         dq = kinv * (jr.T @ f)
+        lo, hi = self.lower[:nk], self.upper[:nk]
+        stopped = ((q + dq < lo) & (dq < 0.0)) | ((q + dq > hi) & (dq > 0.0))
+        if stopped.any():   # joints pushed onto their mechanical stops are rigid there
+            kinv = np.where(stopped, 0.0, kinv)
+            f = self._solve_contacts(jr, p0, owner, tangential, kinv, v)
+            dq = kinv * (jr.T @ f)
+        self._contact_rows_used = jr, p0, f
         if v is None:   # move friction anchors of sliding contacts along with the block
             moved = jr @ (q + dq - q_used)        # points were taken at q_used
             kinds = set()
@@ -685,24 +719,41 @@ class JointSim:
                     del self._anchors[kind]
         if v is None:
             self._warm = dq
-        self.contact_force = np.asarray(self._row_dirs).T @ f
-        self._last_rows = (self._row_dirs, points, owner, f)
+        block = np.array([not contacts[o].kind.startswith("pole:") for o in owner])
+        dirs = np.asarray(self._row_dirs)
+        self.contact_force = dirs[block].T @ f[block] if block.any() else np.zeros(3)
+        self._link_rows = [(c, int(np.flatnonzero(owner == ci)[0]))
+                           for ci, c in enumerate(contacts) if c.kind.startswith("pole:")]
+        self._set_link_contacts(f)
+        if v is None and self._poles:
+            self._pole_normals = {c.kind: c.normal for ci, c in enumerate(contacts)
+                                  if c.kind.startswith("pole:")
+                                  and f[int(np.flatnonzero(owner == ci)[0])] > 0.0}
+        self._last_rows = (self._row_dirs, points, owner, f, block)
         return dq, jr.T @ f
 
-    def _contact_rows(self, q: np.ndarray):
+    def _contact_rows(self, q: np.ndarray, side_normal: np.ndarray | None = None):
         """Contact rows of the held block at chain positions ``q``: the contacts, the
         Jacobian rows (m/rad) of each constrained direction, their interferences (m), the
         contact each row belongs to, which rows are tangential, and the contact points."""
         qt = q + self.offset[:self.nk]
         tool = self._tool_at(q)
-        contacts = self.world.contacts(tool)
+        contacts = self.world.contacts(tool, side_normal)
+        if self._poles:
+            contacts = contacts + self._pole_contacts()
         if not contacts:
             return None
         j6 = pin.computeFrameJacobian(self.model, self.data, qt, self.tool_id,
                                       pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
         rows, p0, owner, tangential, dirs, points = [], [], [], [], [], []
         for ci, c in enumerate(contacts):
-            jp = j6[:3] - _skew(c.point - tool[:3, 3]) @ j6[3:]
+            if c.kind.startswith("pole:"):     # on a link: that link's frame Jacobian
+                fid = self._capsule_frame[c.kind.rsplit(":", 1)[1]]
+                jf = pin.computeFrameJacobian(self.model, self.data, qt, fid,
+                                              pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+                jp = jf[:3] - _skew(c.point - self.data.oMf[fid].translation) @ jf[3:]
+            else:
+                jp = j6[:3] - _skew(c.point - tool[:3, 3]) @ j6[3:]
             rows.append(c.normal @ jp); p0.append(c.depth); owner.append(ci)
             tangential.append(False); dirs.append(c.normal); points.append(c.point)
             if c.frictional:
@@ -713,6 +764,23 @@ class JointSim:
         self._row_dirs = dirs
         return (contacts, np.array(rows), np.array(p0), np.array(owner),
                 np.array(tangential), points)
+
+    def _set_link_contacts(self, f: np.ndarray) -> None:
+        """``link_contacts``: (capsule, pole, depth m at the commanded joints, force N on
+        the link) of every link touching a pole, from the contact rows' forces ``f``."""
+        self.link_contacts = [(c.kind.split(":")[2], c.kind.split(":")[1], c.depth,
+                               c.normal * f[row]) for c, row in self._link_rows]
+
+    def _pole_contacts(self) -> list:
+        """Capsule-pole contacts at the configuration last put in ``self.data``."""
+        segments = []
+        self._capsule_frame = {}
+        for name, radius, fid, (a, b) in self._capsules:
+            m = self.data.oMf[fid]
+            rot, pos = m.rotation, m.translation
+            segments.append((name, radius, rot @ a + pos, rot @ b + pos))
+            self._capsule_frame[name] = fid
+        return self.world.pole_contacts(segments, self._pole_normals)
 
     def _solve_contacts(self, jr: np.ndarray, p0: np.ndarray, owner: np.ndarray,
                         tangential: np.ndarray, kinv: np.ndarray,
@@ -726,11 +794,32 @@ class JointSim:
         tangential rows if any. The systems are tiny (3-6 rows), so the bookkeeping is done
         on Python lists: numpy's per-call overhead would dominate."""
         k_env = self.cfg.world.contact_stiffness
-        mu = self.cfg.world.friction
         m = len(p0)
-        a_full = (jr * kinv) @ jr.T
+        base = (jr * kinv) @ jr.T
+        a_full = base.copy()
         a_full.flat[::m + 1] += 1.0 / k_env
         damp = CONTACT_DAMPING * (jr @ v) if v is not None else None
+        f = self._solve_rows(a_full, p0, tangential, damp)
+        # Beyond HARD_DEPTH the surface stiffens (HARD_FACTOR x): normal rows pressed deeper
+        # are solved again on the stiff branch, f = k d0 + k_hard (d - d0), so no servo can
+        # push the block more than ~HARD_DEPTH into a surface.
+        deep = [i for i in range(m) if not tangential[i] and f[i] > k_env * HARD_DEPTH]
+        self._row_comp = np.full(m, 1.0 / k_env)
+        self._row_shift = np.zeros(m)
+        if deep:
+            k_hard = HARD_FACTOR * k_env
+            self._row_comp[deep] = 1.0 / k_hard
+            self._row_shift[deep] = HARD_DEPTH * (1.0 - k_env / k_hard)
+            a_full = base.copy()
+            a_full.flat[::m + 1] += self._row_comp
+            f = self._solve_rows(a_full, p0 - self._row_shift, tangential, damp)
+        return f
+
+    def _solve_rows(self, a_full: np.ndarray, p0: np.ndarray, tangential: np.ndarray,
+                    damp: np.ndarray | None) -> np.ndarray:
+        """The active-set solve of :meth:`_solve_contacts` for one compliance matrix."""
+        mu = self.cfg.world.friction
+        m = len(p0)
         # per contact: its normal row and its tangential rows
         groups: list[tuple[int, list[int]]] = []
         for i in range(m):
@@ -798,9 +887,9 @@ class JointSim:
             kinv_u = np.where(P & ~over, 1.0 / self.stiffness[:nk], 0.0)
             js = jr[:, over]
             ns = js.shape[1]
-            lhs = np.block([[np.eye(m) / self.cfg.world.contact_stiffness
-                             + (jr * kinv_u) @ jr.T, js], [js.T, np.zeros((ns, ns))]])
-            rhs = np.r_[p0, tau_id[over] - sign[over] * lim[over]]
+            lhs = np.block([[np.diag(self._row_comp) + (jr * kinv_u) @ jr.T, js],
+                            [js.T, np.zeros((ns, ns))]])
+            rhs = np.r_[p0 - self._row_shift, tau_id[over] - sign[over] * lim[over]]
             sol = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
             f, dq_s = sol[:m], sol[m:]
             tau_new = tau_id - jr.T @ f
@@ -811,9 +900,13 @@ class JointSim:
             over |= newly
         dq = kinv_u * (jr.T @ f)
         dq[over] = dq_s
-        self.contact_force = np.asarray(self._row_dirs).T @ f
-        if getattr(self, "_last_rows", None) is not None:
-            self._last_rows = (*self._last_rows[:3], f)
+        if self._last_rows is not None:
+            block = self._last_rows[4]
+            self.contact_force = np.asarray(self._row_dirs)[block].T @ f[block] \
+                if block.any() else np.zeros(3)
+            self._last_rows = (*self._last_rows[:3], f, block)
+            if self._poles:
+                self._set_link_contacts(f)
         return dq, np.clip(tau_new, -lim, lim)
 
     def _check_underpowered(self, P: np.ndarray, tau_id: np.ndarray) -> None:
@@ -930,7 +1023,8 @@ class JointSim:
 
     def truth(self) -> dict[str, np.ndarray]:
         """True poses of what the camera sees: the block and each peg's top, root frame."""
-        out = {"block": self.world.block_pose(self._tool)}
+        out = {} if self.world.state is BlockState.ABSENT else \
+            {"block": self.world.block_pose(self._tool)}
         for name in self.world.peg_names:
             out[f"{name}_peg"] = self.world.peg_top(name)
         return out
