@@ -19,12 +19,14 @@ from ..errors import (InvalidOptionError, InvalidSeedError, InvalidTargetError,
 from ..kinematics import Kinematics, rotation_angle
 
 __all__ = ["IKResult", "Solver", "task_error", "DEFAULT_POSITION_TOLERANCE",
-           "DEFAULT_ORIENTATION_TOLERANCE", "DEFAULT_TIMEOUT", "OUT_OF_REACH"]
+           "DEFAULT_ORIENTATION_TOLERANCE", "DEFAULT_TIMEOUT", "OUT_OF_REACH",
+           "ORIENTATION_OUT_OF_REACH"]
 
 DEFAULT_POSITION_TOLERANCE = 1e-4   # m
 DEFAULT_ORIENTATION_TOLERANCE = 1e-3  # rad
 DEFAULT_TIMEOUT = 0.1               # s
-OUT_OF_REACH = "out of reach"       # note prefix of a proven-unreachable target
+OUT_OF_REACH = "out of reach"       # note prefix of a proven-unreachable position
+ORIENTATION_OUT_OF_REACH = "orientation out of reach"  # ... of a proven-unreachable pose
 _EYE3 = np.eye(3)
 
 
@@ -186,7 +188,8 @@ class Solver:
         return IKResult(q=q, success=success, position_error=perr, orientation_error=oerr,
                         iterations=iterations, solve_time=time.perf_counter() - t0,
                         message=msg, violations=violations,
-                        reachable=False if note.startswith(OUT_OF_REACH) else None)
+                        reachable=False if note.startswith(
+                            (OUT_OF_REACH, ORIENTATION_OUT_OF_REACH)) else None)
 
 
 def _check_positive(name: str, value: float) -> None:
