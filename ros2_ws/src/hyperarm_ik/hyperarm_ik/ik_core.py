@@ -7,6 +7,8 @@ decisions live here. Units: m, rad, s. Frames: the target must be in the model's
 from __future__ import annotations
 
 import math
+import queue
+import threading
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -22,7 +24,7 @@ from .solvers import (DEFAULT_ORIENTATION_TOLERANCE, DEFAULT_POSITION_TOLERANCE,
                       DEFAULT_SOLVER, DEFAULT_TIMEOUT, IKResult, Solver, make_solver,
                       solver_names)
 
-__all__ = ["IKRequest", "IKDefaults", "IKCore", "QUATERNION_NORM_TOLERANCE"]
+__all__ = ["IKRequest", "IKDefaults", "IKCore", "IKPool", "QUATERNION_NORM_TOLERANCE"]
 
 QUATERNION_NORM_TOLERANCE = 1e-3  # |norm - 1| accepted (and then normalised)
 
@@ -172,3 +174,59 @@ class IKCore:
                               position_tolerance=ptol, orientation_tolerance=otol,
                               timeout=timeout)
         return result, source
+
+
+class IKPool:
+    """``size`` independent :class:`IKCore` s for concurrent requests (one per thread).
+
+    Pinocchio's data and the solvers' scratch state are not shared between threads, so
+    every core has its own Kinematics and solvers (the default solver's start table is
+    shared read-only). :meth:`solve` borrows a free core for the request, waiting if all
+    ``size`` are busy; the joint_states cache is common to all. Thread-safe.
+    """
+
+    def __init__(self, kin_factory, defaults: IKDefaults | None = None, size: int = 4) -> None:
+        if isinstance(size, bool) or not isinstance(size, int) or size < 1:
+            raise InvalidOptionError(f"pool size must be an integer >= 1, got {size!r}")
+        self.joint_states = JointStateCache()
+        defaults = defaults if defaults is not None else IKDefaults()
+        self.cores = [IKCore(kin_factory(), defaults, self.joint_states) for _ in range(size)]
+        self._free: queue.SimpleQueue[IKCore] = queue.SimpleQueue()
+        for core in self.cores:
+            self._free.put(core)
+        self._lock = threading.Lock()
+        self.busy = 0          # cores solving right now
+        self.peak_busy = 0     # most cores ever busy at once
+
+    @property
+    def size(self) -> int:
+        return len(self.cores)
+
+    @property
+    def kin(self) -> Kinematics:
+        return self.cores[0].kin
+
+    @property
+    def frame(self) -> str:
+        return self.cores[0].frame
+
+    @property
+    def defaults(self) -> IKDefaults:
+        return self.cores[0].defaults
+
+    def update_joint_states(self, names, position, velocity=(), effort=()) -> None:
+        with self._lock:
+            self.joint_states.update(names, position, velocity, effort)
+
+    def solve(self, req: IKRequest) -> tuple[IKResult, str]:
+        """Like :meth:`IKCore.solve`, on a free core (waits for one if all are busy)."""
+        core = self._free.get()
+        with self._lock:
+            self.busy += 1
+            self.peak_busy = max(self.peak_busy, self.busy)
+        try:
+            return core.solve(req)
+        finally:
+            with self._lock:
+                self.busy -= 1
+            self._free.put(core)

@@ -3,11 +3,21 @@
 The target is a PoseStamped of tool0 in base_link (world for the rail variant); the seed
 comes from the request, else the latest ``joint_states``, else q = 0. Bad requests get
 success=false and a message naming the problem. Diagnostics on /diagnostics at 1 Hz.
+
+Requests are served concurrently: the service callback is in a reentrant group, spun by a
+MultiThreadedExecutor, and each request borrows one of ``concurrency`` independent solver
+sets (:class:`~hyperarm_ik.ik_core.IKPool`), so a long request (up to ``max_timeout``) does
+not delay an ordinary one. More than ``concurrency`` simultaneous requests wait for a free
+solver set.
 """
 from __future__ import annotations
 
+import threading
+
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.msg import IntegerRange, ParameterDescriptor
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
@@ -19,10 +29,14 @@ from hyperarm_description.ros_main import run_node
 from hyperarm_interfaces.srv import SolveIK
 
 from .errors import IKError
-from .ik_core import IKCore, IKDefaults, IKRequest
+from .ik_core import IKDefaults, IKPool, IKRequest
 from .kinematics import Kinematics
 from .ros_conversions import joint_state
 from .solvers import DEFAULT_SOLVER, solver_names
+
+
+DEFAULT_CONCURRENCY = 4
+MAX_CONCURRENCY = 16
 
 
 class IkServiceNode(Node):
@@ -48,6 +62,10 @@ class IkServiceNode(Node):
         for name, (default, text, ro) in params.items():
             self.declare_parameter(name, default, ParameterDescriptor(
                 description=text, read_only=ro, dynamic_typing=isinstance(default, float)))
+        self.declare_parameter("concurrency", DEFAULT_CONCURRENCY, ParameterDescriptor(
+            description="requests solved at the same time (one solver set each); more wait",
+            read_only=True, integer_range=[IntegerRange(from_value=1, to_value=MAX_CONCURRENCY,
+                                                        step=1)]))
         get = lambda n: self.get_parameter(n).value  # noqa: E731
         try:
             desc = load_description(get("description_file") or None, get("variant"))
@@ -56,29 +74,38 @@ class IkServiceNode(Node):
                                   orientation_tolerance=float(get("orientation_tolerance")),
                                   timeout=float(get("timeout")),
                                   max_timeout=float(get("max_timeout")))
-            self._core = IKCore(Kinematics(desc), defaults)
+            self._pool = IKPool(lambda: Kinematics(desc), defaults,
+                                int(get("concurrency")))
         except (DescriptionError, IKError, TypeError, ValueError) as exc:
             raise SystemExit(f"ik_service: bad parameter: {exc}") from exc
         self._stats = {"requests": 0, "solved": 0, "refused": 0, "last_time": 0.0,
-                       "last_message": ""}
+                       "last_message": "", "busy": 0, "peak_busy": 0}
+        self._stats_lock = threading.Lock()
         self.create_subscription(JointState, contract.JOINT_STATES, self._on_joint_states,
                                  qos_for(contract.JOINT_STATES))
-        self.create_service(SolveIK, contract.SOLVE_IK, self._on_solve)
+        self.create_service(SolveIK, contract.SOLVE_IK, self._on_solve,
+                            callback_group=ReentrantCallbackGroup())
         self._diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
                                            qos_for(contract.DIAGNOSTICS))
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(
-            f"ik_service: {desc.variant} variant, targets in {self._core.frame}, solvers "
-            f"{', '.join(self._core.solvers)} (default {defaults.solver})")
+            f"ik_service: {desc.variant} variant, targets in {self._pool.frame}, solvers "
+            f"{', '.join(self._pool.cores[0].solvers)} (default {defaults.solver}), "
+            f"{self._pool.size} requests at a time")
 
     def _on_joint_states(self, msg: JointState) -> None:
         try:
-            self._core.joint_states.update(msg.name, msg.position, msg.velocity, msg.effort)
+            self._pool.update_joint_states(msg.name, msg.position, msg.velocity, msg.effort)
         except JointStateError as exc:
             self.get_logger().warn(f"joint_states: {exc}", throttle_duration_sec=5.0)
 
+    def _count(self, **add) -> None:
+        with self._stats_lock:
+            for k, v in add.items():
+                self._stats[k] += v
+
     def _on_solve(self, request: SolveIK.Request, response: SolveIK.Response):
-        self._stats["requests"] += 1
+        self._count(requests=1)
         pose = request.target.pose
         req = IKRequest(
             frame_id=request.target.header.frame_id,
@@ -90,39 +117,44 @@ class IkServiceNode(Node):
             position_tolerance=request.position_tolerance,
             orientation_tolerance=request.orientation_tolerance, timeout=request.timeout)
         try:
-            result, source = self._core.solve(req)
+            result, source = self._pool.solve(req)
         except IKError as exc:
-            self._stats["refused"] += 1
+            self._count(refused=1)
             response.success = False
             response.message = f"request refused: {exc}"
             self.get_logger().warn(response.message, throttle_duration_sec=2.0)
             return response
         except Exception as exc:  # a bug must not take the service down
-            self._stats["refused"] += 1
+            self._count(refused=1)
             response.success = False
             response.message = f"internal error: {type(exc).__name__}: {exc}"
             self.get_logger().error(response.message)
             return response
         response.success = bool(result.success)
-        response.solution = joint_state(self._core.kin.joint_names, result.q)
+        response.solution = joint_state(self._pool.kin.joint_names, result.q)
         response.solution.header.stamp = self.get_clock().now().to_msg()
         response.position_error = float(result.position_error)
         response.orientation_error = float(result.orientation_error)
         response.iterations = int(result.iterations)
         response.solve_time = float(result.solve_time)
         response.message = f"{result.message} (seed: {source})"
-        self._stats["solved"] += int(result.success)
-        self._stats["last_time"] = result.solve_time
-        self._stats["last_message"] = response.message
+        self._count(solved=int(result.success))
+        with self._stats_lock:
+            self._stats["last_time"] = result.solve_time
+            self._stats["last_message"] = response.message
         if not result.success:
             self.get_logger().info(response.message, throttle_duration_sec=2.0)
         return response
 
     def _publish_diagnostics(self) -> None:
+        with self._stats_lock:
+            self._stats["busy"] = self._pool.busy
+            self._stats["peak_busy"] = self._pool.peak_busy
+            stats = dict(self._stats)
         st = DiagnosticStatus(level=DiagnosticStatus.OK, name=f"{self.get_name()}: IK",
                               hardware_id="hyperarm",
-                              message=f"{self._stats['requests']} requests")
-        st.values = [KeyValue(key=k, value=str(v)) for k, v in self._stats.items()]
+                              message=f"{stats['requests']} requests")
+        st.values = [KeyValue(key=k, value=str(v)) for k, v in stats.items()]
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = [st]
@@ -130,7 +162,9 @@ class IkServiceNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node(IkServiceNode, args)
+    # threads: MAX_CONCURRENCY solves + the subscription and the diagnostics timer
+    run_node(IkServiceNode, args,
+             executor=lambda: MultiThreadedExecutor(num_threads=MAX_CONCURRENCY + 2))
 
 
 if __name__ == "__main__":
