@@ -27,6 +27,7 @@ from hyperarm_description.joints import JointStateError
 from hyperarm_description.model import VARIANTS, DescriptionError, load_description
 from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import run_node
+from hyperarm_description.world import load_world
 from hyperarm_interfaces.srv import SolveIK
 
 from .errors import IKError
@@ -39,6 +40,10 @@ from .solvers import DEFAULT_SOLVER, solver_names
 DEFAULT_CONCURRENCY = 4
 MAX_CONCURRENCY = 16
 SWITCH_INTERVAL = 0.001  # s, sys.setswitchinterval of the ik_service process
+_COLLISION_MODES = {SolveIK.Request.COLLISIONS_DEFAULT: "",
+                    SolveIK.Request.COLLISIONS_IGNORE: "ignore",
+                    SolveIK.Request.COLLISIONS_CHECK: "check",
+                    SolveIK.Request.COLLISIONS_AVOID: "avoid"}
 
 
 class IkServiceNode(Node):
@@ -60,6 +65,11 @@ class IkServiceNode(Node):
                                       "rad, used when a request gives 0", True),
             "timeout": (d.timeout, "s, solve time budget when a request gives 0", True),
             "max_timeout": (d.max_timeout, "s, requests asking for more are refused", True),
+            "collisions": (d.collisions, "collision handling when a request leaves it at "
+                           "DEFAULT: ignore, check or avoid", True),
+            "world_file": ("", "work-cell YAML whose world: mapping (table, pegs, poles, "
+                           "block) is avoided ('' = self-collision only)", True),
+            "collision_margin": (0.0, "m, added to every collision capsule", True),
         }
         for name, (default, text, ro) in params.items():
             self.declare_parameter(name, default, ParameterDescriptor(
@@ -75,10 +85,13 @@ class IkServiceNode(Node):
                                   position_tolerance=float(get("position_tolerance")),
                                   orientation_tolerance=float(get("orientation_tolerance")),
                                   timeout=float(get("timeout")),
-                                  max_timeout=float(get("max_timeout")))
+                                  max_timeout=float(get("max_timeout")),
+                                  collisions=get("collisions"))
+            world = load_world(get("world_file")) if get("world_file") else None
             self._pool = IKPool(lambda: Kinematics(desc), defaults,
-                                int(get("concurrency")))
-        except (DescriptionError, IKError, TypeError, ValueError) as exc:
+                                int(get("concurrency")), world,
+                                float(get("collision_margin")))
+        except (DescriptionError, IKError, OSError, TypeError, ValueError) as exc:
             raise SystemExit(f"ik_service: bad parameter: {exc}") from exc
         self._stats = {"requests": 0, "solved": 0, "refused": 0, "last_time": 0.0,
                        "last_message": "", "busy": 0, "peak_busy": 0}
@@ -93,7 +106,8 @@ class IkServiceNode(Node):
         self.get_logger().info(
             f"ik_service: {desc.variant} variant, targets in {self._pool.frame}, solvers "
             f"{', '.join(self._pool.cores[0].solvers)} (default {defaults.solver}), "
-            f"{self._pool.size} requests at a time")
+            f"{self._pool.size} requests at a time, collisions: {defaults.collisions} "
+            f"({'work cell ' + get('world_file') if world else 'self-collision only'})")
 
     def _on_joint_states(self, msg: JointState) -> None:
         try:
@@ -117,7 +131,9 @@ class IkServiceNode(Node):
             seed_names=list(request.seed.name), seed_positions=list(request.seed.position),
             solver=request.solver, position_only=request.position_only,
             position_tolerance=request.position_tolerance,
-            orientation_tolerance=request.orientation_tolerance, timeout=request.timeout)
+            orientation_tolerance=request.orientation_tolerance, timeout=request.timeout,
+            collisions=_COLLISION_MODES.get(request.collisions, f"<{request.collisions}>"),
+            block_held=request.block_held)
         try:
             result, source = self._pool.solve(req)
         except IKError as exc:
@@ -140,6 +156,7 @@ class IkServiceNode(Node):
         response.iterations = int(result.iterations)
         response.solve_time = float(result.solve_time)
         response.message = f"{result.message} (seed: {source})"
+        response.contacts = list(result.contacts)
         self._count(solved=int(result.success))
         with self._stats_lock:
             self._stats["last_time"] = result.solve_time

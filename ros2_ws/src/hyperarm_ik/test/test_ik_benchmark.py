@@ -23,7 +23,7 @@ def test_benchmark_runs_and_prints_its_table(capsys, tmp_path):
     assert "| near_limit | default | 6 |" in out
     assert "| default (service default timeout 0.1 s) | 3 |" in out
     assert "within 1.2x: 3/3" in out  # every unreachable target's answer is proven close
-    assert "| K_w = 1000, full steps |" in out
+    assert "| K_w = 1000, full steps (no halving) |" in out
     text = doc.read_text()
     assert "OLD-BLOCK" not in text and "| random | default | 6 |" in text
     assert text.startswith("intro\n") and text.endswith("end\n")

@@ -201,3 +201,31 @@ def test_a_long_request_does_not_delay_an_ordinary_one(launch, client_node, wait
     wait_for(slow.done, 15.0, what="the long request's answer")
     long_resp = slow.result()
     assert not long_resp.success and long_resp.solve_time > max(1.0, sum(rtts))
+
+
+@pytest.mark.node
+def test_service_checks_and_avoids_collisions_in_its_work_cell(rclpy_context, executor,
+                                                               client_node, wait_for,
+                                                               tmp_path):
+    cell = tmp_path / "cell.yaml"
+    cell.write_text("world:\n  table_height: -0.20\n  pegs:\n"
+                    "    source: {xy: [0.35, 0.12], height: 0.08, radius: 0.008}\n")
+    _start_service(rclpy_context, executor, world_file=str(cell))
+    c = _Client(client_node, wait_for)
+    c.ready()
+    q = np.zeros(9)
+    q[1] = math.radians(80)  # the stretched arm pitched down through the table
+    req = _request(ARM, q, seed=JointState(name=ARM.joint_names, position=list(q)),
+                   collisions=SolveIK.Request.COLLISIONS_CHECK)
+    resp = c.call(req)
+    assert not resp.success and "in collision" in resp.message
+    assert any(pair.endswith("with table") for pair in resp.contacts), resp.contacts
+    req.collisions = SolveIK.Request.COLLISIONS_IGNORE
+    resp = c.call(req)
+    assert resp.success and not resp.contacts  # the seed is the solution: not checked
+    req.collisions = 7
+    resp = c.call(req)
+    assert not resp.success and "collisions must be one of" in resp.message
+    # the node's default is avoid: an ordinary target gets a collision-free answer
+    good = c.call(_request(ARM, [0.2, 0.5, -0.3, 0.4, 0.1, -0.5, 0.3, 0.2, -0.1]))
+    assert good.success and not good.contacts

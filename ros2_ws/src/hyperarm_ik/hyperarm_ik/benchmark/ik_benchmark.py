@@ -16,6 +16,8 @@ Sets (targets are tool0 poses in the root frame):
 - unreachable: targets beyond the reach bound; time to a definite "no", and the default's
                closest configuration against the proven distance to the workspace.
 - sensitivity: weighted_pinv's random-set success under K_w, the step rule and wrapping.
+- collision:   collision-aware solves on the random set in a work cell (ignored, checked,
+               avoided).
 - rail_random: the random set on the rail variant (augmented, wln, default, TRAC-IK).
 - rail_line:   Jia et al.'s experiment: a straight tool path with fixed orientation that
                needs the rail (joint motions plotted like their Fig. 5).
@@ -531,6 +533,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--ikpy-count", type=int, default=100, help="subsample for ikpy")
     ap.add_argument("--unreachable-count", type=int, default=200,
                     help="targets in the unreachable and impossible sets")
+    ap.add_argument("--collision-count", type=int, default=1000,
+                    help="random targets of the collision-aware study")
     ap.add_argument("--sensitivity-count", type=int, default=1000,
                     help="random targets of the weighted_pinv sensitivity study")
     ap.add_argument("--rail-count", type=int, default=300)
@@ -660,16 +664,25 @@ def main(argv: list[str] | None = None) -> None:
                      + f" targets; the default proved {proven} of them unreachable, "
                      "reachable=False):\n\n" + "\n".join(lines))
 
+    if "collision" not in args.skip:
+        print("collision (random set in a work cell: ignored, checked, avoided):", flush=True)
+        lines, note = studies.collision_study(kin, random_set[:args.collision_count])
+        print("\n".join("  " + line for line in lines), flush=True)
+        extra.append("Collision-aware solves (default solver, random set, cold from q = 0, "
+                     "50 ms, in ik_studies.BENCH_WORLD: table 0.2 m below the base, two "
+                     "pegs, one pole; 'reached the pose' = within 1 mm / 1 deg):\n\n"
+                     + "\n".join(lines) + "\n\n- " + note)
+
     if "sensitivity" not in args.skip:
         print("sensitivity (weighted_pinv on the random set):", flush=True)
         sub = random_set[:args.sensitivity_count]
-        lines = ["| variant | success, wrapped into (-pi, pi] | success, not wrapped |",
-                 "|---|---|---|"]
-        for name, w_ok, raw_ok in studies.sensitivity(kin, sub):
-            lines.append(f"| {name} | {studies.percent(w_ok, len(sub))} | "
-                         f"{studies.percent(raw_ok, len(sub))} |")
-            print(f"  {name:48s} {studies.percent(w_ok, len(sub)):>6s} "
-                  f"{studies.percent(raw_ok, len(sub)):>6s}", flush=True)
+        cols = studies.SENSITIVITY_COLUMNS
+        lines = ["| variant (step halving reset each iteration unless said) | "
+                 + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
+        for name, counts in studies.sensitivity(kin, sub):
+            pct = [studies.percent(k, len(sub)) for k in counts]
+            lines.append(f"| {name} | " + " | ".join(pct) + " |")
+            print(f"  {name:48s} " + " ".join(f"{v:>6s}" for v in pct), flush=True)
         extra.append(f"Sensitivity of weighted_pinv (random set, first {len(sub)} targets, "
                      "cold from q = 0, 1 mm and within limits, 500 iterations, 1 s):\n\n"
                      + "\n".join(lines))

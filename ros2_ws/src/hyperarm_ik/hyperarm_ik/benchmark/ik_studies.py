@@ -6,6 +6,8 @@
 - closest_study: on out-of-reach targets, the default's position error against the proven
   lower bound of the distance to the workspace.
 - sensitivity: Table II's weighted pseudo-inverse under K_w, step rule and angle wrapping.
+- collision_study: the default solver on the random set in a work cell, collisions
+  ignored, checked and avoided.
 """
 from __future__ import annotations
 
@@ -20,7 +22,7 @@ from ..solvers import make_solver
 from ..workspace import ReachBounds
 
 __all__ = ["near_limit_targets", "impossible_orientation_targets", "closest_study",
-           "sensitivity", "FIGURE8_WIDE"]
+           "sensitivity", "collision_study", "FIGURE8_WIDE", "BENCH_WORLD"]
 
 #: the second 1,000-waypoint figure-8 (m): larger and higher than the first, so that the
 #: paper's solvers meet the joint limits along it
@@ -72,34 +74,47 @@ def closest_study(kin: Kinematics, targets) -> dict:
             "time_p50": float(np.median(times))}
 
 
-def _wpinv_success(kin, solver, targets, timeout: float) -> tuple[int, int]:
-    """(successes with wrapping, successes without) at 1 mm and within limits."""
-    wrap_ok = raw_ok = 0
+#: joint limits (deg, symmetric) the sensitivity study also judges the solutions against;
+#: the paper does not state its limits (ours: +-150 deg, the MX servos' usual setting)
+STUDY_LIMITS = (150.0, 165.0, 180.0)
+
+
+def _wpinv_outcomes(kin, solver, targets, timeout: float) -> list[tuple[bool, bool, float]]:
+    """Per target: (within 1 mm, ...) as (reached, raw q within +-150 deg, max |wrapped q|
+    in deg) for the solver's unwrapped joints."""
+    out = []
     q0 = np.zeros(kin.nq)
     for p, r in targets:
         q = solver._solve(p, r, q0, False, 1e-3, 1e-3, time.perf_counter() + timeout)[0]
         q = np.asarray(q, dtype=float)
         perr = float(np.linalg.norm(kin.forward(q)[:3, 3] - p))
-        if perr <= 1e-3:
-            raw_ok += int(kin.within_limits(q))
-            wrap_ok += int(kin.within_limits(kin.wrap(q)))
-    return wrap_ok, raw_ok
+        out.append((perr <= 1e-3, kin.within_limits(q),
+                    float(np.degrees(np.max(np.abs(kin.wrap(q)))))))
+    return out
 
 
-def sensitivity(kin: Kinematics, targets, timeout: float = 1.0) -> list[tuple[str, int, int]]:
-    """Random-set success of weighted_pinv (1 mm, within limits) for K_w, the step rule and
-    angle wrapping: rows (variant, successes with wrapping, without)."""
+SENSITIVITY_COLUMNS = (["wrapped, +-150 deg", "not wrapped, +-150 deg"]
+                       + [f"wrapped, +-{lim:g} deg" for lim in STUDY_LIMITS[1:]])
+
+
+def sensitivity(kin: Kinematics, targets, timeout: float = 1.0) -> list[tuple[str, list[int]]]:
+    """Random-set success of weighted_pinv (1 mm, within limits) for K_w, the step rule,
+    angle wrapping and the joint limits it is judged against: rows (variant, successes
+    per SENSITIVITY_COLUMNS)."""
+    variants = [(f"K_w = {k_w:g}", "weighted_pinv", {"k_w": k_w})
+                for k_w in (0.0, 1.0, 10.0, 100.0, 1000.0, 10000.0)]
+    variants += [("K_w = 1000, alpha kept across iterations", "weighted_pinv",
+                  {"step_rule": "persist"}),
+                 ("K_w = 1000, full steps (no halving)", "weighted_pinv", {"step_rule": "full"}),
+                 ("pinv (no weights)", "pinv", {})]
     rows = []
-    for k_w in (0.0, 1.0, 10.0, 100.0, 1000.0, 10000.0):
-        s = make_solver("weighted_pinv", kin, k_w=k_w)
-        rows.append((f"K_w = {k_w:g}, step halving reset each iteration", *_wpinv_success(
-            kin, s, targets, timeout)))
-    for rule, text in (("persist", "step halving, alpha kept"), ("full", "full steps")):
-        s = make_solver("weighted_pinv", kin, step_rule=rule)
-        rows.append((f"K_w = 1000, {text}", *_wpinv_success(kin, s, targets, timeout)))
-    s = make_solver("pinv", kin)
-    rows.append(("pinv (no weights), step halving reset", *_wpinv_success(kin, s, targets,
-                                                                         timeout)))
+    for label, name, opts in variants:
+        res = _wpinv_outcomes(kin, make_solver(name, kin, **opts), targets, timeout)
+        counts = [sum(1 for ok, _, m in res if ok and m <= 150.0 + 1e-9),
+                  sum(1 for ok, raw, _ in res if ok and raw)]
+        counts += [sum(1 for ok, _, m in res if ok and m <= lim + 1e-9)
+                   for lim in STUDY_LIMITS[1:]]
+        rows.append((label, counts))
     return rows
 
 
@@ -126,3 +141,58 @@ def time_to_failure(kin: Kinematics, solve, targets) -> tuple[list[float], int]:
             wrong += int(np.linalg.norm(t[:3, 3] - p) <= 1e-3
                          and math.acos(min(1.0, max(-1.0, c))) <= math.radians(1.0))
     return times, wrong
+
+
+#: the work cell of the collision benchmark: the mock's default cell (table 0.2 m below the
+#: base, the source and destination pegs) plus the pole of the world schema's example
+BENCH_WORLD = {
+    "table_height": -0.20,
+    "pegs": {"source": {"xy": [0.35, 0.12], "height": 0.08, "radius": 0.008},
+             "destination": {"xy": [0.35, -0.12], "height": 0.08, "radius": 0.008}},
+    "block": {"size": [0.04, 0.04, 0.03], "hole_radius": 0.010, "start": "source"},
+    "poles": {"pole1": {"xy": [0.25, 0.0], "radius": 0.015, "height": 0.5}},
+}
+
+
+def collision_study(kin: Kinematics, targets, timeout: float = 0.05) -> tuple[list[str], str]:
+    """Default solver on the random set in BENCH_WORLD: collisions ignored, checked and
+    avoided. Returns the table's lines and a line on the targets themselves."""
+    from hyperarm_description.world import parse_world
+
+    from ..collision import CollisionModel
+    world = parse_world(BENCH_WORLD)
+    model = CollisionModel(kin, world)
+    s = make_solver("default", kin)
+    s.use_collision_model(model)
+    rng = np.random.default_rng(11)
+    # the random targets are FK of random joints, which may themselves collide
+    free_targets = 0
+    lines = ["| collisions | n | success (1 mm, 1 deg, no collision) | reached the pose | "
+             "of those in collision | median ms | p95 ms |", "|---|---|---|---|---|---|---|"]
+    check_times = []
+    for _ in range(200):
+        q = rng.uniform(kin.lower, kin.upper)
+        a = time.perf_counter()
+        free_targets += int(not model.in_collision(q))
+        check_times.append(time.perf_counter() - a)
+    for mode in ("ignore", "check", "avoid"):
+        ok = reached = colliding = 0
+        times = []
+        for p, r in targets:
+            res = s.solve(p, r, np.zeros(kin.nq), position_tolerance=1e-3,
+                          orientation_tolerance=1e-3, timeout=timeout, collisions=mode)
+            times.append(res.solve_time)
+            hit = res.contacts if mode != "ignore" else [str(c) for c in model.check(res.q)]
+            pose_ok = res.position_error <= 1e-3 and res.orientation_error <= math.radians(1.0)
+            reached += int(pose_ok)
+            colliding += int(pose_ok and bool(hit))
+            ok += int(pose_ok and not hit and not res.violations)
+        lines.append(f"| {mode} | {len(targets)} | {percent(ok, len(targets))} | "
+                     f"{percent(reached, len(targets))} | {colliding} | {ms(times, 50)} | "
+                     f"{ms(times, 95)} |")
+    note = (f"{free_targets} of 200 uniform random configurations are collision-free in "
+            f"this cell (the random targets are FK of such configurations, so some can only "
+            f"be reached in collision); one full check (self + world, "
+            f"{sum(model.pair_count.values())} pairs) takes {ms(check_times, 50)} ms "
+            f"(median)")
+    return lines, note

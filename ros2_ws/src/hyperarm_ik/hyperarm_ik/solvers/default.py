@@ -88,7 +88,9 @@ class DefaultSolver(Solver):
                  align_distance: float = 0.1, start_table: int | None = None,
                  seed: int = 0, stall_attempts: int = STALL_ATTEMPTS,
                  stall_restarts: int = STALL_RESTARTS,
-                 max_attempts: int = 0, closest_ratio: float = 1.2) -> None:
+                 max_attempts: int = 0, closest_ratio: float = 1.2,
+                 collision_attempts: int = 20, push_steps: int = 4,
+                 push_step: float = 0.15) -> None:
         super().__init__(kin, max_iterations)
         for name, v in (("orientation_scale", orientation_scale), ("max_step", max_step)):
             if not np.isfinite(v) or v <= 0.0:
@@ -105,6 +107,7 @@ class DefaultSolver(Solver):
             raise InvalidOptionError(f"start_table must be an integer >= 0, got {start_table!r}")
         for name, v in (("stall_attempts", stall_attempts), ("max_attempts", max_attempts),
                         ("stall_restarts", stall_restarts),
+                        ("collision_attempts", collision_attempts), ("push_steps", push_steps),
                         ("seed", seed)):
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
                 raise InvalidOptionError(f"{name} must be an integer >= 0, got {v!r}")
@@ -138,6 +141,11 @@ class DefaultSolver(Solver):
         self.stall_restarts = int(stall_restarts)
         self.max_attempts = int(max_attempts)
         self.closest_ratio = float(closest_ratio)
+        if not np.isfinite(push_step) or push_step <= 0.0:
+            raise InvalidOptionError(f"push_step must be > 0, got {push_step!r}")
+        self.collision_attempts = max(1, int(collision_attempts))
+        self.push_steps = int(push_steps)
+        self.push_step = float(push_step)
         self.bounds = ReachBounds(kin)
         self._eye3 = np.eye(3)
         # S^-2, S = diag(1, 1, 1, s, s, s): the damping term of the unscaled system below
@@ -367,6 +375,39 @@ class DefaultSolver(Solver):
             q = qn
         return best_q, best_cost, max_iter, None
 
+    # --- collision avoidance -------------------------------------------------------------
+    def _collision_free(self, p, r, q, position_only, ptol, otol, deadline):
+        """(q itself if collision-free, else a collision-free solution found by pushing q
+        apart along the deepest contact's distance gradient projected into the task's null
+        space (then re-converging by LM), or None; iterations spent)."""
+        model, held = self.collision, self._held
+        if not model.in_collision(q, held):
+            return q, 0
+        kin = self.kin
+        total = 0
+        rows = slice(0, 3) if position_only else slice(0, 6)
+        for _ in range(self.push_steps):
+            g = model.clearance_gradient(q, held)
+            if g is None:
+                return q, total
+            j = kin.jacobian(q)[rows]
+            dq = g[1] - np.linalg.pinv(j) @ (j @ g[1])  # null-space part of the gradient
+            n = float(np.linalg.norm(dq))
+            if n < 1e-9:
+                return None, total
+            q = np.minimum(np.maximum(q + dq * (self.push_step / n), self._lo), self._hi)
+            qa, cost, it, errs = self._attempt(p, r, q, position_only, ptol, otol, deadline,
+                                               self.max_iterations)
+            total += it
+            if not (errs is not None or (position_only and cost <= ptol)):
+                return None, total  # pushed off the solution manifold
+            if not model.in_collision(qa, held):
+                return qa, total
+            q = qa
+            if time.perf_counter() > deadline:
+                break
+        return None, total
+
     # --- the request-seeded restart generator ------------------------------------------
     def _request_rng(self, p, r, q0, position_only, ptol, otol) -> np.random.Generator:
         """A generator seeded from the request itself (target, seed, flags, tolerances) and
@@ -421,6 +462,8 @@ class DefaultSolver(Solver):
         best_q, best_cost = q, np.inf
         attempts = 0
         costs: list[float] = []  # final error of every attempt (stall test)
+        collided = 0  # attempts that reached the pose in collision (collisions="avoid")
+        colliding = None
         since_better = 0  # attempts since the best error last improved by 1 %
         rng = None
         decided = False  # the start of the first attempt was chosen by the table logic
@@ -435,6 +478,24 @@ class DefaultSolver(Solver):
                                                self.max_iterations)
             total += it
             if errs is not None or (position_only and cost <= ptol):
+                if self._mode == "avoid":
+                    free, it = self._collision_free(p, r, qa, position_only, ptol, otol,
+                                                    deadline)
+                    total += it
+                    if free is None:  # reaches the pose, but collides: restart
+                        colliding = qa
+                        collided += 1
+                        if collided >= self.collision_attempts or \
+                                time.perf_counter() > deadline:
+                            return colliding, total, (
+                                f"no collision-free configuration found in {attempts} "
+                                f"attempts ({collided} reached the pose in collision)")
+                        if rng is None:
+                            rng = self._request_rng(p, r, q0, position_only, ptol, otol)
+                        q = rng.uniform(self._soft_lo, self._soft_hi)
+                        continue
+                    if free is not qa:
+                        qa, errs = free, None
                 note = "" if attempts == 1 else f"{attempts} attempts"
                 return (qa, total, note) if errs is None else (qa, total, note, errs)
             costs.append(cost)
@@ -442,6 +503,8 @@ class DefaultSolver(Solver):
             if cost < best_cost:
                 best_q, best_cost = qa, cost
             repeats = sum(1 for c in costs if c <= 1.01 * best_cost)
+            if colliding is not None:  # the pose is reachable: only collisions are in the way
+                repeats = since_better = 0
             if self.stall_attempts and repeats >= self.stall_attempts:
                 return best_q, total, (f"search stalled: {repeats} of {attempts} attempts "
                                        f"ended at the same smallest error (within 1 %), so "
@@ -453,9 +516,13 @@ class DefaultSolver(Solver):
                                        f" so the target is probably unreachable (not proven); "
                                        f"best approximate solution returned")
             if self.max_attempts and attempts >= self.max_attempts:
-                return best_q, total, (f"gave up after {attempts} attempts (max_attempts); "
-                                       f"best approximate solution returned")
+                return (best_q if colliding is None else colliding), total, (
+                    f"gave up after {attempts} attempts (max_attempts); best approximate "
+                    f"solution returned")
             if time.perf_counter() > deadline:
+                if colliding is not None:
+                    return colliding, total, (f"timeout after {attempts} attempts: no "
+                                              f"collision-free configuration found")
                 return best_q, total, (f"timeout after {attempts} attempts: best "
                                        f"approximate solution returned")
             if rng is None:
