@@ -16,7 +16,6 @@ import sys
 import threading
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import IntegerRange, ParameterDescriptor
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
@@ -25,6 +24,7 @@ from sensor_msgs.msg import JointState
 from hyperarm_description import contract
 from hyperarm_description.joints import JointStateError
 from hyperarm_description.model import VARIANTS, DescriptionError, load_description
+from hyperarm_description.params import OneOf, ParamSpec, Range, declare_parameters
 from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import run_node
 from hyperarm_description.world import load_world
@@ -32,6 +32,7 @@ from hyperarm_interfaces.srv import SolveIK
 
 from .errors import IKError
 from .ik_core import IKDefaults, IKPool, IKRequest
+from .solvers.base import COLLISION_MODES
 from .kinematics import Kinematics
 from .ros_conversions import joint_state
 from .solvers import DEFAULT_SOLVER, solver_names
@@ -44,6 +45,26 @@ _COLLISION_MODES = {SolveIK.Request.COLLISIONS_DEFAULT: "",
                     SolveIK.Request.COLLISIONS_IGNORE: "ignore",
                     SolveIK.Request.COLLISIONS_CHECK: "check",
                     SolveIK.Request.COLLISIONS_AVOID: "avoid"}
+_D = IKDefaults()
+#: Every parameter of the node (also its --help): name -> (default, description, check).
+PARAMETERS: ParamSpec = {
+    "variant": ("arm", f"robot variant: {' or '.join(VARIANTS)}", None),
+    "description_file": ("", "robot description YAML ('' = the packaged one)", None),
+    "default_solver": (DEFAULT_SOLVER, "solver used when a request names none: "
+                       f"{', '.join(solver_names())}", None),
+    "position_tolerance": (_D.position_tolerance, "m, used when a request gives 0", None),
+    "orientation_tolerance": (_D.orientation_tolerance, "rad, used when a request gives 0",
+                              None),
+    "timeout": (_D.timeout, "s, solve time budget when a request gives 0", None),
+    "max_timeout": (_D.max_timeout, "s, requests asking for more are refused", None),
+    "concurrency": (DEFAULT_CONCURRENCY, "requests solved at the same time (one solver set "
+                    "each); more wait for a free one", Range(1, MAX_CONCURRENCY)),
+    "collisions": (_D.collisions, "collision handling of requests that leave it at "
+                   "COLLISIONS_DEFAULT", OneOf(COLLISION_MODES)),
+    "world_file": ("", "work-cell YAML whose world: mapping (table, pegs, poles) is avoided "
+                   "('' = self-collision only)", None),
+    "collision_margin": (0.0, "m, added to every collision capsule", Range(0.0, 0.1)),
+}
 
 
 class IkServiceNode(Node):
@@ -53,32 +74,8 @@ class IkServiceNode(Node):
         """``kwargs`` go to rclpy's Node (e.g. context, parameter_overrides)."""
         kwargs.setdefault("namespace", contract.DEFAULT_NAMESPACE)
         super().__init__("ik_service", **kwargs)
-        d = IKDefaults()
-        params = {
-            "variant": ("arm", f"robot variant: {' or '.join(VARIANTS)}", True),
-            "description_file": ("", "robot description YAML ('' = the packaged one)", True),
-            "default_solver": (DEFAULT_SOLVER, "solver used when a request names none: "
-                               f"{', '.join(solver_names())}", True),
-            "position_tolerance": (d.position_tolerance,
-                                   "m, used when a request gives 0", True),
-            "orientation_tolerance": (d.orientation_tolerance,
-                                      "rad, used when a request gives 0", True),
-            "timeout": (d.timeout, "s, solve time budget when a request gives 0", True),
-            "max_timeout": (d.max_timeout, "s, requests asking for more are refused", True),
-            "collisions": (d.collisions, "collision handling when a request leaves it at "
-                           "DEFAULT: ignore, check or avoid", True),
-            "world_file": ("", "work-cell YAML whose world: mapping (table, pegs, poles, "
-                           "block) is avoided ('' = self-collision only)", True),
-            "collision_margin": (0.0, "m, added to every collision capsule", True),
-        }
-        for name, (default, text, ro) in params.items():
-            self.declare_parameter(name, default, ParameterDescriptor(
-                description=text, read_only=ro, dynamic_typing=isinstance(default, float)))
-        self.declare_parameter("concurrency", DEFAULT_CONCURRENCY, ParameterDescriptor(
-            description="requests solved at the same time (one solver set each); more wait",
-            read_only=True, integer_range=[IntegerRange(from_value=1, to_value=MAX_CONCURRENCY,
-                                                        step=1)]))
-        get = lambda n: self.get_parameter(n).value  # noqa: E731
+        values = declare_parameters(self, PARAMETERS)
+        get = values.__getitem__
         try:
             desc = load_description(get("description_file") or None, get("variant"))
             defaults = IKDefaults(solver=get("default_solver"),
@@ -186,7 +183,8 @@ def main(args: list[str] | None = None) -> None:
     sys.setswitchinterval(SWITCH_INTERVAL)
     # threads: MAX_CONCURRENCY solves + the subscription and the diagnostics timer
     run_node(IkServiceNode, args,
-             executor=lambda: MultiThreadedExecutor(num_threads=MAX_CONCURRENCY + 2))
+             executor=lambda: MultiThreadedExecutor(num_threads=MAX_CONCURRENCY + 2),
+             parameters=PARAMETERS, robot_description=False)
 
 
 if __name__ == "__main__":
