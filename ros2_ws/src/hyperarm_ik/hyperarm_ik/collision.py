@@ -17,7 +17,10 @@ work cell is a :class:`hyperarm_description.world.WorldSpec` (the mock's ``world
 Pairs: every pair of robot capsules except those of adjacent links and those that already
 touch in the stretched ready pose q = 0 (they share a joint: link7 and link9 around the
 zero-length link8), every robot capsule against every world object, and the held block
-against the world and the links that do not hold it (all but link9 and the gripper).
+against the world and the links that do not hold it (all but link9 and the gripper). While
+the block is held the gripper's capsule is not checked against the pegs: it fills the
+space between the fingers, through which the peg passes once the block's hole threads it
+(the block's own model then decides).
 
 Units: m, rad. Poses in the model's root frame (base_link; world for the rail variant).
 ``margin`` (m) inflates every robot capsule (and the held block) by that much.
@@ -149,6 +152,11 @@ class CollisionModel:
         block_pairs = [(blk, w) for blk in self._block for w in self._world]
         block_pairs += [(blk, a) for blk in self._block for a in self._robot
                         if names[a] not in holders]
+        # while the block is held, the peg it threads passes through the space between the
+        # fingers that the gripper's capsule fills: the block's hole model stands in for it
+        pegs = {w for w in self._world if names[w].startswith("peg ")}
+        self._hand_pegs = [(a, w) for a, w in world_pairs
+                           if names[a] == "gripper" and w in pegs] if self._block else []
         self._groups = {"self": self_pairs, "world": world_pairs, "block": block_pairs}
         for a, b in self_pairs + world_pairs + block_pairs:
             gm.addCollisionPair(pin.CollisionPair(a, b))
@@ -169,20 +177,23 @@ class CollisionModel:
         for i, a in enumerate(self._robot):
             for b in self._robot[i + 1:]:
                 res = coal.CollisionResult()
-                ta = coal.Transform3s(gd.oMg[a].rotation, gd.oMg[a].translation)
-                tb = coal.Transform3s(gd.oMg[b].rotation, gd.oMg[b].translation)
-                if coal.collide(gm.geometryObjects[a].geometry, ta,
-                                gm.geometryObjects[b].geometry, tb, req, res):
+                if coal.collide(gm.geometryObjects[a].geometry, _transform(gd.oMg[a]),
+                                gm.geometryObjects[b].geometry, _transform(gd.oMg[b]), req, res):
                     out.add((a, b))
         return out
 
     def _set_held(self, held: bool) -> None:
-        """Switch the held block's pairs on or off."""
+        """Switch the held block's pairs on (and the gripper's with the pegs off) or back."""
         if held == self._active_held:
             return
-        for a, b in self._groups["block"]:
-            self.gdata.activateCollisionPair(self._pair_index[(a, b)]) if held else \
-                self.gdata.deactivateCollisionPair(self._pair_index[(a, b)])
+        gd = self.gdata
+        for pairs, on in ((self._groups["block"], held), (self._hand_pegs, not held)):
+            for a, b in pairs:
+                k = self._pair_index[(a, b)]
+                if on:
+                    gd.activateCollisionPair(k)
+                else:
+                    gd.deactivateCollisionPair(k)
         self._active_held = held
 
     @property
@@ -241,7 +252,13 @@ class CollisionModel:
         for k, res in enumerate(gd.collisionResults):
             if not (res.isCollision() and gd.activeCollisionPairs[k]):
                 continue
-            dres = pin.computeDistance(gm, gd, k)
+            pair = gm.collisionPairs[k]
+            # a fresh, stateless coal query: pinocchio's functors warm start GJK from the
+            # previous query, which would make the push (and the answer) history-dependent
+            dres = coal.DistanceResult()
+            coal.distance(gm.geometryObjects[pair.first].geometry, _transform(gd.oMg[pair.first]),
+                          gm.geometryObjects[pair.second].geometry,
+                          _transform(gd.oMg[pair.second]), coal.DistanceRequest(), dres)
             if best is None or dres.min_distance < best[1].min_distance:
                 best = (k, dres)
         k, dres = best
@@ -292,6 +309,10 @@ class CollisionModel:
                                  f"in collision at s = {s:.3f}: "
                                  + ", ".join(str(c) for c in contacts))
         return PathCheck(True, len(samples), message="collision-free")
+
+
+def _transform(m: pin.SE3) -> coal.Transform3s:
+    return coal.Transform3s(m.rotation, m.translation)
 
 
 def check_joint_path(model: CollisionModel, q_a, q_b, held: bool = False,

@@ -227,5 +227,5 @@ def test_service_checks_and_avoids_collisions_in_its_work_cell(rclpy_context, ex
     resp = c.call(req)
     assert not resp.success and "collisions must be one of" in resp.message
     # the node's default is avoid: an ordinary target gets a collision-free answer
-    good = c.call(_request(ARM, [0.2, 0.5, -0.3, 0.4, 0.1, -0.5, 0.3, 0.2, -0.1]))
-    assert good.success and not good.contacts
+    good = c.call(_request(ARM, [0.3, -0.4, 0.2, 0.5, -0.1, 0.3, 0.2, -0.6, 0.4]))
+    assert good.success and not good.contacts, good.message
