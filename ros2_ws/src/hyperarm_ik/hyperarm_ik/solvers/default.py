@@ -408,6 +408,15 @@ class DefaultSolver(Solver):
                 break
         return None, total
 
+    def _free_start(self, rng: np.random.Generator, tries: int = 20) -> np.ndarray:
+        """A random restart that is itself collision-free (a free start more often ends
+        free), or the last draw after ``tries``."""
+        for _ in range(tries):
+            q = rng.uniform(self._soft_lo, self._soft_hi)
+            if not self.collision.in_collision(q, self._held):
+                return q
+        return q
+
     # --- the request-seeded restart generator ------------------------------------------
     def _request_rng(self, p, r, q0, position_only, ptol, otol) -> np.random.Generator:
         """A generator seeded from the request itself (target, seed, flags, tolerances) and
@@ -492,7 +501,7 @@ class DefaultSolver(Solver):
                                 f"attempts ({collided} reached the pose in collision)")
                         if rng is None:
                             rng = self._request_rng(p, r, q0, position_only, ptol, otol)
-                        q = rng.uniform(self._soft_lo, self._soft_hi)
+                        q = self._free_start(rng)
                         continue
                     if free is not qa:
                         qa, errs = free, None
