@@ -45,6 +45,11 @@ Unreachable (proven, :mod:`hyperarm_ik.workspace`): a target beyond the tool's r
 gets at once the configuration stretched towards it, with its distance ratio to the bound;
 a pose whose wrist point is beyond the wrist's reach bound (an orientation that no
 configuration reaches there) gets at once the best position-only configuration found.
+Collisions (``collisions="avoid"``, with a collision model): an attempt that reaches the
+pose in collision is pushed apart along the deepest contact's distance gradient projected
+into the task's null space (``push_steps`` x ``push_step`` rad, LM after each), then the
+search restarts from collision-free random joints, up to ``collision_attempts`` colliding
+solutions; the answer names the pair if none is free.
 Parameters are documented in docs/ik.md; units: m, rad, s (orientation_scale m/rad).
 """
 from __future__ import annotations
