@@ -41,7 +41,7 @@ from .errors import IKError, InvalidOptionError
 from .kinematics import Kinematics
 
 __all__ = ["CollisionModel", "Contact", "PathCheck", "CollisionError", "TABLE_THICKNESS",
-           "DEFAULT_HELD_POSE", "check_joint_path"]
+           "DEFAULT_HELD_POSE", "check_joint_path", "pose_path"]
 
 TABLE_THICKNESS = 0.1  # m, of the table box under its top surface (bounded tables)
 #: block centre at tool0, the block's z axis along tool0's y (hand pointing down: z up)

@@ -19,7 +19,7 @@ from hyperarm_description import contract
 from hyperarm_description.joints import JointStateCache
 from hyperarm_description.world import WorldSpec
 
-from .collision import CollisionModel
+from .collision import CollisionError, CollisionModel
 from .errors import FrameError, InvalidOptionError, InvalidSeedError, InvalidTargetError
 from .kinematics import Kinematics
 from .solvers import (DEFAULT_ORIENTATION_TOLERANCE, DEFAULT_POSITION_TOLERANCE,
@@ -87,7 +87,13 @@ class IKCore:
     def __post_init__(self) -> None:
         self.solvers: dict[str, Solver] = {n: make_solver(n, self.kin)
                                            for n in solver_names(self.kin.variant)}
-        self.collision = CollisionModel(self.kin, self.world, margin=self.collision_margin)
+        try:
+            self.collision = CollisionModel(self.kin, self.world, margin=self.collision_margin)
+        except CollisionError:
+            if self.world is not None:
+                raise  # a work cell to avoid, but no robot geometry: refuse to start
+            self.collision = None  # a description without capsules: requests that check
+            # collisions are refused (with the reason), collisions=ignore ones are served
         for s in self.solvers.values():
             s.use_collision_model(self.collision)
         if self.defaults.solver not in self.solvers:

@@ -229,3 +229,9 @@ def test_service_checks_and_avoids_collisions_in_its_work_cell(rclpy_context, ex
     # the node's default is avoid: an ordinary target gets a collision-free answer
     good = c.call(_request(ARM, [0.3, -0.4, 0.2, 0.5, -0.1, 0.3, 0.2, -0.6, 0.4]))
     assert good.success and not good.contacts, good.message
+    # a target inside the base: no configuration puts tool0 there without a collision
+    base = _request(ARM, np.zeros(9), position_only=True)
+    base.target.pose.position.x, base.target.pose.position.y = 0.0, 0.0
+    base.target.pose.position.z = 0.05
+    resp = c.call(base)
+    assert not resp.success and resp.contacts and "in collision" in resp.message
