@@ -25,6 +25,9 @@ setup(
             "fk_node = hyperarm_ik.fk_node:main",
             "ik_service = hyperarm_ik.ik_service_node:main",
             "ik_benchmark = hyperarm_ik.benchmark.ik_benchmark:main",
+            "hybrid_force = hyperarm_ik.hybrid_force_node:main",
+            "hybrid_force_calibrate = hyperarm_ik.force_calibration_node:main",
+            "force_benchmark = hyperarm_ik.benchmark.force_benchmark:main",
         ],
     },
 )
