@@ -63,7 +63,7 @@ class HybridForceNode(Node):
         self._w_tool = self.create_publisher(WrenchStamped, contract.EE_WRENCH,
                                              qos_for(contract.EE_WRENCH))
         self._w_base = self.create_publisher(WrenchStamped, contract.EE_WRENCH_BASE,
-                                             qos_for(contract.EE_WRENCH))
+                                             qos_for(contract.EE_WRENCH_BASE))
         self._diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
                                            qos_for(contract.DIAGNOSTICS))
         self.create_subscription(JointState, contract.JOINT_STATES, self._on_joint_states,
