@@ -57,6 +57,8 @@ class HybridForceNode(Node):
         self._root, self._base = kin.root_frame, desc.base_frame
         self._timer_trigger = p["trigger"] == "timer"
         self._compute_time = 0.0
+        self._state_time: float | None = None     # s, when the newest joint state came
+        self._stamp = None
         self.add_on_set_parameters_callback(self._on_parameters)
         self._cmd = self.create_publisher(JointState, contract.JOINT_COMMAND,
                                           qos_for(contract.JOINT_COMMAND))
@@ -74,7 +76,7 @@ class HybridForceNode(Node):
         self.create_service(Trigger, contract.HYBRID_TARE, self._on_tare)
         self.create_service(SetBool, contract.HYBRID_COMPLIANCE, self._on_compliance)
         self._hold = self.create_client(Trigger, contract.HOLD)
-        self.create_timer(min(0.02, ctl_cfg.stale_timeout / 4.0), self._check_stale)
+        self.create_timer(min(0.01, ctl_cfg.stale_timeout / 4.0), self._check_stale)
         if self._timer_trigger:
             self.create_timer(1.0 / p["rate"], self._cycle)
         self.create_timer(p["diagnostics_period"], self._publish_diagnostics)
@@ -123,12 +125,15 @@ class HybridForceNode(Node):
         except JointStateError as exc:
             self.get_logger().warn(f"joint_states ignored: {exc}", throttle_duration_sec=5.0)
             return
-        if not self._timer_trigger and any(n in self._ctl.arm_names for n in msg.name):
-            self._cycle(msg.header.stamp)
+        if any(n in self._ctl.arm_names for n in msg.name):
+            self._state_time = self._now()          # staleness counts from the arrival
+            self._stamp = msg.header.stamp
+            if not self._timer_trigger:
+                self._cycle()
 
-    def _cycle(self, stamp=None) -> None:
+    def _cycle(self) -> None:
         names = self._ctl.names
-        if not self._cache.has(names):
+        if self._state_time is None or not self._cache.has(names):
             return
         c = self._cache
         q = [c.position[n] for n in names]
@@ -136,7 +141,7 @@ class HybridForceNode(Node):
         effort = [c.effort[n] for n in self._ctl.arm_names if n in c.effort]
         t0 = time.perf_counter()
         try:
-            out, event = self._ctl.step(self._now(), q, dq, effort)
+            out, event = self._ctl.step(self._now(), q, dq, effort, self._state_time)
         except ForceError as exc:
             self.get_logger().warn(f"control cycle skipped: {exc}", throttle_duration_sec=5.0)
             return
@@ -149,7 +154,7 @@ class HybridForceNode(Node):
             cmd.effort = out.efforts or []
             self._cmd.publish(cmd)
         self._handle(event)
-        self._publish_wrench(out, stamp)
+        self._publish_wrench(out, self._stamp)
 
     def _on_goal(self, msg: HybridGoal) -> None:
         p, o, w = msg.pose.position, msg.pose.orientation, msg.wrench
@@ -231,7 +236,8 @@ class HybridForceNode(Node):
                   "compute_ms": f"{self._compute_time * 1e3:.3f}",
                   "wrench_limited": s.wrench_limited, "joint_limited": s.joint_limited,
                   "rate_limited": s.rate_limited, "last_event": s.last_event,
-                  "payload_kg": ctl.law.payload.mass}
+                  "payload_kg": ctl.law.payload.mass,
+                  "last_state_s": f"{self._state_time or 0.0:.6f}"}
         st = DiagnosticStatus(level=bytes([_LEVEL[ctl.mode]]), name="hybrid_force",
                               hardware_id="hybrid_force", message=f"{ctl.mode.value}: "
                               f"{ctl.reason}",

@@ -34,8 +34,10 @@ class ForceProbe:
         self.wrench: list[tuple[float, object]] = []
         self.truth: list[tuple[float, object]] = []
         self.statuses: list[tuple[float, dict, str]] = []
-        self.contact_force: list[tuple[float, float]] = []
+        self.contact_force: list[tuple[float, np.ndarray]] = []
         self.hold_calls: list[float] = []
+        self.block_state = ""
+        self.last_published = 0.0
         self._js = JointState
         n.create_subscription(JointState, contract.JOINT_COMMAND, self._rec(self.commands),
                               qos_for(contract.JOINT_COMMAND))
@@ -79,9 +81,12 @@ class ForceProbe:
             for s in msg.status:
                 values = {kv.key: kv.value for kv in s.values}
                 if s.name == "hybrid_force":
-                    self.statuses.append((now, values, s.message))
+                    stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+                    self.statuses.append((now, values, s.message, stamp))
                 elif s.name == "mock_driver: work_cell" and "contact_force_N" in values:
-                    self.contact_force.append((now, float(values["contact_force_N"])))
+                    self.contact_force.append(
+                        (now, np.array([float(v) for v in values["contact_force_N"].split()])))
+                    self.block_state = values.get("block_state", "")
 
     def _drive(self) -> None:
         if self.driving:
@@ -140,6 +145,7 @@ class ForceProbe:
         msg.velocity = [float(v) for v in (dq if dq is not None else np.zeros(len(q)))]
         msg.effort = [float(v) for v in (effort if effort is not None else np.zeros(len(q)))]
         self.state_pub.publish(msg)
+        self.last_published = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
 
     def command(self, names, positions, efforts=()) -> None:
         msg = self._js()

@@ -199,17 +199,20 @@ class ForceController:
         self._event(Event("tare", "info", "tared"))
         return "tared: bias " + ", ".join(f"{b:+.3f}" for b in bias) + " N·m"
 
-    def step(self, now: float, q, dq, effort) -> tuple[Output, Event | None]:
+    def step(self, now: float, q, dq, effort,
+             stamp: float = 0.0) -> tuple[Output, Event | None]:
         """One cycle on a full joint state (chain order; efforts of the arm joints used by
-        the estimate). Returns the output (a command only while ACTIVE) and an event when
-        a joint near its limit made it passive."""
+        the estimate) received at ``now``, measured at ``stamp`` (0: unknown). Staleness
+        counts from the older of the two, so a backlog of old states is stale too. Returns
+        the output (a command only while ACTIVE) and an event when a joint near its limit
+        made it passive."""
         q = np.asarray(q, dtype=float)
         dq = np.asarray(dq, dtype=float) if len(dq) else np.zeros_like(q)
         if q.shape != (len(self.names),) or dq.shape != q.shape or not (
                 np.all(np.isfinite(q)) and np.all(np.isfinite(dq))):
             raise StateError("joint state: wrong length or non-finite values")
         self._q = q
-        self._last_state = now
+        self._last_state = stamp if stamp > 0.0 else now
         event = None
         cmd = None
         if self.mode is Mode.ACTIVE:

@@ -24,8 +24,9 @@ Two outputs from the same torques:
 
 - ``torque``: the torques themselves (effort-only joint_command: current mode);
 - ``position``: the paper's pseudo-goal for position servos of known stiffness k_s:
-  q_cmd = q + (tau - g_servo) / k_s, first-order filtered, sent with a current limit
-  |tau| + ``effort_headroom`` (current-based position). ``g_servo`` is g when the servo's
+  q_cmd moves so that the servo torques k_s (q_cmd - q) make the law's wrench at the
+  tool (:meth:`HybridLaw._pseudo_goal`), sent with a current limit
+  |g| + |k_s (q_cmd - q)| + ``effort_headroom`` (current-based position). ``g_servo`` is g when the servo's
   own integral action holds gravity (``servo_holds_gravity``), else 0.
 """
 from __future__ import annotations
@@ -126,7 +127,7 @@ class LawConfig:
     singular_damping: float = 0.02
     servo_stiffness: float = 20.0
     servo_holds_gravity: bool = True
-    effort_headroom: float = 0.3
+    effort_headroom: float = 1.0
     position_filter: float = 0.2
     force_filter: float = 0.5
     compliance_stiffness: float = 0.2
@@ -462,8 +463,10 @@ class HybridLaw:
             step = step + cfg.position_filter * cfg.compliance_stiffness / ks * (
                 self._compliance_posture - self._q_cmd)
         self._q_cmd = np.clip(self._q_cmd + step, self.lower, self.upper)
-        tau_total = (g if cfg.servo_holds_gravity else 0.0) + ks * (self._q_cmd - qa)
-        effort = np.clip(np.abs(tau_total) + cfg.effort_headroom, 0.05, limit)
+        # the current limit covers gravity and the pressing torque without letting one
+        # cancel the other: if a contact vanishes the joint still holds its own weight
+        effort = np.clip(np.abs(g) + np.abs(ks * (self._q_cmd - qa)) + cfg.effort_headroom,
+                         0.05, limit)
         q_out = self._q_cmd if cfg.servo_holds_gravity else np.clip(
             self._q_cmd + g / ks, self.lower, self.upper)
         return q_out.copy(), effort

@@ -64,7 +64,7 @@ PARAMETERS: dict[str, tuple[Any, str, Any]] = {
                         "('position' output)", (0.1, 1e5)),
     "servo_holds_gravity": (_L.servo_holds_gravity, "the servos' integral action holds "
                             "gravity in position mode (else q_cmd adds g/k_s)", None),
-    "effort_headroom": (_L.effort_headroom, "N·m above |tau| for the 'position' output's "
+    "effort_headroom": (_L.effort_headroom, "N·m above |g| + |k_s (q_cmd - q)| for the 'position' output's "
                         "current limit", (0.0, 10.0)),
     "position_filter": (_L.position_filter, "per-cycle gain of the pseudo-goal on position "
                         "axes", (1e-3, 1.0)),
