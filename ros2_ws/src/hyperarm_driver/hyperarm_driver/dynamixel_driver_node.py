@@ -179,7 +179,7 @@ class DynamixelDriverNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node(DynamixelDriverNode, args)
+    run_node(DynamixelDriverNode, args, parameters=PARAMETERS, robot_description=False)
 
 
 if __name__ == "__main__":

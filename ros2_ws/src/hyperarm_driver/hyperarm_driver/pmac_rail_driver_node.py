@@ -164,7 +164,7 @@ class PmacRailDriver(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node(PmacRailDriver, args)
+    run_node(PmacRailDriver, args, parameters=PARAMETERS, robot_description=False)
 
 
 if __name__ == "__main__":

@@ -10,7 +10,6 @@ import threading
 import time
 
 import rclpy
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
@@ -19,6 +18,7 @@ from sensor_msgs.msg import JointState
 
 from hyperarm_description import contract
 from hyperarm_description.joints import JointStateCache, JointStateError
+from hyperarm_description.params import ParamSpec, Range, declare_parameters
 from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import declare_robot_description, run_node
 from hyperarm_interfaces.action import RunTask
@@ -26,15 +26,17 @@ from hyperarm_interfaces.action import RunTask
 from .sequences import StageStatus, TaskError, build_task, stage_status
 
 
+#: Every parameter of the node (also its --help): name -> (default, description, check).
+PARAMETERS: ParamSpec = {
+    "command_rate": (50.0, "rate at which stage goals are re-sent on joint_command, Hz",
+                     Range(1.0, 500.0)),
+}
+
+
 class TaskNode(Node):
     def __init__(self) -> None:
         super().__init__("task_node", namespace=contract.DEFAULT_NAMESPACE)
-        self.declare_parameter("command_rate", 50.0, ParameterDescriptor(
-            description="rate at which stage goals are re-sent on joint_command, Hz",
-            read_only=True))
-        rate = float(self.get_parameter("command_rate").value)
-        if not 1.0 <= rate <= 500.0:
-            raise SystemExit(f"task_node: command_rate must be within 1..500 Hz, got {rate}")
+        rate = declare_parameters(self, PARAMETERS)["command_rate"]
         self._period = 1.0 / rate
         self._desc = declare_robot_description(self)
         self._cache = JointStateCache()
@@ -141,7 +143,8 @@ class TaskNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node(TaskNode, args, executor=lambda: MultiThreadedExecutor(num_threads=3))
+    run_node(TaskNode, args, executor=lambda: MultiThreadedExecutor(num_threads=3),
+             parameters=PARAMETERS)
 
 
 if __name__ == "__main__":
