@@ -13,11 +13,13 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import WrenchStamped
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
 
 from hyperarm_description import contract
+from hyperarm_description.params import Range
 from hyperarm_description.joints import JointStateCache, JointStateError
 from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import declare_robot_description, run_node
@@ -87,21 +89,29 @@ class HybridForceNode(Node):
 
     # -- parameters -------------------------------------------------------------------------
     def _declare(self) -> dict:
+        """Declare the table's parameters (read-only but the payload's), with descriptions
+        and ranges; a wrong type or value ends the node with a message naming it."""
         out = {}
         for name, (default, text, check) in PARAMETERS.items():
-            d = ParameterDescriptor(description=text, read_only=name not in DYNAMIC)
-            if isinstance(check, tuple) and isinstance(check[0], str):
-                d.description += f" (one of {', '.join(check)})"
-            elif isinstance(check, tuple) and isinstance(default, float):
-                d.floating_point_range = [FloatingPointRange(from_value=float(check[0]),
-                                                             to_value=float(check[1]))]
+            d = ParameterDescriptor(description=text + (check.text() if check else ""),
+                                    read_only=name not in DYNAMIC,
+                                    dynamic_typing=isinstance(default, float))
+            if isinstance(check, Range):
+                d.floating_point_range = [FloatingPointRange(from_value=float(check.lo),
+                                                             to_value=float(check.hi))]
             try:
                 value = self.declare_parameter(name, default, d).value
-            except Exception as exc:   # wrong type / out of range: rclpy's own message
+            except (InvalidParameterValueException, InvalidParameterTypeException) as exc:
                 raise SystemExit(f"hybrid_force: parameter {name}: {exc}") from None
-            if isinstance(check, tuple) and isinstance(check[0], str) and value not in check:
-                raise SystemExit(f"hybrid_force: parameter {name}={value!r}: one of "
-                                 f"{', '.join(check)}")
+            if isinstance(default, float) and isinstance(value, int) \
+                    and not isinstance(value, bool):
+                value = float(value)          # -p rate:=200 is fine for a double
+            if type(value) is not type(default) and not isinstance(default, list):
+                raise SystemExit(f"hybrid_force: parameter {name} must be of the type of "
+                                 f"{default!r}, got {value!r}")
+            problem = check.check(value) if check is not None else None
+            if problem:
+                raise SystemExit(f"hybrid_force: parameter {name}={value!r} {problem}")
             out[name] = list(value) if isinstance(default, list) else value
         return out
 
@@ -251,7 +261,7 @@ class HybridForceNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node(HybridForceNode, args)
+    run_node(HybridForceNode, args, parameters=PARAMETERS)
 
 
 if __name__ == "__main__":

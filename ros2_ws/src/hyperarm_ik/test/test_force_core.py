@@ -373,3 +373,23 @@ def test_calibration_errors(tmp_path):
     with pytest.raises(CalibrationError, match="cannot read"):
         load_calibration(tmp_path / "missing.yaml")
     assert isinstance(TorqueCalibration({}).correct(["joint1"], np.array([1.0]))[0], float)
+
+
+# --- parameters ------------------------------------------------------------------------
+
+def test_every_parameter_is_documented_with_its_default():
+    from pathlib import Path
+
+    from hyperarm_ik.force.parameters import PARAMETERS, build
+
+    doc = (Path(__file__).resolve().parents[4] / "docs" / "force.md").read_text()
+    for name, (default, _text, _check) in PARAMETERS.items():
+        row = next((line for line in doc.splitlines() if line.startswith(f"| `{name}` |")), None)
+        assert row is not None, f"docs/force.md does not list {name}"
+        shown = row.split("|")[2].strip()
+        if isinstance(default, float):
+            assert float(shown) == default, (name, shown, default)
+    law, est, ctl = build({n: d for n, (d, _t, _c) in PARAMETERS.items()})
+    assert law == LawConfig(posture=(0.0,) * 9) and ctl.output == "position"
+    with pytest.raises(ForceConfigError):
+        build({"damping": [1.0, 2.0]})
