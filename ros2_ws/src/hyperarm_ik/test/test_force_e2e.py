@@ -11,7 +11,7 @@ import pytest
 
 from hyperarm_description import contract
 from hyperarm_description.model import load_description
-from hyperarm_ik.benchmark.force_probe import ForceProbe
+from hyperarm_ik.benchmark.force_probe import ForceProbe, MockArm, mean_force, step_response
 from hyperarm_ik.kinematics import Kinematics
 
 pytestmark = [pytest.mark.e2e]
@@ -158,46 +158,6 @@ def _workcell(tmp_path, **imperfections) -> str:
     return str(out)
 
 
-class MockArm:
-    """Joint-space moves of the mock through joint_command (before the force node is
-    enabled), with the mock's small IK for a tool pointing down."""
-
-    def __init__(self, probe: ForceProbe, wait_for) -> None:
-        from hyperarm_driver.mock.joint_sim import JointSim
-
-        self.probe, self.wait_for = probe, wait_for
-        self.desc = load_description()
-        self.kin = Kinematics(self.desc)
-        self.sim = JointSim(self.desc)     # only for its model and limits (IK)
-        self.arm = list(self.desc.arm_joint_names)
-        self.q = np.zeros(9)
-
-    def q_now(self) -> np.ndarray:
-        box = []
-        self.wait_for(lambda: box.append(self.probe.joints(self.arm)) or box[-1] is not None,
-                      20.0, what="joint_states")
-        return box[-1]
-
-    def move(self, xyz, timeout: float = 6.0) -> np.ndarray:
-        from hyperarm_driver.mock.scenario import tool_down_ik
-
-        self.q = tool_down_ik(self.sim, xyz, self.q)
-        self.probe.command(self.arm, self.q)
-        self.wait_for(lambda: np.abs(self.q_now() - self.q).max() < 2e-3, timeout,
-                      what=f"arm at {list(xyz)}")
-        return self.q
-
-    def grip(self, angle: float, effort: float | None = None, wait: bool = True) -> None:
-        self.probe.command(["gripper"], [angle], [effort] if effort is not None else [])
-        if wait:
-            self.wait_for(lambda: (self.probe.joints(["gripper"]) is not None and
-                                   abs(self.probe.joints(["gripper"])[0] - angle) < 0.05),
-                          5.0, what=f"gripper at {angle}")
-
-    def tool(self) -> np.ndarray:
-        return self.kin.forward(self.q_now())
-
-
 def _settled(probe: ForceProbe, arm: MockArm, seconds: float, window: float = 0.6):
     """After ``seconds``: mean contact force (N, 3) and tool positions (m) over the last
     ``window`` s."""
@@ -240,6 +200,8 @@ def test_pressing_on_a_peg_top_with_the_mock(launch, rclpy_context, executor, wa
     arm.move(over)
     res = probe.enable(True)
     assert res.success, res.message
+    time.sleep(0.3)
+    assert probe.tare().success                # in the air: the estimate's bias
     rot = arm.tool()[:3, :3]
     depth = 0.004
     x0 = over.copy()
@@ -251,16 +213,51 @@ def test_pressing_on_a_peg_top_with_the_mock(launch, rclpy_context, executor, wa
                         (False, False, True, False, False, False), (0, 0, fd, 0, 0, 0))
         f, xs = _settled(probe, arm, 2.5 if not results else 2.0)
         f_true = abs(float(f[2]))        # the force-controlled axis: the normal force
+        with probe.lock:
+            est = mean_force(probe.wrench_base, time.monotonic() - 0.6)
+        # the estimate (what the tool applies) against the truth (-(force on the block))
+        est_error = float(np.linalg.norm(est + f) / np.linalg.norm(f))
         expected = abs(k * (x0[2] - xs[:, 2].mean()) + fd)
-        results.append((k, fd, f_true, expected))
+        results.append((k, fd, f_true, expected, est_error))
         assert probe.block_state == "held"
-        assert abs(f_true - expected) <= max(0.1 * expected, 0.2), (results, probe.statuses[-1], hf.output()[-1500:])
+        assert abs(f_true - expected) <= max(0.1 * expected, 0.2), results
+        assert est_error <= 0.15, results    # today's mock: exact efforts, no calibration
         # x and y hold (FK of the measured joints) while z presses
         assert np.abs(xs[:, :2] - x0[:2]).max() < 0.002, (k, xs[:, :2].min(0), xs[:, :2].max(0))
-    print("pressing (K, F_d, true N, expected N):", results)
+    print("pressing (K, F_d, true N, expected N, estimate error):", results)
     lim = np.array([j.effort for j in arm.desc.joints])
     with probe.lock:
         cmds = [m for (t, m) in probe.commands if t > t_start]
     assert cmds
     assert max(float(np.max(np.abs(np.array(m.effort)) / lim)) for m in cmds) <= 1.0
+    assert probe.enable(False).success
+
+
+def overshoot(xs: np.ndarray, start: np.ndarray, goal: np.ndarray) -> float:
+    """Largest excursion beyond the goal along the step, as a fraction of the step."""
+    d = goal - start
+    progress = (xs - start) @ d / float(d @ d)
+    return float(max(progress.max() - 1.0, 0.0))
+
+
+@pytest.mark.slow
+def test_step_tracking_on_position_axes(launch, rclpy_context, executor, wait_for, tmp_path):
+    """A 2 cm step of the goal on the position axes: tracked (within 1 mm after 2 s) with
+    under 10 % overshoot (FK of the measured joints)."""
+    launch("hyperarm_driver", "mock_driver", params={"workcell_file": _workcell(tmp_path)})
+    launch("hyperarm_ik", "hybrid_force", params=MOCK_PARAMS)
+    probe = ForceProbe(rclpy_context, executor, wait_for)
+    arm = MockArm(probe, wait_for)
+    arm.q_now()
+    wait_for(lambda: probe.cmd_pub.get_subscription_count() > 0, 10.0, what="mock subscribed")
+    arm.move([0.35, -0.05, -0.05])
+    assert probe.enable(True).success
+    start = arm.tool()[:3, 3].copy()
+    ts, xs, goal = step_response(probe, arm)
+    ov = overshoot(xs, start, goal)
+    print(f"step 2 cm in y: overshoot {ov * 100:.1f} %, final error "
+          f"{np.linalg.norm(xs[-1] - goal) * 1000:.2f} mm")
+    assert ov < 0.10
+    assert np.linalg.norm(xs[-1] - goal) < 0.001
+    assert np.abs(xs[:, [0, 2]] - start[[0, 2]]).max() < 0.003   # the other axes held
     assert probe.enable(False).success

@@ -10,7 +10,10 @@ import numpy as np
 import pinocchio as pin
 
 from hyperarm_description import contract
+from hyperarm_description.model import load_description
 from hyperarm_description.qos import qos_for
+
+from ..kinematics import Kinematics
 
 
 class ForceProbe:
@@ -32,6 +35,7 @@ class ForceProbe:
         self.commands: list[tuple[float, object]] = []
         self.states: list[tuple[float, object]] = []
         self.wrench: list[tuple[float, object]] = []
+        self.wrench_base: list[tuple[float, object]] = []
         self.truth: list[tuple[float, object]] = []
         self.statuses: list[tuple[float, dict, str]] = []
         self.contact_force: list[tuple[float, np.ndarray]] = []
@@ -43,6 +47,8 @@ class ForceProbe:
                               qos_for(contract.JOINT_COMMAND))
         n.create_subscription(WrenchStamped, contract.EE_WRENCH, self._rec(self.wrench),
                               qos_for(contract.EE_WRENCH))
+        n.create_subscription(WrenchStamped, contract.EE_WRENCH_BASE, self._rec(self.wrench_base),
+                              qos_for(contract.EE_WRENCH_BASE))
         n.create_subscription(WrenchStamped, contract.TOOL_WRENCH_TRUTH, self._rec(self.truth),
                               qos_for(contract.EE_WRENCH))
         n.create_subscription(DiagnosticArray, contract.DIAGNOSTICS, self._on_diag,
@@ -162,3 +168,74 @@ class ForceProbe:
         if not all(n in index for n in names):
             return None
         return np.array([msg.position[index[n]] for n in names])
+
+
+class MockArm:
+    """Joint-space moves of the mock through joint_command (before the force node is
+    enabled), with the mock's small IK for a tool pointing down."""
+
+    def __init__(self, probe: ForceProbe, wait_for) -> None:
+        from hyperarm_driver.mock.joint_sim import JointSim
+
+        self.probe, self.wait_for = probe, wait_for
+        self.desc = load_description()
+        self.kin = Kinematics(self.desc)
+        self.sim = JointSim(self.desc)     # only for its model and limits (IK)
+        self.arm = list(self.desc.arm_joint_names)
+        self.q = np.zeros(9)
+
+    def q_now(self) -> np.ndarray:
+        box = []
+        self.wait_for(lambda: box.append(self.probe.joints(self.arm)) or box[-1] is not None,
+                      20.0, what="joint_states")
+        return box[-1]
+
+    def move(self, xyz, timeout: float = 6.0) -> np.ndarray:
+        from hyperarm_driver.mock.scenario import tool_down_ik
+
+        self.q = tool_down_ik(self.sim, xyz, self.q)
+        self.probe.command(self.arm, self.q)
+        self.wait_for(lambda: np.abs(self.q_now() - self.q).max() < 2e-3, timeout,
+                      what=f"arm at {list(xyz)}")
+        return self.q
+
+    def grip(self, angle: float, effort: float | None = None, wait: bool = True) -> None:
+        self.probe.command(["gripper"], [angle], [effort] if effort is not None else [])
+        if wait:
+            self.wait_for(lambda: (self.probe.joints(["gripper"]) is not None and
+                                   abs(self.probe.joints(["gripper"])[0] - angle) < 0.05),
+                          5.0, what=f"gripper at {angle}")
+
+    def tool(self) -> np.ndarray:
+        return self.kin.forward(self.q_now())
+
+
+def step_response(probe: ForceProbe, arm: MockArm, step=(0.0, 0.02, 0.0),
+                  stiffness=(800.0, 800.0, 800.0, 20.0, 20.0, 20.0), settle: float = 1.0,
+                  duration: float = 2.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Enabled at the present pose: hold ``settle`` s, then step the goal by ``step`` (m,
+    every axis position-controlled) and record ``duration`` s. Returns (t s from the step,
+    tool positions (N, 3) from the FK of the measured joints, the goal position)."""
+    t = arm.tool()
+    p0, r = t[:3, 3].copy(), t[:3, :3].copy()
+    probe.send_goal(p0, r, stiffness)
+    time.sleep(settle)
+    goal = p0 + np.asarray(step)
+    with probe.lock:
+        n0 = len(probe.states)
+    t0 = time.monotonic()
+    probe.send_goal(goal, r, stiffness)
+    time.sleep(duration)
+    with probe.lock:
+        states = probe.states[n0:]
+    idx = [list(states[0][1].name).index(n) for n in arm.arm]
+    ts = np.array([tt - t0 for tt, _ in states])
+    xs = np.array([arm.kin.forward(np.array(m.position)[idx])[:3, 3] for _, m in states])
+    return ts, xs, goal
+
+
+def mean_force(samples, since: float) -> np.ndarray:
+    """Mean force (N, 3) of WrenchStamped samples [(t, msg)] received after ``since``."""
+    fs = [(m.wrench.force.x, m.wrench.force.y, m.wrench.force.z) for t, m in samples
+          if t > since]
+    return np.mean(fs, axis=0) if fs else np.full(3, np.nan)
