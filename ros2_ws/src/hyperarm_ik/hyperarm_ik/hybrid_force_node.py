@@ -70,8 +70,12 @@ class HybridForceNode(Node):
                                              qos_for(contract.EE_WRENCH_BASE))
         self._diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
                                            qos_for(contract.DIAGNOSTICS))
+        # depth 1: on a loaded machine a backlog of old states would each move the
+        # pseudo-goal on stale measurements (a delay in the loop); the newest one is enough
+        states_qos = qos_for(contract.JOINT_STATES)
+        states_qos.depth = 1
         self.create_subscription(JointState, contract.JOINT_STATES, self._on_joint_states,
-                                 qos_for(contract.JOINT_STATES))
+                                 states_qos)
         self.create_subscription(HybridGoal, contract.HYBRID_GOAL, self._on_goal,
                                  qos_for(contract.HYBRID_GOAL))
         self.create_service(SetBool, contract.HYBRID_ENABLE, self._on_enable)
@@ -248,6 +252,10 @@ class HybridForceNode(Node):
                   "rate_limited": s.rate_limited, "last_event": s.last_event,
                   "payload_kg": ctl.law.payload.mass,
                   "last_state_s": f"{self._state_time or 0.0:.6f}"}
+        cov = ctl.covariance_tool()
+        if cov is not None:    # 1-sigma of the estimate from the effort noise (tool0 axes)
+            sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+            values["wrench_std_tool"] = " ".join(f"{v:.3g}" for v in sd)
         st = DiagnosticStatus(level=bytes([_LEVEL[ctl.mode]]), name="hybrid_force",
                               hardware_id="hybrid_force", message=f"{ctl.mode.value}: "
                               f"{ctl.reason}",

@@ -192,33 +192,41 @@ def test_rate_limit_bounds_every_step():
 def test_law_never_exceeds_the_servo_limits_under_any_command(kin):
     """Fuzz: random states, goals far away with huge stiffness and feed-forward: every
     output torque and every position-output current limit stays within the margin, the
-    torque changes at most torque_rate * dt per cycle, the wrench within its limits."""
+    torque (torque output) changes at most torque_rate * dt per cycle and the pseudo-goal
+    (position output) at most torque_rate * dt / k_s, the wrench within its limits."""
     cfg = LawConfig(torque_rate=50.0)
-    law = HybridLaw(kin, cfg)
     rng = np.random.default_rng(11)
     lim = np.array([j.effort for j in kin.desc.joints]) * cfg.torque_margin
-    for trial in range(20):
-        q = kin.random_configuration(rng)
-        law.reset(q)
-        prev = law.gravity.torques(q, law.payload)
-        for _ in range(5):
-            p = rng.uniform(-0.5, 0.5, 3)
-            quat = rng.normal(size=4)
-            quat /= np.linalg.norm(quat)
-            goal = make_goal(kin, cfg, "base_link", p, quat,
-                             rng.uniform(0, cfg.max_linear_stiffness, 6) *
-                             np.r_[np.ones(3), np.full(3, 0.02)],
-                             rng.random(6) < 0.5, rng.normal(0, 5, 6) * np.r_[1, 1, 1, .1, .1, .1])
-            dq = rng.normal(0.0, 2.0, kin.nq)
-            for output in ("torque", "position"):
+    for output in ("torque", "position"):
+        law = HybridLaw(kin, cfg)
+        for trial in range(20):
+            q = kin.random_configuration(rng)
+            law.reset(q)
+            prev_tau = law.gravity.torques(q, law.payload)
+            prev_q = q.copy()
+            for _ in range(5):
+                p = rng.uniform(-0.5, 0.5, 3)
+                quat = rng.normal(size=4)
+                quat /= np.linalg.norm(quat)
+                goal = make_goal(kin, cfg, "base_link", p, quat,
+                                 rng.uniform(0, cfg.max_linear_stiffness, 6) *
+                                 np.r_[np.ones(3), np.full(3, 0.02)],
+                                 rng.random(6) < 0.5,
+                                 rng.normal(0, 5, 6) * np.r_[1, 1, 1, .1, .1, .1])
+                dq = rng.normal(0.0, 2.0, kin.nq)
                 cmd = law.step(q, dq, goal, 0.01, output=output)
                 assert np.all(np.abs(cmd.tau) <= lim + 1e-9)
-                assert np.all(np.abs(cmd.tau - prev) <= 50.0 * 0.01 + 1e-9)
-                assert np.all(cmd.effort_limit > 0.0) and np.all(cmd.effort_limit <= lim + 1e-9)
+                assert np.all(cmd.effort_limit <= lim + 1e-9)
+                assert output == "torque" or np.all(cmd.effort_limit > 0.0)  # 0 = default
                 assert np.all(cmd.q_cmd >= kin.lower - 1e-12)
                 assert np.all(cmd.q_cmd <= kin.upper + 1e-12)
                 assert np.linalg.norm(cmd.wrench[:3]) <= cfg.max_force + 1e-9
-                prev = cmd.tau
+                assert np.linalg.norm(cmd.wrench[3:]) <= cfg.max_moment + 1e-9
+                if output == "torque":
+                    assert np.all(np.abs(cmd.tau - prev_tau) <= 50.0 * 0.01 + 1e-9)
+                else:
+                    assert np.all(np.abs(cmd.q_cmd - prev_q) <= 50.0 * 0.01 / 20.0 + 1e-9)
+                prev_tau, prev_q = cmd.tau, cmd.q_cmd
 
 
 def test_enable_starts_from_gravity_and_the_present_pose(kin):

@@ -59,9 +59,14 @@ class TorqueCalibration:
     joints: Mapping[str, JointCalibration]
 
     def arrays(self, names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
-        """(scale, offset) in the order of ``names``."""
-        cal = [self.joints.get(n, JointCalibration()) for n in names]
-        return np.array([c.scale for c in cal]), np.array([c.offset for c in cal])
+        """(scale, offset) in the order of ``names`` (cached per order)."""
+        key = tuple(names)
+        cache = self.__dict__.setdefault("_cache", {})
+        if key not in cache:
+            exact = JointCalibration()
+            cal = [self.joints.get(n, exact) for n in names]
+            cache[key] = (np.array([c.scale for c in cal]), np.array([c.offset for c in cal]))
+        return cache[key]
 
     def correct(self, names: Sequence[str], tau_measured: np.ndarray) -> np.ndarray:
         """True torques from measured ones: (tau_measured - offset) / scale."""

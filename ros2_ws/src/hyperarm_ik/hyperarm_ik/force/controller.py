@@ -56,7 +56,6 @@ class Output:
     efforts: list[float] | None
     wrench_root: np.ndarray
     wrench_tool: np.ndarray
-    covariance_tool: np.ndarray
     command: Command | None = None
 
 
@@ -116,6 +115,8 @@ class ForceController:
         self._last_state: float | None = None
         self._last_cycle: float | None = None
         self._q: np.ndarray | None = None
+        self.last_estimate: WrenchEstimate | None = None
+        self._last_rotation = np.eye(3)
         self._default_k = np.asarray(self.config.default_stiffness, dtype=float)
         self._base_id = self.kin.model.getFrameId(self.kin.desc.base_frame)
 
@@ -208,8 +209,8 @@ class ForceController:
         made it passive."""
         q = np.asarray(q, dtype=float)
         dq = np.asarray(dq, dtype=float) if len(dq) else np.zeros_like(q)
-        if q.shape != (len(self.names),) or dq.shape != q.shape or not (
-                np.all(np.isfinite(q)) and np.all(np.isfinite(dq))):
+        if q.shape != (len(self.names),) or dq.shape != q.shape or not \
+                math.isfinite(float(q.sum() + dq.sum())):
             raise StateError("joint state: wrong length or non-finite values")
         self._q = q
         self._last_state = stamp if stamp > 0.0 else now
@@ -228,8 +229,9 @@ class ForceController:
                 assert self.goal is not None
                 cmd = self.law.step(q, dq, self.goal, dt, self.compliance, self.config.output)
                 self._count(cmd)
-        est, r = self._estimate(q, effort)
-        w_tool, cov_tool = to_tool(est.wrench, r, est.covariance)
+        est, r = self._estimate(q, effort, cmd)
+        self.last_estimate, self._last_rotation = est, r
+        w_tool, _ = to_tool(est.wrench, r)
         positions = efforts = None
         if cmd is not None:
             cal = self.calibration
@@ -238,18 +240,28 @@ class ForceController:
             else:
                 positions = cmd.q_cmd.tolist()
                 efforts = cal.command(self.arm_names, cmd.effort_limit).tolist()
-        return Output(self.arm_names, positions, efforts, est.wrench, w_tool, cov_tool,
-                      cmd), event
+        return Output(self.arm_names, positions, efforts, est.wrench, w_tool, cmd), event
 
-    def _estimate(self, q: np.ndarray, effort) -> tuple[WrenchEstimate, np.ndarray]:
-        arm = self.law.arm
-        _, r, j_full = self.kin.pose_jacobian_view(q)
-        r = r.copy()
-        j = j_full[:, arm].copy()
-        g = self.law.gravity.torques(q, self.law.payload, j_full, r)[arm]
+    def _estimate(self, q: np.ndarray, effort,
+                  cmd: Command | None) -> tuple[WrenchEstimate, np.ndarray]:
+        if cmd is not None:            # the law's kinematics and gravity at this q
+            j, r, g = cmd.jacobian, cmd.rotation, cmd.gravity
+        else:
+            arm = self.law.arm
+            _, r, j_full = self.kin.pose_jacobian_view(q)
+            r = r.copy()
+            j = j_full[:, arm].copy()
+            g = self.law.gravity.torques(q, self.law.payload, j_full, r)[arm]
         e = np.asarray(effort, dtype=float)
         tau = self.calibration.correct(self.arm_names, e) if e.shape == g.shape else g
         return self.estimator.update(j, tau, g), r
+
+    def covariance_tool(self) -> np.ndarray | None:
+        """Covariance (6, 6) of the last estimate in tool0 axes (N², N²·m², N²·m²)."""
+        if self.last_estimate is None:
+            return None
+        return to_tool(self.last_estimate.wrench, self._last_rotation,
+                       self.last_estimate.covariance)[1]
 
     def base_rotation(self) -> np.ndarray:
         """Rotation of base_link in the root frame at the last joint state."""

@@ -32,7 +32,7 @@ Two outputs from the same torques:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
@@ -96,7 +96,8 @@ class LawConfig:
     limit_margin / limit_stiffness: within ``limit_margin`` rad of a limit a spring of
       ``limit_stiffness`` N·m/rad (in the null space) pushes away from it.
     torque_margin: fraction of each servo's stall torque the controller may command.
-    torque_rate: N·m/s, the largest change of a joint torque (per cycle: x dt).
+    torque_rate: N·m/s, the largest change of a joint torque (per cycle: x dt); in the
+      ``position`` output the pseudo-goal moves by at most torque_rate x dt / k_s.
     max_force / max_moment: Cartesian wrench limits (N, N·m), applied by scaling.
     singular_damping: lambda of the damped pseudo-inverses (m).
     servo_stiffness: N·m/rad of the servos' position loop (``position`` output).
@@ -235,7 +236,8 @@ def scale_wrench(f: np.ndarray, max_force: float, max_moment: float) -> tuple[np
     """``f`` scaled by one factor so that |force| <= max_force and |moment| <= max_moment
     (the direction of the 6-D wrench is kept). Returns (wrench, factor in [0, 1])."""
     s = 1.0
-    nf, nm = float(np.linalg.norm(f[:3])), float(np.linalg.norm(f[3:]))
+    fl, fa = f[:3], f[3:]
+    nf, nm = math.sqrt(float(fl @ fl)), math.sqrt(float(fa @ fa))
     if nf > max_force:
         s = min(s, max_force / nf)
     if nm > max_moment:
@@ -249,7 +251,7 @@ def scale_into_limits(base: np.ndarray, delta: np.ndarray,
 
     ``base`` (gravity) is clipped into the limits first if it alone exceeds them. Returns
     (torques, s)."""
-    b = np.clip(base, -limit, limit)
+    b = np.minimum(np.maximum(base, -limit), limit)
     t = b + delta
     over = np.abs(t) > limit
     if not over.any():
@@ -265,8 +267,8 @@ def rate_limit(target: np.ndarray, previous: np.ndarray,
     """``target`` with each entry at most ``max_step`` from ``previous``; and whether any
     entry was limited."""
     step = target - previous
-    limited = bool(np.any(np.abs(step) > max_step))
-    return previous + np.clip(step, -max_step, max_step), limited
+    limited = bool((np.abs(step) > max_step).any())
+    return previous + np.minimum(np.maximum(step, -max_step), max_step), limited
 
 
 class GravityModel:
@@ -315,7 +317,8 @@ class Command:
     wrench_scale: float = 1.0       # < 1: the Cartesian wrench limit acted
     joint_scale: float = 1.0        # < 1: the joint torque limits acted
     rate_limited: bool = False
-    flags: dict = field(default_factory=dict)
+    jacobian: np.ndarray | None = None   # (6, na) arm Jacobian at q (LWA)
+    rotation: np.ndarray | None = None   # tool0's rotation at q
 
 
 class HybridLaw:
@@ -351,6 +354,9 @@ class HybridLaw:
         self._d = np.asarray(self.config.damping)
         self._k_pos = np.asarray(self.config.position_stiffness)
         self._eye6 = np.eye(6)
+        self._diag6 = np.diag_indices(6)
+        self._gains_for: HybridGoal | None = None
+        self._gains = (np.zeros(6), np.zeros(6), np.zeros(6, dtype=bool))
         self._eye_n = np.eye(self.na)
 
     # -- state ---------------------------------------------------------------------------
@@ -361,7 +367,7 @@ class HybridLaw:
             raise StateError(f"expected {self.kin.nq} joint positions and velocities "
                              f"({', '.join(self.kin.joint_names)}), got {q.shape[0]} and "
                              f"{dq.shape[0]}")
-        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(dq))):
+        if not math.isfinite(float(q.sum() + dq.sum())):   # NaN/inf anywhere
             raise StateError("non-finite joint positions or velocities")
         return q, dq
 
@@ -401,75 +407,92 @@ class HybridLaw:
         p, r, j_full = self.kin.pose_jacobian_view(q)
         p, r = p.copy(), r.copy()
         j = j_full[:, arm]
-        g_full = self.gravity.torques(q, self.payload, j_full, r)
-        g = g_full[arm]
+        g = self.gravity.torques(q, self.payload, j_full, r)[arm]
         qa, dqa = q[arm], dq[arm]
         ref_p, ref_r = self._reference(goal, p, r, dt)
         err = pose_error(ref_p, ref_r, p, r)
-        self._k_eff = goal.stiffness
-        self._force_axes = goal.force_axes
         twist = j @ dqa
-        f = goal.stiffness * err - self._d * twist + goal.wrench
-        f, wscale = scale_wrench(f, cfg.max_force, cfg.max_moment)
         # damped pseudo-inverse and null-space projector N = I - J+ J
-        jjt = j @ j.T + (cfg.singular_damping ** 2) * self._eye6
-        j_pinv = j.T @ np.linalg.solve(jjt, self._eye6)
-        null = self._eye_n - j_pinv @ j
+        jjt = j @ j.T
+        jjt[self._diag6] += cfg.singular_damping ** 2
+        jjt_inv = np.linalg.inv(jjt)
+        null = self._eye_n - j.T @ (jjt_inv @ j)
         tau0 = cfg.posture_stiffness * (self.posture - qa) + self._limit_push(qa)
-        delta = j.T @ f + null @ tau0 - cfg.joint_damping * dqa
         limit = self.limit
         if compliance:
-            delta = delta + cfg.compliance_stiffness * (self._compliance_posture - qa)
             limit = np.minimum(limit, np.abs(g) + cfg.compliance_effort)
+        if output == "position":
+            return self._pseudo_goal(goal, qa, j, r, jjt_inv, null, g, err, twist, tau0, limit,
+                                     compliance, dt)
+        f = goal.stiffness * err - self._d * twist + goal.wrench
+        f, wscale = scale_wrench(f, cfg.max_force, cfg.max_moment)
+        delta = j.T @ f + null @ tau0 - cfg.joint_damping * dqa
+        if compliance:
+            delta += cfg.compliance_stiffness * (self._compliance_posture - qa)
         tau, jscale = scale_into_limits(g, delta, limit)
         tau, limited = rate_limit(tau, self._tau_prev, cfg.torque_rate * dt)
-        tau = np.clip(tau, -limit, limit)
+        tau = np.minimum(np.maximum(tau, -limit), limit)
         self._tau_prev = tau
-        if output == "position":
-            q_cmd, effort = self._pseudo_goal(qa, j, jjt, null, g, f, tau0, limit, compliance,
-                                              err, twist)
-        else:
-            q_cmd, effort = qa.copy(), np.abs(tau)
-        return Command(tau=tau, gravity=g, q_cmd=q_cmd, effort_limit=effort,
+        return Command(tau=tau, gravity=g, q_cmd=qa.copy(), effort_limit=np.abs(tau),
                        wrench=f, error=err, wrench_scale=wscale, joint_scale=jscale,
-                       rate_limited=limited)
+                       rate_limited=limited, jacobian=j, rotation=r)
 
-    def _pseudo_goal(self, qa, j, jjt, null, g, f, tau0, limit, compliance, err, twist):
+    def _goal_gains(self, goal: HybridGoal) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per axis, for the pseudo-goal: the stiffness (position axes at least
+        ``position_stiffness``) and the update gain; cached per goal."""
+        if self._gains_for is not goal:
+            s = goal.force_axes
+            k = np.where(s, np.maximum(goal.stiffness, 1e-3),
+                         np.maximum(goal.stiffness, self._k_pos))
+            gain = np.where(s, self.config.force_filter, self.config.position_filter)
+            self._gains_for, self._gains = goal, (k, gain, s)
+        return self._gains
+
+    def _pseudo_goal(self, goal, qa, j, r, jjt_inv, null, g, err, twist, tau0, limit,
+                     compliance, dt) -> Command:
         """The 'position' output: pseudo-goal q_cmd and current limit (see docs/force.md).
 
         The servos exert tau_s = k_s (q_cmd - q) above gravity, i.e. the wrench
         F_s = (J J^T)^-1 J tau_s at the tool. Each cycle the pseudo-goal moves by
-        J^+ dx with dx_i = gamma (F_i - F_s,i) / (K_i + K_arm,i): in free space (F_s ~ 0)
-        the tool approaches X0 at the rate gamma K/(K + K_arm) per cycle, in contact the
-        servo force approaches F at the rate gamma K_arm/(K + K_arm), where
-        K_arm,i = 1 / (J k_s^-1 J^T)_ii is the arm's own stiffness along axis i: stable for
-        any K, and at rest F_s = F exactly (the paper's pseudo-goal, eqs. 6-8)."""
+        J^+ gamma (K + K_arm)^-1 (F - F_s), K_arm = k_s (J J^T)^-1 the arm's own stiffness
+        at the tool: in free space (F_s ~ 0) the tool approaches X0 at the rate
+        gamma K/(K + K_arm), in contact the servo force approaches F at the rate
+        gamma K_arm/(K + K_arm): stable for any K, and at rest F_s = F exactly (the
+        paper's pseudo-goal, eqs. 6-8). Position axes use at least ``position_stiffness``
+        (they track X0)."""
         cfg = self.config
         ks = cfg.servo_stiffness
-        tau_s = ks * (self._q_cmd - qa)
-        f_s = np.linalg.solve(jjt, j @ tau_s)
-        # (K + K_arm)^-1 with the arm's stiffness matrix K_arm = k_s (J J^T)^-1
-        # position axes track X0: as stiff as ``position_stiffness`` at least
-        k = np.where(self._force_axes, np.maximum(self._k_eff, 1e-3),
-                     np.maximum(self._k_eff, self._k_pos))
-        f = np.where(self._force_axes, f, k * err - self._d * twist)
-        a = ks * np.linalg.solve(jjt, np.eye(6))
-        a[np.diag_indices(6)] += k
-        gain = np.where(self._force_axes, cfg.force_filter, cfg.position_filter)
+        k, gain, s = self._goal_gains(goal)
+        # force axes: the law's wrench, limited; position axes: tracking (their force is
+        # bounded by the joints' current limits, not by the wrench limit)
+        f_law, wscale = scale_wrench(goal.stiffness * err - self._d * twist + goal.wrench,
+                                     cfg.max_force, cfg.max_moment)
+        f = np.where(s, f_law, k * err - self._d * twist)
+        f_s = jjt_inv @ (j @ (ks * (self._q_cmd - qa)))
+        a = ks * jjt_inv
+        a[self._diag6] += k
         dx = gain * np.linalg.solve(a, f - f_s)
-        jp = np.linalg.solve(jjt, np.eye(6))
-        step = j.T @ (jp @ dx) + null @ (cfg.position_filter * tau0 / ks)
+        step = j.T @ (jjt_inv @ dx) + null @ ((cfg.position_filter / ks) * tau0)
         if compliance:
-            step = step + cfg.position_filter * cfg.compliance_stiffness / ks * (
+            step += (cfg.position_filter * cfg.compliance_stiffness / ks) * (
                 self._compliance_posture - self._q_cmd)
-        self._q_cmd = np.clip(self._q_cmd + step, self.lower, self.upper)
+        # torque-rate limit: at a given q the servo torque changes by k_s * step
+        max_step = cfg.torque_rate * dt / ks
+        step = np.minimum(np.maximum(step, -max_step), max_step)
+        self._q_cmd = np.minimum(np.maximum(self._q_cmd + step, self.lower), self.upper)
         # the current limit covers gravity and the pressing torque without letting one
         # cancel the other: if a contact vanishes the joint still holds its own weight
-        effort = np.clip(np.abs(g) + np.abs(ks * (self._q_cmd - qa)) + cfg.effort_headroom,
-                         0.05, limit)
-        q_out = self._q_cmd if cfg.servo_holds_gravity else np.clip(
-            self._q_cmd + g / ks, self.lower, self.upper)
-        return q_out.copy(), effort
+        push = ks * (self._q_cmd - qa)
+        effort = np.minimum(np.maximum(np.abs(g) + np.abs(push) + cfg.effort_headroom, 0.05),
+                            limit)
+        if cfg.servo_holds_gravity:
+            q_out = self._q_cmd.copy()
+        else:
+            q_out = np.minimum(np.maximum(self._q_cmd + g / ks, self.lower), self.upper)
+        tau = np.minimum(np.maximum(g + push, -limit), limit)   # what the servos exert
+        self._tau_prev = tau
+        return Command(tau=tau, gravity=g, q_cmd=q_out, effort_limit=effort, wrench=f,
+                       error=err, wrench_scale=wscale, jacobian=j, rotation=r)
 
     def _reference(self, goal: HybridGoal, p: np.ndarray, r: np.ndarray,
                    dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -479,11 +502,11 @@ class HybridLaw:
         if self._ref_p is None:
             self._ref_p, self._ref_r = p.copy(), r.copy()
         d = goal.position - self._ref_p
-        n = float(np.linalg.norm(d))
+        n = math.sqrt(float(d @ d))
         step = self.config.max_speed * dt
         self._ref_p = goal.position.copy() if n <= step else self._ref_p + d * (step / n)
         w = pin.log3(goal.rotation @ self._ref_r.T)
-        a = float(np.linalg.norm(w))
+        a = math.sqrt(float(w @ w))
         step = self.config.max_angular_speed * dt
         self._ref_r = goal.rotation.copy() if a <= step else pin.exp3(w * (step / a)) @ self._ref_r
         return self._ref_p, self._ref_r
@@ -499,4 +522,6 @@ class HybridLaw:
         """Arm joints within ``margin`` rad of a limit at chain positions ``q``."""
         qa = np.asarray(q, dtype=float)[self.arm]
         near = (qa < self.lower + margin) | (qa > self.upper - margin)
+        if not near.any():
+            return []
         return [n for n, b in zip(self.arm_names, near) if b]

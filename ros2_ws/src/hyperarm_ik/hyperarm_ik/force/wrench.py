@@ -42,11 +42,17 @@ class EstimatorConfig:
 
 @dataclass(frozen=True)
 class WrenchEstimate:
-    """Filtered wrench (6,) and its covariance (6, 6), root axes; ``raw`` is unfiltered."""
+    """Filtered wrench (6,), root axes; ``raw`` is unfiltered. ``covariance`` (6, 6) is
+    computed when asked for: (J^T)^+ sigma^2 ((J^T)^+)^T times the filter's variance gain."""
 
     wrench: np.ndarray
-    covariance: np.ndarray
     raw: np.ndarray
+    pinv_t: np.ndarray              # (J^T)^+, 6 x n
+    sigma2: float                   # N·m², effort noise variance x the filter's gain
+
+    @property
+    def covariance(self) -> np.ndarray:
+        return self.sigma2 * (self.pinv_t @ self.pinv_t.T)
 
 
 def to_tool(wrench: np.ndarray, rotation: np.ndarray,
@@ -75,6 +81,7 @@ class WrenchEstimator:
         a = self.config.filter
         # variance of a first-order filter's output over its input's (white noise)
         self._var_gain = a / (2.0 - a)
+        self._diag = np.diag_indices(6)
 
     def reset(self) -> None:
         self._f = None
@@ -88,14 +95,14 @@ class WrenchEstimator:
         tau_measured = np.asarray(tau_measured, dtype=float)
         self._last_residual = tau_measured - tau_gravity
         r = self._last_residual - self.bias
-        lam2 = self.config.singular_damping ** 2
-        p = np.linalg.solve(j @ j.T + lam2 * np.eye(6), j)        # (J^T)^+, 6 x n
+        jjt = j @ j.T
+        jjt[self._diag] += self.config.singular_damping ** 2
+        p = np.linalg.solve(jjt, j)                               # (J^T)^+, 6 x n
         raw = p @ r
         a = self.config.filter
         self._f = raw.copy() if self._f is None else self._f + a * (raw - self._f)
-        sigma2 = self.config.effort_noise ** 2
-        cov = sigma2 * (p @ p.T) * self._var_gain
-        return WrenchEstimate(wrench=self._f.copy(), covariance=cov, raw=raw)
+        return WrenchEstimate(wrench=self._f.copy(), raw=raw, pinv_t=p,
+                              sigma2=self.config.effort_noise ** 2 * self._var_gain)
 
     def tare(self, j: np.ndarray | None = None, known: np.ndarray | None = None) -> np.ndarray:
         """Take the last residual as the bias, so that the estimate reads ``known`` (default
