@@ -261,3 +261,30 @@ def test_step_tracking_on_position_axes(launch, rclpy_context, executor, wait_fo
     assert np.linalg.norm(xs[-1] - goal) < 0.001
     assert np.abs(xs[:, [0, 2]] - start[[0, 2]]).max() < 0.003   # the other axes held
     assert probe.enable(False).success
+
+
+@pytest.mark.slow
+def test_calibration_executable_writes_the_file_the_node_loads(launch, tmp_path, wait_for):
+    """hybrid_force_calibrate drives the mock through static poses, exits 0 and writes a
+    calibration that hybrid_force loads. The mock without its current model reports exact
+    efforts: every fitted scale is ~1 and every offset ~0 (repeatability 0)."""
+    from hyperarm_ik.force.calibration import load_calibration
+
+    launch("hyperarm_driver", "mock_driver", params={"workcell_file": _workcell(tmp_path)})
+    out = tmp_path / "calibration.yaml"
+    cal_proc = launch("hyperarm_ik", "hybrid_force_calibrate", params={
+        "output_file": str(out), "poses": 3, "settle": 0.2, "average": 0.2})
+    wait_for(lambda: cal_proc.proc.poll() is not None, 60.0, what="calibration finished")
+    assert cal_proc.proc.returncode == 0, cal_proc.output()[-2000:]
+    assert "torque RMS error" in cal_proc.output()
+    cal = load_calibration(out, list(contract.ARM_JOINTS))
+    for name, c in cal.joints.items():
+        assert abs(c.scale - 1.0) < 0.02 and abs(c.offset) < 0.02, (name, c)
+    assert not cal.joints["joint1"].identified and cal.joints["joint2"].identified
+    hf = launch("hyperarm_ik", "hybrid_force", params={"calibration_file": str(out)})
+    wait_for(lambda: f"calibration {out}" in hf.output(), 20.0, what="hybrid_force started")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("kind: nothing\n")
+    refused = launch("hyperarm_ik", "hybrid_force", params={"calibration_file": str(bad)})
+    wait_for(lambda: refused.proc.poll() is not None, 20.0, what="hybrid_force refusing")
+    assert refused.proc.returncode == 1 and "not a torque calibration" in refused.output()

@@ -153,3 +153,75 @@ def load_calibration(path: str | Path, known: Sequence[str] | None = None) -> To
         except CalibrationError as exc:
             raise CalibrationError(f"{p}: joints.{name}: {exc}") from exc
     return TorqueCalibration(out)
+
+
+def calibration_poses(lower: np.ndarray, upper: np.ndarray, q0: np.ndarray, n: int,
+                      spread: float = 0.6, seed: int = 0) -> np.ndarray:
+    """``n`` arm postures around ``q0`` (rad): each joint but the first moved by up to
+    ``spread`` rad (uniform, fixed ``seed``), kept 0.2 rad inside the limits. Joint1 (a
+    vertical axis) stays: it changes no gravity torque. The caller checks them (e.g. the
+    tool's height) before use."""
+    if n < 3:
+        raise CalibrationError(f"need at least 3 poses, got {n}")
+    rng = np.random.default_rng(seed)
+    q0 = np.asarray(q0, dtype=float)
+    out = np.repeat(q0[None, :], n, axis=0)
+    out[:, 1:] += rng.uniform(-spread, spread, (n, len(q0) - 1))
+    return np.clip(out, lower + 0.2, upper - 0.2)
+
+
+class CalibrationRun:
+    """Sequencing of a calibration (no ROS): for each pose, approach it from above and
+    from below (``approach`` rad, friction acts both ways), wait until still, average the
+    efforts for ``average`` s, and use the mean of both approaches. ``step`` is called on
+    every joint state and returns the arm goal to command (or None when done)."""
+
+    def __init__(self, poses: np.ndarray, approach: float = 0.05, settle: float = 0.5,
+                 average: float = 0.5, tolerance: float = 0.003, timeout: float = 10.0) -> None:
+        self.poses = np.asarray(poses, dtype=float)
+        self.approach, self.settle, self.average = approach, settle, average
+        self.tolerance, self.timeout = tolerance, timeout
+        self.samples: list[list[np.ndarray]] = [[] for _ in range(2 * len(self.poses))]
+        self.q_at: list[np.ndarray] = []
+        self._k = 0            # index over (pose, side, phase)
+        self._phase_start: float | None = None
+        self._reached: float | None = None
+        self.done = False
+
+    def _target(self) -> np.ndarray:
+        pose, side, phase = self._k // 4, (self._k // 2) % 2, self._k % 2
+        q = self.poses[pose].copy()
+        if phase == 0:     # the approach point, beyond the pose on this side
+            q[1:] += self.approach if side == 0 else -self.approach
+        return q
+
+    def step(self, now: float, q: np.ndarray, effort: np.ndarray) -> np.ndarray | None:
+        if self.done:
+            return None
+        target = self._target()
+        if self._phase_start is None:
+            self._phase_start = now
+        if now - self._phase_start > self.timeout:
+            raise CalibrationError(f"pose {self._k // 4 + 1} not reached within "
+                                   f"{self.timeout:g} s (|error| "
+                                   f"{np.abs(q - target).max():.4f} rad)")
+        if np.abs(q - target).max() <= self.tolerance:
+            if self._reached is None:
+                self._reached = now
+            if self._k % 2 == 1 and now - self._reached >= self.settle:
+                self.samples[self._k // 2].append(np.asarray(effort, dtype=float))
+            if self._k % 2 == 0 or now - self._reached >= self.settle + self.average:
+                if self._k % 4 == 3:
+                    self.q_at.append(np.asarray(q, dtype=float))
+                self._k += 1
+                self._phase_start, self._reached = None, None
+                if self._k >= 4 * len(self.poses):
+                    self.done = True
+                    return None
+                return self._target()
+        return target
+
+    def efforts(self) -> np.ndarray:
+        """(P, n) mean efforts per pose, both approaches averaged."""
+        means = [np.mean(s, axis=0) for s in self.samples]
+        return np.array([(means[2 * i] + means[2 * i + 1]) / 2 for i in range(len(self.poses))])
