@@ -161,8 +161,8 @@ class HybridForceNode(Node):
             return
         self._compute_time = time.perf_counter() - t0
         if out.positions is not None or out.efforts is not None:
-            cmd = JointState()
-            cmd.header.stamp = self.get_clock().now().to_msg()
+            cmd = JointState()        # stamped with the joint state it was computed from
+            cmd.header.stamp = self._stamp or self.get_clock().now().to_msg()
             cmd.name = out.names
             cmd.position = out.positions or []
             cmd.effort = out.efforts or []

@@ -1,10 +1,12 @@
 """force_benchmark: figures of the hybrid force controller (docs/benchmarks.md).
 
 1. ``core``: compute time of one control cycle of the ROS-free core (law + wrench estimate,
-   ``ForceController.step``), both outputs, over random states (median, p90).
+   ``ForceController.step``), both outputs, over random states: thread CPU time (median,
+   p90; what a loaded machine does not inflate) and wall time (median).
 2. ``latency``: joint_states in -> joint_command out through ROS, the installed
    ``hybrid_force`` in its own process, driven ping-pong by a probe (one joint state, wait
-   for the command), with ``trigger`` joint_states and timer (p50, p90, p99).
+   for the command computed from it: it carries the state's stamp), with ``trigger`` joint_states and timer (p50, p90,
+   p99). ``stale_timeout`` 1 s: the probe sends a state only every ~10 ms plus the answer.
 3. ``outputs``: 'position' vs 'torque' on the mock (installed ``mock_driver`` +
    ``hybrid_force``): a 2 cm goal step on the position axes (overshoot, final error, hold
    drift), plotted to a PNG with ``--plot``.
@@ -42,16 +44,17 @@ def bench_core(cycles: int) -> dict:
         q = np.array([0.0, 0.5, 0.0, 0.6, 0.0, 0.5, 0.0, -1.0, 0.0])
         ctl.step(0.0, q, np.zeros(9), np.zeros(9))
         ctl.enable(True, 0.0)
-        times = []
+        cpu, wall = [], []
         for i in range(cycles):
             qi = q + rng.normal(0.0, 0.01, 9)
             dq = rng.normal(0.0, 0.1, 9)
             effort = rng.normal(0.0, 0.5, 9)
-            t0 = time.perf_counter()
+            c0, w0 = time.thread_time(), time.perf_counter()
             ctl.step(0.01 * (i + 1), qi, dq, effort)
-            times.append(time.perf_counter() - t0)
-        t = np.array(times) * 1e3
-        out[output] = (float(np.median(t)), float(np.percentile(t, 90)))
+            cpu.append(time.thread_time() - c0)
+            wall.append(time.perf_counter() - w0)
+        c, w = np.array(cpu) * 1e3, np.array(wall) * 1e3
+        out[output] = (float(np.median(c)), float(np.percentile(c, 90)), float(np.median(w)))
     return out
 
 
@@ -123,7 +126,8 @@ def bench_latency(samples: int, domain: int, tmp: Path) -> dict:
     q = [0.0, 0.5, 0.0, 0.6, 0.0, 0.5, 0.0, -1.0, 0.0]
     out = {}
     for trigger in ("joint_states", "timer"):
-        proc = _launch("hybrid_force", domain, {"trigger": trigger}, tmp / f"hf-{trigger}.log")
+        proc = _launch("hybrid_force", domain, {"trigger": trigger, "stale_timeout": 1.0},
+                       tmp / f"hf-{trigger}.log")
         ros = _Ros(domain, driver=True)
         p = ros.probe
         try:
@@ -135,12 +139,23 @@ def bench_latency(samples: int, domain: int, tmp: Path) -> dict:
             p.driving = False
             time.sleep(0.05)
             lat = []
-            for _ in range(samples):
+            for k in range(samples):
+                # the command answering this state carries its stamp (a timer may first send
+                # one computed from the previous state)
                 with p.lock:
                     n = len(p.commands)
                 t0 = time.monotonic()
                 p.publish_state(q)
-                got = _wait(lambda: len(p.commands) > n and p.commands[n][0], 1.0, "command")
+                stamp = p.last_published
+
+                def answered():
+                    with p.lock:
+                        for t, m in p.commands[n:]:
+                            if abs(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
+                                   - stamp) < 1e-6:
+                                return t
+                    return None
+                got = _wait(answered, 1.0, "command")
                 lat.append(got - t0)
                 time.sleep(0.01)
                 if p.mode() == "passive":
@@ -157,10 +172,17 @@ def bench_outputs(domain: int, tmp: Path, plot: str | None) -> dict:
     from .force_probe import MockArm, step_response
 
     out, curves = {}, {}
+    # each output at gains it is stable with on the mock at 100 Hz (the torque output
+    # diverges at the position output's 800 N/m, 20 N·m/rad: see docs/benchmarks.md)
+    gains = {"position": ([800.0] * 3 + [20.0] * 3, {}),
+             "torque": ([300.0] * 3 + [3.0] * 3, {"damping": "[3.0,3.0,3.0,0.02,0.02,0.02]"})}
     for output in ("position", "torque"):
+        k, extra = gains[output]
         mock = _launch("mock_driver", domain, {}, tmp / f"mock-{output}.log")
-        hf = _launch("hybrid_force", domain, {"output": output, "stale_timeout": 0.5},
-                     tmp / f"hf-{output}.log")
+        hf = _launch("hybrid_force", domain, {
+            "output": output, "stale_timeout": 0.5, **extra,
+            "default_stiffness": "[" + ",".join(f"{v:g}.0" if v == int(v) else f"{v:g}"
+                                               for v in k) + "]"}, tmp / f"hf-{output}.log")
         ros = _Ros(domain, driver=False)
         p = ros.probe
         try:
@@ -169,8 +191,8 @@ def bench_outputs(domain: int, tmp: Path, plot: str | None) -> dict:
             _wait(lambda: p.cmd_pub.get_subscription_count() > 0, 10.0, "mock")
             arm.move([0.35, -0.05, -0.05])
             assert p.enable(True).success
-            start = arm.tool()[:3, 3].copy()
-            ts, xs, goal = step_response(p, arm, settle=1.0, duration=2.5)
+            ts, xs, goal = step_response(p, arm, stiffness=k, settle=1.0, duration=2.5)
+            start = goal - np.array([0.0, 0.02, 0.0])      # the pose held before the step
             d = goal - start
             prog = (xs - start) @ d / float(d @ d)
             others = np.abs(xs[:, [0, 2]] - start[[0, 2]]).max()
@@ -189,7 +211,8 @@ def bench_outputs(domain: int, tmp: Path, plot: str | None) -> dict:
 
         fig, ax = plt.subplots(figsize=(7, 4))
         for name, (ts, y) in curves.items():
-            ax.plot(ts, y, label=f"{name} output")
+            ax.plot(ts, y, label=f"{name} output, K {gains[name][0][0]:g} N/m, "
+                    f"{gains[name][0][3]:g} N·m/rad")
         ax.axhline(20.0, color="k", lw=0.8, ls="--", label="goal (2 cm step)")
         ax.set_xlabel("time since the goal step (s)")
         ax.set_ylabel("tool y - start (mm), FK of joint_states")
@@ -211,9 +234,9 @@ def main(argv: list[str] | None = None) -> None:
     a = ap.parse_args(argv)
     tmp = Path(tempfile.mkdtemp(prefix="force_benchmark-"))
     if a.only in (None, "core"):
-        for name, (med, p90) in bench_core(a.cycles).items():
-            print(f"core cycle ({name} output, law + estimate): median {med:.3f} ms, "
-                  f"p90 {p90:.3f} ms over {a.cycles} cycles")
+        for name, (med, p90, wall) in bench_core(a.cycles).items():
+            print(f"core cycle ({name} output, law + estimate): CPU median {med:.3f} ms, "
+                  f"p90 {p90:.3f} ms (wall median {wall:.3f} ms) over {a.cycles} cycles")
     if a.only in (None, "latency"):
         for name, (p50, p90, p99) in bench_latency(a.samples, a.domain, tmp).items():
             print(f"joint_states -> joint_command (trigger {name}): p50 {p50:.2f} ms, "
