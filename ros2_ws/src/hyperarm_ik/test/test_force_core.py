@@ -401,3 +401,24 @@ def test_every_parameter_is_documented_with_its_default():
     assert law == LawConfig(posture=(0.0,) * 9) and ctl.output == "position"
     with pytest.raises(ForceConfigError):
         build({"damping": [1.0, 2.0]})
+
+
+def test_pure_force_goal_moves_the_pseudo_goal_at_bounded_speed(kin):
+    """K = 0 with F_d on z (pure force control) in free space: the pseudo-goal (where the
+    servos drive the tool) moves at most max_speed."""
+    cfg = LawConfig()
+    law = HybridLaw(kin, cfg)
+    q = np.array([0.0, 0.5, 0.0, 0.6, 0.0, 0.5, 0.0, -1.0, 0.0])
+    p, r = _pose(kin, q)
+    quat = pin.Quaternion(r)
+    goal = make_goal(kin, cfg, "base_link", p, [quat.x, quat.y, quat.z, quat.w],
+                     [800, 800, 0, 20, 20, 20], [False, False, True, False, False, False],
+                     [0, 0, -5.0, 0, 0, 0])
+    law.reset(q)
+    prev = p
+    for _ in range(20):
+        cmd = law.step(q, np.zeros(9), goal, 0.01, output="position")
+        x = kin.forward(cmd.q_cmd)[:3, 3]
+        assert np.linalg.norm(x - prev) <= cfg.max_speed * 0.01 * 1.05 + 1e-6
+        prev = x
+    assert prev[2] < p[2] - 0.005          # it does move down, towards the force

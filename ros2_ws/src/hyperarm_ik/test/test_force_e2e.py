@@ -222,7 +222,7 @@ def test_pressing_on_a_peg_top_with_the_mock(launch, rclpy_context, executor, wa
     for k, fd in ((200.0, 0.0), (600.0, 0.0), (1000.0, 0.0), (400.0, -1.0)):
         probe.send_goal(x0, rot, [800.0, 800.0, k, 20.0, 20.0, 20.0],
                         (False, False, True, False, False, False), (0, 0, fd, 0, 0, 0))
-        f, xs = _settled(probe, arm, 2.5 if not results else 2.0)
+        f, xs = _settled(probe, arm, 3.5 if not results else 2.0)
         f_true = abs(float(f[2]))        # the force-controlled axis: the normal force
         with probe.lock:
             est = mean_force(probe.wrench_base, time.monotonic() - 0.6)
@@ -251,22 +251,47 @@ def overshoot(xs: np.ndarray, start: np.ndarray, goal: np.ndarray) -> float:
     return float(max(progress.max() - 1.0, 0.0))
 
 
+def _excursion(probe: ForceProbe, arm: MockArm, p0: np.ndarray, action,
+               seconds: float = 0.6) -> float:
+    """Largest distance (m) of the tool (FK of the measured joints) from ``p0`` during
+    ``seconds`` after ``action()``."""
+    with probe.lock:
+        n = len(probe.states)
+    action()
+    time.sleep(seconds)
+    with probe.lock:
+        states = [m for _, m in probe.states[n:]]
+    idx = [list(states[0].name).index(j) for j in arm.arm]
+    xs = np.array([arm.kin.forward(np.array(m.position)[idx])[:3, 3] for m in states])
+    return float(np.linalg.norm(xs - p0, axis=1).max())
+
+
 @pytest.mark.slow
-def test_step_tracking_on_position_axes(launch, rclpy_context, executor, wait_for, tmp_path):
-    """A 2 cm step of the goal on the position axes: tracked (within 1 mm after 2 s) with
-    under 10 % overshoot (FK of the measured joints)."""
+def test_step_tracking_and_no_sag(launch, rclpy_context, executor, wait_for, tmp_path):
+    """The tool (FK of the measured joints) moves less than 1 mm around the controller's
+    start, a compliance on/off (mode change) and its stop; a 2 cm step of the goal on the
+    position axes is tracked (within 1 mm after 2 s) with under 10 % overshoot, the other
+    axes held within 3 mm. (Today's mock has no torque-off gap at a servo's operating-mode
+    switch; the 'position' output causes none: every command is current-based position.)"""
     probe, arm, _ = _mock_session(launch, rclpy_context, executor, wait_for, tmp_path)
     arm.move([0.35, -0.05, -0.05])
-    assert probe.enable(True).success
-    start = arm.tool()[:3, 3].copy()
+    time.sleep(0.3)
+    p0 = arm.tool()[:3, 3].copy()
+    sag = {"start": _excursion(probe, arm, p0, lambda: probe.enable(True))}
     ts, xs, goal = step_response(probe, arm)
+    start = goal - np.array([0.0, 0.02, 0.0])
     ov = overshoot(xs, start, goal)
     print(f"step 2 cm in y: overshoot {ov * 100:.1f} %, final error "
           f"{np.linalg.norm(xs[-1] - goal) * 1000:.2f} mm")
     assert ov < 0.10
     assert np.linalg.norm(xs[-1] - goal) < 0.001
     assert np.abs(xs[:, [0, 2]] - start[[0, 2]]).max() < 0.003   # the other axes held
-    assert probe.enable(False).success
+    p1 = arm.tool()[:3, 3].copy()
+    sag["compliance on"] = _excursion(probe, arm, p1, lambda: probe.compliance(True))
+    sag["compliance off"] = _excursion(probe, arm, p1, lambda: probe.compliance(False))
+    sag["stop"] = _excursion(probe, arm, p1, lambda: probe.enable(False))
+    print("tool excursion (mm):", {k: round(v * 1e3, 3) for k, v in sag.items()})
+    assert all(v < 0.001 for v in sag.values()), sag
 
 
 @pytest.mark.slow
@@ -289,39 +314,3 @@ def test_calibration_executable_writes_the_file_the_node_loads(launch, tmp_path,
     assert not cal.joints["joint1"].identified and cal.joints["joint2"].identified
     hf = launch("hyperarm_ik", "hybrid_force", params={"calibration_file": str(out)})
     wait_for(lambda: f"calibration {out}" in hf.output(), 20.0, what="hybrid_force started")
-    bad = tmp_path / "bad.yaml"
-    bad.write_text("kind: nothing\n")
-    refused = launch("hyperarm_ik", "hybrid_force", params={"calibration_file": str(bad)})
-    wait_for(lambda: refused.proc.poll() is not None, 20.0, what="hybrid_force refusing")
-    assert refused.proc.returncode == 1 and "not a torque calibration" in refused.output()
-
-
-@pytest.mark.slow
-def test_no_sag_at_start_stop_and_mode_change(launch, rclpy_context, executor, wait_for,
-                                              tmp_path):
-    """The tool (FK of the measured joints) moves less than 1 mm around the controller's
-    start, a compliance on/off (mode change) and its stop. (The mock's torque-off gap of a
-    servo operating-mode switch is not in today's mock; the 'position' output causes no
-    switch: every command is current-based position.)"""
-    probe, arm, _ = _mock_session(launch, rclpy_context, executor, wait_for, tmp_path)
-    arm.move([0.30, 0.0, -0.02])
-    time.sleep(0.3)
-    p0 = arm.tool()[:3, 3].copy()
-
-    def excursion(action, seconds: float = 0.6) -> float:
-        with probe.lock:
-            n = len(probe.states)
-        action()
-        time.sleep(seconds)
-        with probe.lock:
-            states = [m for _, m in probe.states[n:]]
-        idx = [list(states[0].name).index(j) for j in arm.arm]
-        xs = np.array([arm.kin.forward(np.array(m.position)[idx])[:3, 3] for m in states])
-        return float(np.linalg.norm(xs - p0, axis=1).max())
-
-    sag = {"start": excursion(lambda: probe.enable(True)),
-           "compliance on": excursion(lambda: probe.compliance(True)),
-           "compliance off": excursion(lambda: probe.compliance(False)),
-           "stop": excursion(lambda: probe.enable(False))}
-    print("tool excursion (mm):", {k: round(v * 1e3, 3) for k, v in sag.items()})
-    assert all(v < 0.001 for v in sag.values()), sag

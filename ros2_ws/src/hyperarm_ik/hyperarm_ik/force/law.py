@@ -20,14 +20,15 @@ the joint limits. The non-gravity part is then scaled (one factor, direction kep
 per-joint limits (stall torque x ``torque_margin``), and the change per cycle is limited to
 ``torque_rate`` x dt.
 
-Two outputs from the same torques:
+Two outputs of the same law:
 
 - ``torque``: the torques themselves (effort-only joint_command: current mode);
 - ``position``: the paper's pseudo-goal for position servos of known stiffness k_s:
   q_cmd moves so that the servo torques k_s (q_cmd - q) make the law's wrench at the
   tool (:meth:`HybridLaw._pseudo_goal`), sent with a current limit
-  |g| + |k_s (q_cmd - q)| + ``effort_headroom`` (current-based position). ``g_servo`` is g when the servo's
-  own integral action holds gravity (``servo_holds_gravity``), else 0.
+  |g| + |k_s (q_cmd - q)| + ``effort_headroom`` (current-based position). Servos whose
+  integral action does not hold gravity (``servo_holds_gravity`` false) get g / k_s added
+  to q_cmd.
 """
 from __future__ import annotations
 
@@ -262,6 +263,12 @@ def scale_into_limits(base: np.ndarray, delta: np.ndarray,
     return np.clip(b + s * delta, -limit, limit), s
 
 
+def _cap(v: np.ndarray, bound: float) -> tuple[np.ndarray, bool]:
+    """``v`` scaled down to norm ``bound`` if longer."""
+    n = math.sqrt(float(v @ v))
+    return (v * (bound / n), True) if n > bound else (v, False)
+
+
 def rate_limit(target: np.ndarray, previous: np.ndarray,
                max_step: float) -> tuple[np.ndarray, bool]:
     """``target`` with each entry at most ``max_step`` from ``previous``; and whether any
@@ -472,6 +479,10 @@ class HybridLaw:
         a = ks * jjt_inv
         a[self._diag6] += k
         dx = gain * np.linalg.solve(a, f - f_s)
+        # the pseudo-goal moves at max_speed / max_angular_speed at most (a force axis
+        # with K = 0 and F_d would otherwise accelerate the tool in free space)
+        dx[:3], _ = _cap(dx[:3], cfg.max_speed * dt)
+        dx[3:], _ = _cap(dx[3:], cfg.max_angular_speed * dt)
         step = j.T @ (jjt_inv @ dx) + null @ ((cfg.position_filter / ks) * tau0)
         if compliance:
             step += (cfg.position_filter * cfg.compliance_stiffness / ks) * (

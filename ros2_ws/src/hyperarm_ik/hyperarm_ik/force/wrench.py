@@ -78,6 +78,7 @@ class WrenchEstimator:
         self.bias = np.zeros(n)
         self._f: np.ndarray | None = None
         self._last_residual = np.zeros(n)
+        self._r: np.ndarray | None = None
         a = self.config.filter
         # variance of a first-order filter's output over its input's (white noise)
         self._var_gain = a / (2.0 - a)
@@ -85,6 +86,7 @@ class WrenchEstimator:
 
     def reset(self) -> None:
         self._f = None
+        self._r = None
 
     def residual(self, tau_measured: np.ndarray, tau_gravity: np.ndarray) -> np.ndarray:
         return np.asarray(tau_measured, dtype=float) - tau_gravity - self.bias
@@ -93,8 +95,12 @@ class WrenchEstimator:
                tau_gravity: np.ndarray) -> WrenchEstimate:
         """One cycle with the arm Jacobian ``j`` (6 x n, LWA) and efforts (n,) in N·m."""
         tau_measured = np.asarray(tau_measured, dtype=float)
-        self._last_residual = tau_measured - tau_gravity
-        r = self._last_residual - self.bias
+        res = tau_measured - tau_gravity
+        # the residual low-passed like the estimate: what tare takes as the bias
+        self._last_residual = res if self._r is None else self._last_residual + \
+            self.config.filter * (res - self._last_residual)
+        self._r = res
+        r = res - self.bias
         jjt = j @ j.T
         jjt[self._diag] += self.config.singular_damping ** 2
         p = np.linalg.solve(jjt, j)                               # (J^T)^+, 6 x n
@@ -105,8 +111,8 @@ class WrenchEstimator:
                               sigma2=self.config.effort_noise ** 2 * self._var_gain)
 
     def tare(self, j: np.ndarray | None = None, known: np.ndarray | None = None) -> np.ndarray:
-        """Take the last residual as the bias, so that the estimate reads ``known`` (default
-        zero; needs ``j`` otherwise) from now on. Returns the bias (N·m)."""
+        """Take the (low-passed) residual as the bias, so that the estimate reads ``known``
+        (default zero; needs ``j`` otherwise) from now on. Returns the bias (N·m)."""
         bias = self._last_residual.copy()
         if known is not None:
             if j is None:
