@@ -12,6 +12,7 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
+        ("share/" + package_name + "/tasks", glob("tasks/*.yaml")),
         ("share/" + package_name + "/launch", glob("launch/*.py")),
         # shell scripts, runnable as `ros2 run hyperarm_tasks <script>.sh`
         ("lib/" + package_name, glob("scripts/*.sh")),

@@ -38,7 +38,7 @@ def build(raw: dict, ctx: BuildContext, index: int) -> MoveJoints:
 def run(step: MoveJoints, runner) -> None:
     rail = runner.desc.rail.name if runner.desc.rail else None
     goal = dict(step.goal)
-    if rail and rail in goal and not runner.robot.rail_homed():
+    if rail and rail in goal and runner.robot.rail_homed() is False:
         from ..errors import StepFailed
         raise StepFailed("driver", "driver refused: the rail is not homed (add a home_rail "
                                    "step first)")
