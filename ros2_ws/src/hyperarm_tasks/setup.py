@@ -27,6 +27,8 @@ setup(
         "console_scripts": [
             "task_node = hyperarm_tasks.task_node:main",
             "run_task = hyperarm_tasks.run_task:main",
+            "task_recorder = hyperarm_tasks.recorder_node:main",
+            "plot_task = hyperarm_tasks.plots:main",
         ],
     },
 )

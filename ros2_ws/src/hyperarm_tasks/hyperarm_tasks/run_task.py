@@ -33,7 +33,30 @@ def _parse(argv: list[str]) -> argparse.Namespace:
     ap.add_argument("--timeout", type=float, default=300.0, help="overall timeout, s")
     ap.add_argument("--namespace", default=contract.DEFAULT_NAMESPACE)
     ap.add_argument("--quiet", action="store_true", help="only the result line")
+    ap.add_argument("--wait-ready", type=float, default=0.0, metavar="S",
+                    help="first wait up to S s for joint_states and the task node")
     return ap.parse_args(args_no_ros)
+
+
+def _wait_ready(node, client: TaskClient, timeout: float) -> str | None:
+    """Wait for joint_states and the action server; None when both are there."""
+    from sensor_msgs.msg import JointState
+
+    from hyperarm_description.qos import qos_for
+
+    seen: set[str] = set()
+    sub = node.create_subscription(JointState, contract.JOINT_STATES,
+                                   lambda m: seen.update(m.name), qos_for(contract.JOINT_STATES))
+    deadline = time.monotonic() + timeout
+    try:
+        while time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.05)
+            if seen and client.server_ready():
+                return None
+        return ("no joint_states from a driver" if not seen
+                else "the task node's run_task action is not available")
+    finally:
+        node.destroy_subscription(sub)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -55,6 +78,12 @@ def main(argv: list[str] | None = None) -> int:
     client = TaskClient(node)
     code = 1
     try:
+        if args.wait_ready > 0.0:
+            reason = _wait_ready(node, client, args.wait_ready)
+            if reason:
+                print(f"run_task: not ready after {args.wait_ready:g} s: {reason}",
+                      file=sys.stderr)
+                return 1
         if not client.send(args.task, timeout=min(args.timeout, 15.0)):
             print(f"run_task: {client.message}", file=sys.stderr)
             return 1
@@ -69,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
                 elif fb.phase not in ("start", "done"):
                     p = fb.waypoint.point
                     print(f"      {fb.phase} (tool target {p.x:.3f} {p.y:.3f} {p.z:.3f} m"
-                          + (f", depth {fb.depth * 1000:.1f} mm" if fb.depth else "") + ")",
+                          + (f", depth {fb.depth * 1000:.1f} mm" if fb.depth > 0 else "") + ")",
                           flush=True)
                 last = (fb.stage, fb.phase)
             if time.monotonic() > deadline:

@@ -70,18 +70,23 @@ def task_names(extra_dirs: list[str | os.PathLike] | None = None) -> list[str]:
     return sorted(names)
 
 
-def load_task(name: str, desc: RobotDescription,
-              extra_dirs: list[str | os.PathLike] | None = None) -> Task:
-    """Find ``<name>.yaml`` (user directories first) and load it; UnknownTaskError lists
-    the known tasks."""
+def find_task(name: str, extra_dirs: list[str | os.PathLike] | None = None) -> Path:
+    """Path of ``<name>.yaml`` (user directories first); UnknownTaskError lists the known."""
     if not name or "/" in name or name.startswith("."):
         raise UnknownTaskError(f"bad task name {name!r}")
     for d in _dirs(extra_dirs):
         path = d / f"{name}.yaml"
         if path.is_file():
-            return load_task_file(path, desc)
+            return path
     raise UnknownTaskError(f"unknown task {name!r}; known tasks: "
                            f"{', '.join(task_names(extra_dirs)) or '(none)'}")
+
+
+def load_task(name: str, desc: RobotDescription,
+              extra_dirs: list[str | os.PathLike] | None = None) -> Task:
+    """Find ``<name>.yaml`` (user directories first) and load it; UnknownTaskError lists
+    the known tasks."""
+    return load_task_file(find_task(name, extra_dirs), desc, extra_dirs)
 
 
 # --- YAML with line numbers ----------------------------------------------------------------
@@ -177,9 +182,7 @@ def _best(errors: list[jsonschema.ValidationError]) -> jsonschema.ValidationErro
     return err
 
 
-def load_task_file(path: str | os.PathLike, desc: RobotDescription) -> Task:
-    """Load and validate one task file; raises TaskFileError (file:line: reason)."""
-    path = Path(path)
+def _read_checked(path: Path) -> tuple[Any, dict]:
     where = path.name
     try:
         text = path.read_text()
@@ -189,11 +192,55 @@ def load_task_file(path: str | os.PathLike, desc: RobotDescription) -> Task:
     validator = jsonschema.Draft202012Validator(task_schema())
     errors = sorted(validator.iter_errors(data), key=lambda e: len(e.absolute_path))
     if errors:
+        if isinstance(data, dict) and ("steps" in data) == ("extends" in data):
+            raise TaskFileError(where, 1, "give either 'steps' or 'extends' (another task)")
         _schema_error(data, where, lines, _best(errors))
     if data["schema_version"] != SCHEMA_VERSION:
         raise TaskFileError(where, _line(lines, ("schema_version",)),
                             f"schema_version {data['schema_version']} is not supported "
                             f"(this version reads {SCHEMA_VERSION})")
+    return data, lines
+
+
+def _renamed(value: Any, rename: dict[str, str]) -> Any:
+    if isinstance(value, dict):
+        return {k: (rename.get(v, v) if k in ("relative_to", "detection") and isinstance(v, str)
+                    else _renamed(v, rename)) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_renamed(v, rename) for v in value]
+    return value
+
+
+def load_task_file(path: str | os.PathLike, desc: RobotDescription,
+                   extra_dirs: list[str | os.PathLike] | None = None) -> Task:
+    """Load and validate one task file; raises TaskFileError (file:line: reason).
+
+    A file with ``extends: other`` takes the other task's steps, objects and frames, with
+    the object and frame names of ``rename`` swapped (e.g. the transfer back)."""
+    path = Path(path)
+    where = path.name
+    data, lines = _read_checked(path)
+    if "extends" in data:
+        try:
+            base_path = find_task(data["extends"], extra_dirs)
+        except UnknownTaskError as exc:
+            raise TaskFileError(where, _line(lines, ("extends",)), str(exc)) from None
+        if base_path.resolve() == path.resolve():
+            raise TaskFileError(where, _line(lines, ("extends",)), "a task cannot extend itself")
+        base, base_lines = _read_checked(base_path)
+        if "extends" in base:
+            raise TaskFileError(where, _line(lines, ("extends",)),
+                                f"{base_path.name} extends another task itself (one level only)")
+        rename = data.get("rename", {})
+        unknown = sorted(set(rename) - set(base.get("objects", [])) - set(base.get("frames", {})))
+        if unknown:
+            raise TaskFileError(where, _line(lines, ("rename",)),
+                                f"rename: {', '.join(unknown)} not objects or frames of "
+                                f"{base_path.name}")
+        merged = dict(base)
+        merged["steps"] = _renamed(base["steps"], rename)
+        merged["description"] = data.get("description", base.get("description", ""))
+        data, lines, where = merged, base_lines, f"{where} (extends {base_path.name})"
     frames = {}
     for fname, spec in data.get("frames", {}).items():
         try:

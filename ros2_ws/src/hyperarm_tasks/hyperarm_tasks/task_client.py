@@ -46,6 +46,9 @@ class TaskClient:
     def _spin(self, timeout: float = 0.05) -> None:
         rclpy.spin_once(self._node, timeout_sec=timeout)
 
+    def server_ready(self) -> bool:
+        return self._client.server_is_ready()
+
     def send(self, task: str, timeout: float = 10.0) -> bool:
         """Send a task; False if the server is not there within ``timeout`` s or rejects."""
         if not self._client.wait_for_server(timeout_sec=timeout):

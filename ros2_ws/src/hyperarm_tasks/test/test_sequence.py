@@ -53,7 +53,7 @@ def test_every_step_type_is_registered():
 
 def test_unknown_task_lists_known_ones(desc, tmp_path):
     with pytest.raises(UnknownTaskError, match=r"unknown task 'dance'; known tasks: "
-                                                r"block_transfer, ready, rest"):
+                                                r"block_transfer, block_transfer_back, ready, rest"):
         load_task("dance", desc)
     (tmp_path / "wave.yaml").write_text(
         "schema_version: 1\nsteps:\n  - {name: a, type: move_joints, arm: 0}\n")

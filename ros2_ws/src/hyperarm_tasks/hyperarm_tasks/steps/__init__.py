@@ -214,7 +214,9 @@ def task_schema() -> dict:
                        "then": {k: v for k, v in b.items() if k != "if"}} for b in branches]}
     return {"$schema": "https://json-schema.org/draft/2020-12/schema",
             "type": "object", "additionalProperties": False,
-            "required": ["schema_version", "steps"],
+            "required": ["schema_version"],
+            "oneOf": [{"required": ["steps"], "not": {"required": ["extends"]}},
+                      {"required": ["extends"], "not": {"required": ["steps"]}}],
             "properties": {
                 "schema_version": {"type": "integer"},
                 "description": {"type": "string"},
@@ -224,6 +226,9 @@ def task_schema() -> dict:
                     "properties": {"xyz": {"type": "array", "minItems": 3, "maxItems": 3,
                                            "items": quantity("length")}}}},
                 "steps": {"type": "array", "minItems": 1, "items": step},
+                "extends": {"type": "string", "description": "another task's steps"},
+                "rename": {"type": "object", "additionalProperties": {"type": "string"},
+                           "description": "objects/frames renamed in the extended steps"},
             }}
 
 

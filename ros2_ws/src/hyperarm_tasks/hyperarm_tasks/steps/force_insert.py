@@ -128,9 +128,9 @@ def run(step: ForceInsert, runner) -> None:
         while True:
             now = robot.now()
             dt, last = now - last, now
-            if dithering:
-                off = dither.advance(dt)
-            else:
+            if dithering and done_ticks == 0:
+                off = dither.advance(dt)    # frozen while the depth is being confirmed
+            elif not dithering:
                 off = np.zeros(3)
             z_cmd = max(z_bottom, z_cmd - step.descent_speed * dt)
             goal = target.copy()

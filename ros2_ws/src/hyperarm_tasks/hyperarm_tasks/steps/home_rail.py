@@ -1,5 +1,5 @@
 """``home_rail``: start the rail's home search and wait until it reports homed (nothing to
-do, logged, on the fixed-base arm).
+do, logged, on the fixed-base arm or when the rail is homed already).
 
     - name: home
       type: home_rail
@@ -26,6 +26,9 @@ def run(step: HomeRail, runner) -> None:
     robot = runner.robot
     if runner.desc.rail is None:
         robot.log("info", f"{step.name}: no rail on this variant, nothing to home")
+        return
+    if robot.rail_homed():
+        robot.log("info", f"{step.name}: the rail is homed already")
         return
     reason = robot.home_rail()
     if reason:
