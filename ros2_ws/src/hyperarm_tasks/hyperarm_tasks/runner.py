@@ -453,3 +453,8 @@ class Runner:
         reason = self.robot.hold()
         if reason:
             self.robot.log("error", f"hold failed: {reason}")
+        if self.holding is not None:
+            # a hold commands the present position: the fingers would stop squeezing and
+            # drop the block; keep closing them at the grip effort
+            g = self.desc.gripper
+            self.robot.command({g.name: g.lower}, {g.name: self.holding})

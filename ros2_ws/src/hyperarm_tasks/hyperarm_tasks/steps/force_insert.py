@@ -10,9 +10,15 @@ position pseudo-goal through joint_command: the tool is commanded ``press`` belo
 contact height, and the servos' finite stiffness turns the shortfall into the pressing
 force (logged once per run).
 
-Depth: the measured tool height (FK of joint_states) below the height where the press
-stalled on the peg's top (or below the nominal contact height ``target`` if it never
-stalled). Retries (``retry``) rotate and reverse the pattern.
+Contact and depth. The press stalls on the peg's top: the measured tool (FK of
+joint_states) stops above the commanded one (the servos deflect); that height is the
+contact height. The block is down the peg when the command is the full ``press`` below the
+contact height (more than ``depth``) and nothing holds the tool up any more (deflection
+below ``contact_threshold``); the camera then confirms that the block is on the peg's axis
+(within ``align_tolerance``), not down beside it. Encoders do not see the arm's
+repeatability error, so heights are judged by deflection, not by absolute tool height.
+The depth reported is the measured drop below the contact height. Retries (``retry``)
+rotate and reverse the pattern.
 
     - name: insert
       type: force_insert
@@ -35,13 +41,14 @@ from . import BuildContext, PoseSpec, Step, StepType, pose_schema, quantity, reg
 
 STALL_WINDOW = 0.15   # s: the tool stalled if it moved down less than STALL_MOTION in it
 STALL_MOTION = 3e-4   # m  (while the command went down more than twice that)
+CONTACT_WINDOW = 0.01  # m: a stall counts as contact only this close above the nominal top
 
 
 @dataclass(frozen=True)
 class ForceInsert(Step):
     target: PoseSpec = PoseSpec("tool")
     depth: float = 0.005            # m down the peg = success
-    press: float = 0.012            # m, pseudo-goal below the contact height (no force node)
+    press: float = 0.015            # m, pseudo-goal below the contact height (no force node)
     force: float = 3.0              # N downward (force node)
     stiffness: float = 300.0        # N/m on z (force node)
     descent_speed: float = 0.02     # m/s
@@ -50,14 +57,23 @@ class ForceInsert(Step):
     pitch: float = 0.002            # m of radius per turn
     dither_speed: float = 0.04      # m/s along the pattern
     contact_threshold: float = 0.0015  # m, measured above commanded = stalled on the top
+    align_tolerance: float = 0.006  # m, camera: block to peg axis when down
 
 
 def build(raw: dict, ctx: BuildContext, index: int) -> ForceInsert:
     d = raw.get("dither", {})
+    step = _build(raw, ctx, index, d)
+    if step.press <= step.depth:
+        raise ctx.FieldError(("press",), f"press ({step.press * 1000:.1f} mm) must exceed depth "
+                             f"({step.depth * 1000:.1f} mm): the block is pressed that far")
+    return step
+
+
+def _build(raw: dict, ctx: BuildContext, index: int, d: dict) -> ForceInsert:
     return ForceInsert(
         **ctx.common(raw, index, 30.0), target=ctx.pose(raw, "target"),
         depth=ctx.si(raw, "depth", "length", 0.005, positive=True),
-        press=ctx.si(raw, "press", "length", 0.012, positive=True),
+        press=ctx.si(raw, "press", "length", 0.015, positive=True),
         force=ctx.si(raw, "force", "force", 3.0, positive=True),
         stiffness=ctx.si(raw, "stiffness", "stiffness", 300.0, positive=True),
         descent_speed=ctx.si(raw, "descent_speed", "speed", 0.02, positive=True),
@@ -65,7 +81,8 @@ def build(raw: dict, ctx: BuildContext, index: int) -> ForceInsert:
         radius=ctx.si(d, "radius", "length", 0.015, nonneg=True, path=("dither",)),
         pitch=ctx.si(d, "pitch", "length", 0.002, positive=True, path=("dither",)),
         dither_speed=ctx.si(d, "speed", "speed", 0.04, positive=True, path=("dither",)),
-        contact_threshold=ctx.si(raw, "contact_threshold", "length", 0.0015, positive=True))
+        contact_threshold=ctx.si(raw, "contact_threshold", "length", 0.0015, positive=True),
+        align_tolerance=ctx.si(raw, "align_tolerance", "length", 0.006, positive=True))
 
 
 class Dither:
@@ -95,6 +112,18 @@ class Dither:
     @property
     def turns(self) -> float:
         return self.theta / (2.0 * math.pi)
+
+
+def _check_on_axis(step: ForceInsert, runner) -> None:
+    """The camera: the block's hole must be on the peg's axis (not down beside the peg)."""
+    if step.target.relative_to not in runner.task.objects or "block" not in runner.task.objects:
+        return
+    block = runner.detect("block").xyz
+    peg = runner.object_pose(step.target.relative_to)[:3, 3]
+    off = float(np.hypot(*(block[:2] - peg[:2])))
+    if off > step.align_tolerance:
+        raise StepFailed("insertion", f"the block went down {off * 1000:.0f} mm off the axis "
+                         f"of {step.target.relative_to} (beside it, not on it)")
 
 
 def run(step: ForceInsert, runner) -> None:
@@ -159,24 +188,25 @@ def run(step: ForceInsert, runner) -> None:
             old_t, old_meas, old_cmd = history[0]
             stalled = (now - old_t >= 0.8 * STALL_WINDOW and old_meas - z_meas < STALL_MOTION
                        and old_cmd - z_cmd > 2.0 * STALL_MOTION)
-            if z_ref is None and lag > step.contact_threshold and stalled:
+            near = z_cmd < z_contact + CONTACT_WINDOW     # contact is only expected here
+            if z_ref is None and near and lag > step.contact_threshold and stalled:
                 z_ref, t_contact = z_meas, now           # stalled on the peg's top
                 z_bottom = z_ref - step.press            # press relative to the contact
             if not dithering and (z_ref is not None or z_cmd <= z_bottom):
                 dithering = True
                 t_contact = t_contact or now
-            if z_ref is not None:
-                depth = z_ref - z_meas
-                ok = depth >= step.depth
-            else:
-                # never stalled: down to the pseudo-goal without meeting the top = threaded
-                depth = z_contact - z_meas
-                ok = z_cmd <= z_bottom and lag < step.contact_threshold and depth >= step.depth
-            best = max(best, depth)
+            # Down the peg: commanded the full press below the contact height and nothing
+            # holds the tool up (no vertical deflection). The encoders cannot see the arm's
+            # repeatability error, but the deflection is the contact itself.
+            depth = (z_ref if z_ref is not None else z_contact) - z_meas
+            ok = z_cmd <= z_bottom + 1e-4 and lag < step.contact_threshold
+            if lag < step.contact_threshold:     # depths while held up do not count
+                best = max(best, depth)
             done_ticks = done_ticks + 1 if ok else 0
             runner.feedback("dithering" if dithering else "descending",
                             min((now - t0) / step.timeout, 0.99), goal[:3, 3], depth)
             if done_ticks >= 10:
+                _check_on_axis(step, runner)
                 runner.metrics["insertion_time"] = now - (t_contact or t0)
                 runner.metrics["insertion_depth"] = depth
                 runner.metrics["dither_turns"] = dither.turns
@@ -204,6 +234,7 @@ register(StepType(
     {"target": pose_schema(), "depth": quantity("length"), "press": quantity("length"),
      "force": quantity("force"), "stiffness": quantity("stiffness"),
      "descent_speed": quantity("speed"), "contact_threshold": quantity("length"),
+     "align_tolerance": quantity("length"),
      "dither": {"type": "object", "additionalProperties": False, "properties": {
          "pattern": {"enum": ["spiral", "circle"]}, "radius": quantity("length"),
          "pitch": quantity("length"), "speed": quantity("speed")}}},
