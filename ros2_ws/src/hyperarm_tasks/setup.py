@@ -29,6 +29,7 @@ setup(
             "run_task = hyperarm_tasks.run_task:main",
             "task_recorder = hyperarm_tasks.recorder_node:main",
             "plot_task = hyperarm_tasks.plots:main",
+            "soak_block_transfer = hyperarm_tasks.benchmarks.soak:main",
         ],
     },
 )

@@ -24,6 +24,7 @@ __all__ = [
     "GripperSpec",
     "RailSpec",
     "CameraSpec",
+    "CapsuleSpec",
     "RobotDescription",
     "VARIANTS",
     "check_number",
@@ -209,6 +210,45 @@ class CameraSpec:
     rpy: tuple[float, float, float]
 
 
+def _rpy_matrix(rpy: Sequence[float]) -> np.ndarray:
+    """R = Rz(yaw) Ry(pitch) Rx(roll) (the URDF convention), rad."""
+    cr, sr = math.cos(rpy[0]), math.sin(rpy[0])
+    cp, sp = math.cos(rpy[1]), math.sin(rpy[1])
+    cy, sy = math.cos(rpy[2]), math.sin(rpy[2])
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+@dataclass(frozen=True)
+class CapsuleSpec:
+    """A collision capsule fixed to a robot frame: the points within ``radius`` (m) of a
+    segment of ``length`` (m, > 0) centred at ``xyz`` (m) in ``frame``, along the z axis of
+    the rotation ``rpy`` (rad, URDF convention). ``frame`` is a URDF link (``link1`` ..
+    ``link9``, ``tool0`` for the gripper). In the URDF it is a cylinder plus two spheres;
+    in coal it is ``coal.Capsule(radius, length)`` at :meth:`placement`."""
+
+    name: str
+    frame: str
+    radius: float
+    length: float
+    xyz: tuple[float, float, float]
+    rpy: tuple[float, float, float]
+
+    def placement(self) -> np.ndarray:
+        """4x4 pose of the capsule's centre in ``frame`` (its z axis along the segment)."""
+        t = np.eye(4)
+        t[:3, :3] = _rpy_matrix(self.rpy)
+        t[:3, 3] = self.xyz
+        return t
+
+    def endpoints(self) -> tuple[np.ndarray, np.ndarray]:
+        """The segment's two ends (m) in ``frame``: centre -+ length/2 along the axis."""
+        t = self.placement()
+        half = 0.5 * self.length * t[:3, 2]
+        return t[:3, 3] - half, t[:3, 3] + half
+
+
 @dataclass(frozen=True)
 class RobotDescription:
     """The whole robot for one variant. ``joints`` are the nine arm joints, base to tool."""
@@ -222,6 +262,8 @@ class RobotDescription:
     rail: RailSpec | None
     camera: CameraSpec
     source: str = field(default="", compare=False)
+    #: Collision capsules: one per arm link (named like the link) and ``gripper`` (on tool0).
+    capsules: tuple[CapsuleSpec, ...] = ()
 
     @property
     def arm_joint_names(self) -> list[str]:
@@ -257,6 +299,43 @@ class RobotDescription:
         out[self.gripper.name] = (self.gripper.lower, self.gripper.upper)
         if self.rail:
             out[self.rail.name] = (self.rail.lower, self.rail.upper)
+        return out
+
+    def capsule(self, name: str) -> CapsuleSpec:
+        """The collision capsule called ``name`` (``link1`` .. ``link9``, ``gripper``)."""
+        for c in self.capsules:
+            if c.name == name:
+                return c
+        raise DescriptionError(f"no capsule named {name!r} "
+                               f"(capsules: {[c.name for c in self.capsules]})")
+
+    def frame_poses(self, q: np.ndarray) -> dict[str, np.ndarray]:
+        """4x4 poses in ``base_link`` of the frames capsules attach to, at the 9 arm angles
+        ``q`` (rad): base_link, link1 .. link9 (link i: origin on joint axis i, z along it,
+        i.e. DH frame i-1 turned by theta_i + q_i) and tool0 (DH frame 9), as in the URDF."""
+        q = np.asarray(q, dtype=float).reshape(-1)
+        if q.shape != (len(self.joints),):
+            raise ValueError(f"expected {len(self.joints)} joint angles, got {q.shape[0]}")
+        out = {self.base_frame: np.eye(4)}
+        t = np.eye(4)
+        for i, (joint, qi) in enumerate(zip(self.joints, q), start=1):
+            c, s = math.cos(joint.dh.theta + qi), math.sin(joint.dh.theta + qi)
+            rz = np.array([[c, -s, 0.0, 0.0], [s, c, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0],
+                           [0.0, 0.0, 0.0, 1.0]])
+            out[f"link{i}"] = t @ rz
+            t = t @ joint.dh.transform(float(qi))
+        out[self.tool_frame] = t
+        return out
+
+    def capsule_segments(self, q: np.ndarray) -> list[tuple[CapsuleSpec, np.ndarray, np.ndarray]]:
+        """Every capsule with its segment's two ends (m) in ``base_link`` at arm angles ``q``
+        (rad), in the order of :attr:`capsules`."""
+        frames = self.frame_poses(q)
+        out = []
+        for cap in self.capsules:
+            t = frames[cap.frame]
+            a, b = cap.endpoints()
+            out.append((cap, t[:3, :3] @ a + t[:3, 3], t[:3, :3] @ b + t[:3, 3]))
         return out
 
     def dh_forward(self, q: np.ndarray) -> np.ndarray:
@@ -302,6 +381,47 @@ def _servo(raw: Any, where: str, models: Mapping[str, Any], default_mode: str) -
 def _limits(lower: float, upper: float, where: str) -> None:
     if lower >= upper:
         raise DescriptionError(f"{where}: lower limit {lower:g} must be < upper limit {upper:g}")
+
+
+CAPSULE_KEYS = frozenset({"frame", "radius", "length", "xyz", "rpy"})
+
+
+def _capsules(raw: Any, link_names: list[str], base_frame: str, tool_frame: str
+              ) -> tuple[CapsuleSpec, ...]:
+    """``collision.capsules``: a mapping name -> {frame, radius, length, xyz, rpy}; one per
+    arm link (frame = its name) and ``gripper`` (frame tool0 by default), all required."""
+    w = "collision.capsules"
+    if not isinstance(raw, Mapping) or not raw:
+        raise DescriptionError(f"{w}: must be a non-empty mapping of capsule name to capsule")
+    frames = {base_frame, tool_frame, *link_names}
+    required = [*link_names, "gripper"]
+    missing = [n for n in required if n not in raw]
+    if missing:
+        raise DescriptionError(f"{w}: missing capsule(s) {missing} (every link and the "
+                               f"gripper needs one)")
+    out = []
+    for name, rc in raw.items():
+        cw = f"{w}.{name}"
+        if not isinstance(rc, Mapping):
+            raise DescriptionError(f"{cw}: expected a mapping")
+        unknown = sorted(set(rc) - CAPSULE_KEYS)
+        if unknown:
+            raise DescriptionError(f"{cw}: unknown key(s) {unknown}; known: {sorted(CAPSULE_KEYS)}")
+        frame = rc.get("frame", tool_frame if name == "gripper" else name)
+        if frame not in frames:
+            raise DescriptionError(f"{cw}.frame: {frame!r} is not a robot link "
+                                   f"(known: {sorted(frames)})")
+        rpy = rc.get("rpy", [0.0, 0.0, 0.0])
+        if not isinstance(rpy, Sequence) or isinstance(rpy, str) or len(rpy) != 3:
+            raise DescriptionError(f"{cw}.rpy: expected 3 angles, got {rpy!r}")
+        out.append(CapsuleSpec(
+            name=str(name), frame=str(frame),
+            radius=_num(_req(rc, "radius", cw), f"{cw}.radius", positive=True),
+            length=_num(_req(rc, "length", cw), f"{cw}.length", positive=True),
+            xyz=_vec3(_req(rc, "xyz", cw), f"{cw}.xyz"),  # type: ignore[arg-type]
+            rpy=tuple(parse_angle(v, f"{cw}.rpy[{i}]")  # type: ignore[arg-type]
+                      for i, v in enumerate(rpy))))
+    return tuple(out)
 
 
 def parse_description(data: Any, variant: str = "arm", source: str = "<data>") -> RobotDescription:
@@ -421,11 +541,16 @@ def parse_description(data: Any, variant: str = "arm", source: str = "<data>") -
                   for i, v in enumerate(_req(rc, "rpy", "camera"))))
     if len(camera.rpy) != 3:
         raise DescriptionError(f"camera.rpy: expected 3 angles, got {len(camera.rpy)}")
+    tool_frame = str(arm.get("tool_frame", "tool0"))
+    base_frame = str(arm.get("base_frame", "base_link"))
+    rcol = _req(data, "collision", "")
+    capsules = _capsules(_req(rcol, "capsules", "collision"),
+                         [f"link{i}" for i in range(1, len(joints) + 1)], base_frame, tool_frame)
     return RobotDescription(
         name=str(data.get("name", "hyperarm")), variant=variant, camera=camera,
-        base_frame=str(arm.get("base_frame", "base_link")),
-        tool_frame=str(arm.get("tool_frame", "tool0")),
-        joints=tuple(joints), gripper=gripper, rail=rail, source=source)
+        base_frame=base_frame,
+        tool_frame=tool_frame,
+        joints=tuple(joints), gripper=gripper, rail=rail, source=source, capsules=capsules)
 
 
 def default_description_path() -> Path:

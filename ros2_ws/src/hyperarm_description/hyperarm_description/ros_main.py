@@ -1,70 +1,233 @@
 """The one `main()` of every hyperarm node (imports rclpy: for nodes only).
 
-The ros2/demos pattern, written once: init, build the node, spin, and on Ctrl-C / SIGTERM
-(KeyboardInterrupt or ExternalShutdownException) destroy the node and shut down cleanly.
-A node constructor that raises SystemExit (bad parameters, bad description) ends the
-process with that message and exit code 1, after the same clean-up.
+The ros2/demos pattern, written once, with what a node on a robot needs around it:
+
+- ``--help`` / ``-h`` prints the node's usage and its parameters (from the same table the
+  node declares them from) and exits 0 without starting anything.
+- Signals: the first SIGINT or SIGTERM asks the node to stop; the spin loop ends, the node is
+  destroyed (its shutdown policy runs: torque policy, rail stop...) and rclpy shuts down.
+  Further SIGINT/SIGTERM during that clean-up are ignored (one line on stderr), so a second
+  quick Ctrl-C cannot skip the shutdown policy or crash the process. Exit code 0.
+  rclpy's own signal handlers are not installed: they shut the context down under the
+  node's feet, so clean-up code could not publish, log to /rosout or call services.
+- A node constructor that raises SystemExit (bad parameters, bad description) ends the
+  process with that message and exit code 1, after the same clean-up. A signal while the
+  constructor runs (e.g. a driver waiting for its port) aborts it the same way, exit 0.
+- An exception raised by a callback while the node is up is raised (a bug is not hidden).
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Callable
+import os
+import signal
+import sys
+import threading
+from typing import TYPE_CHECKING, Any, Callable
 
 import rclpy
-from rclpy.executors import Executor, ExternalShutdownException
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+
+from .model import VARIANTS
+from .params import ParamSpec, declare_parameters, format_parameters
 
 if TYPE_CHECKING:
     from .model import RobotDescription
 
-__all__ = ["run_node", "declare_robot_description"]
+__all__ = ["run_node", "declare_robot_description", "ROBOT_PARAMETERS", "usage_text",
+           "wants_help"]
+
+#: The parameters every node that loads the robot description declares (see
+#: :func:`declare_robot_description`).
+ROBOT_PARAMETERS: ParamSpec = {
+    "variant": ("arm", f"robot variant: {' or '.join(VARIANTS)}", None),
+    "description_file": ("", "robot description YAML ('' = the packaged "
+                             "config/hyperarm.yaml)", None),
+}
+
+_SPIN_PERIOD = 0.1  # s: how often the spin loop looks at the stop flag
+
+
+def wants_help(args: list[str] | None = None) -> bool:
+    """True if the non-ROS command-line arguments ask for ``--help`` or ``-h``."""
+    from rclpy.utilities import remove_ros_args
+
+    argv = list(sys.argv if args is None else args)
+    return any(a in ("-h", "--help") for a in remove_ros_args(argv)[1:])
+
+
+def usage_text(prog: str, summary: str, parameters: ParamSpec | None,
+               robot_description: bool) -> str:
+    """The ``--help`` text of a node executable."""
+    table: dict[str, Any] = {}
+    if robot_description:
+        table.update(ROBOT_PARAMETERS)
+    table.update(parameters or {})
+    lines = [f"usage: ros2 run <package> {prog} [-h] [--ros-args -p NAME:=VALUE ...]", ""]
+    lines += [summary.strip(), ""] if summary.strip() else []
+    lines.append("parameters (read-only, set with --ros-args -p NAME:=VALUE):")
+    lines.append(format_parameters(table) if table else "  (none)")
+    lines += ["", "The node runs in the namespace /hyperarm (remap with -r __ns:=/other).",
+              "SIGINT or SIGTERM stop it cleanly (exit code 0); bad parameters exit 1."]
+    return "\n".join(lines)
+
+
+def _module_summary(factory: Callable[..., Any]) -> str:
+    """The first paragraph of the docstring of the module that defines ``factory``."""
+    module = sys.modules.get(getattr(factory, "__module__", ""), None)
+    doc = (getattr(module, "__doc__", None) or getattr(factory, "__doc__", None) or "").strip()
+    return doc.split("\n\n")[0]
+
+
+class _Stop:
+    """SIGINT/SIGTERM handling: the first signal asks to stop (and, while the node is being
+    built, aborts its constructor); later ones are ignored while the clean-up runs."""
+
+    def __init__(self) -> None:
+        self.event = threading.Event()
+        self.building = True
+        self.signalled = False
+        self._previous: dict[int, Any] = {}
+
+    def install(self) -> None:
+        if threading.current_thread() is not threading.main_thread():
+            return  # signal handlers can only be set from the main thread (e.g. in tests)
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._previous[sig] = signal.signal(sig, self._handle)
+
+    def ignore(self) -> None:
+        """SIG_IGN from now on: Python's finalization resets every handler it installed to
+        SIG_DFL (but leaves SIG_IGN), so a late second Ctrl-C would kill the exiting
+        process with SIGINT (exit -2) instead of letting it finish with 0."""
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, signal.SIG_IGN)
+
+    def restore(self) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+    def _handle(self, signum: int, _frame: Any) -> None:
+        if self.event.is_set():
+            print(f"[{signal.Signals(signum).name}] already shutting down", file=sys.stderr,
+                  flush=True)
+            return
+        self.signalled = True
+        self.event.set()
+        if self.building:
+            raise KeyboardInterrupt
 
 
 def run_node(factory: Callable[[], Node], args: list[str] | None = None,
-             executor: Callable[[], Executor] | None = None) -> None:
-    """Spin the node made by ``factory`` until shutdown; ``executor`` builds a custom one."""
+             executor: Callable[[], Executor] | None = None, *,
+             parameters: ParamSpec | None = None, summary: str | None = None,
+             robot_description: bool = True) -> None:
+    """Spin the node made by ``factory`` until SIGINT/SIGTERM; ``executor`` builds a custom
+    executor. ``parameters`` (the node's table), ``summary`` (default: the first paragraph
+    of the node module's docstring) and ``robot_description`` (the node declares
+    ``variant`` and ``description_file``) make its ``--help``.
+
+    The executor spins in a thread of its own; the main thread only waits for a signal (a
+    thread blocked in rcl's wait set would not run Python's signal handlers), then wakes the
+    executor with a guard condition, waits for the callbacks in flight, destroys the node
+    (its shutdown policy) and shuts rclpy down."""
+    if wants_help(args):
+        prog = os.path.basename((sys.argv if args is None else args or ["node"])[0])
+        text = summary if summary is not None else _module_summary(factory)
+        try:
+            print(usage_text(prog, text, parameters, robot_description), flush=True)
+        except BrokenPipeError:  # e.g. `--help | head`: not an error of ours
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return
+    stop = _Stop()
+    stop.install()
     context = rclpy.get_default_context()
-    rclpy.init(args=args, context=context)
+    rclpy.init(args=args, context=context, signal_handler_options=SignalHandlerOptions.NO)
     node = None
-    ex = executor() if executor is not None else None
+    ex = None
+    failure: list[BaseException] = []
+    spinner = None
+    wake = None
     try:
         node = factory()
-        if ex is None:
-            rclpy.spin(node)
-        else:
-            ex.add_node(node)
-            ex.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        # Ctrl-C shuts the context down while callbacks may still be running: a publish or
-        # a wait set made in that window fails with an RCLError. That is the shutdown, not
-        # a bug; an exception while the context is still up is one, and is raised.
-        if context.ok():
-            raise
+        stop.building = False
+        ex = executor() if executor is not None else SingleThreadedExecutor(context=context)
+        ex.add_node(node)
+        wake = node.create_guard_condition(lambda: None, ReentrantCallbackGroup())
+
+        def spin() -> None:
+            try:
+                while not stop.event.is_set() and context.ok():
+                    ex.spin_once(timeout_sec=_SPIN_PERIOD)
+            except ExternalShutdownException:
+                pass
+            except BaseException as exc:
+                # A context shut down from elsewhere while callbacks run makes a publish or
+                # a wait set fail with an RCLError: that is the shutdown, not a bug. While
+                # the context is up an exception is one: handed to the main thread, raised.
+                if context.ok():
+                    failure.append(exc)
+            finally:
+                stop.event.set()
+
+        spinner = threading.Thread(target=spin, name="run_node-spin", daemon=True)
+        spinner.start()
+        while not stop.event.is_set():
+            stop.event.wait(0.5)  # signal handlers run in the main thread, between waits
+    except KeyboardInterrupt:
+        if not stop.event.is_set():
+            raise  # not one of our signals
+        # else: a signal while the node was being built; clean exit below
     finally:
+        stop.building = False
+        stop.event.set()  # from here on, signals are ignored
+        if spinner is not None:
+            if wake is not None:
+                wake.trigger()
+            spinner.join(timeout=2.0)
         if ex is not None:
             ex.shutdown(timeout_sec=2.0)
+            _wait_callbacks_in_flight(ex, timeout=2.0)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        if stop.signalled:
+            stop.ignore()  # the process is on its way out
+        else:
+            stop.restore()
+    if failure:
+        raise failure[0]
+
+
+def _wait_callbacks_in_flight(ex: Executor, timeout: float) -> None:
+    """Wait for callbacks a MultiThreadedExecutor handed to its thread pool, and collect their
+    exceptions, before the node is destroyed. rclpy Jazzy's ``Executor.shutdown`` does not
+    wait for them (it tests ``_is_shutdown`` right after setting it), so a callback still
+    running would use a destroyed entity and print "exception never retrieved: cannot use
+    Destroyable"."""
+    import time
+
+    pending = list(getattr(ex, "_futures", []))
+    deadline = time.monotonic() + timeout
+    for task in pending:
+        while not task.done() and time.monotonic() < deadline:
+            time.sleep(0.005)
+        if task.done():
+            task.exception()  # fetched: the callback's error was logged by rclpy already
+    pool = getattr(ex, "_executor", None)
+    if pool is not None:
+        pool.shutdown(wait=False, cancel_futures=True)
 
 
 def declare_robot_description(node: Node) -> "RobotDescription":
-    """Declare the common read-only parameters ``variant`` and ``description_file`` on
-    ``node`` and load the description they name. Raises SystemExit with the reason if the
-    variant or the file is bad (the node cannot run without its robot)."""
-    from rcl_interfaces.msg import ParameterDescriptor
+    """Declare the common read-only parameters of :data:`ROBOT_PARAMETERS` (``variant``,
+    ``description_file``) on ``node`` and load the description they name. Raises SystemExit
+    with the reason if a value or the file is bad (the node cannot run without its robot)."""
+    from .model import DescriptionError, load_description
 
-    from .model import VARIANTS, DescriptionError, load_description
-
-    node.declare_parameter("variant", "arm", ParameterDescriptor(
-        description=f"robot variant: {' or '.join(VARIANTS)}", read_only=True))
-    node.declare_parameter("description_file", "", ParameterDescriptor(
-        description="robot description YAML ('' = the packaged config/hyperarm.yaml)",
-        read_only=True))
-    variant = node.get_parameter("variant").value
-    path = node.get_parameter("description_file").value or None
+    values = declare_parameters(node, ROBOT_PARAMETERS)
     try:
-        return load_description(path, variant)
+        return load_description(values["description_file"] or None, values["variant"])
     except DescriptionError as exc:
         raise SystemExit(f"{node.get_name()}: {exc}") from exc

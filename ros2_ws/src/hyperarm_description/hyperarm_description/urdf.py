@@ -78,11 +78,27 @@ def _segment_geometry(a: float, d: float, radius: float, material: str) -> list[
         gamma = math.atan2(a, d)  # rotate z onto the segment direction
         seg = (f'<origin xyz="{_f(a / 2)} 0 {_f(d / 2)}" rpy="0 {_f(gamma)} 0"/>'
                f'<geometry><cylinder radius="{_f(radius * 0.6)}" length="{_f(length)}"/></geometry>')
-        out += [f"    <visual>{seg}<material name=\"{material}\"/></visual>",
-                f"    <collision>{seg}</collision>"]
-    else:
-        out.append(f'    <collision><origin xyz="0 0 0" rpy="0 0 0"/>'
-                   f'<geometry><sphere radius="{_f(radius)}"/></geometry></collision>')
+        out.append(f"    <visual>{seg}<material name=\"{material}\"/></visual>")
+    return out
+
+
+def _capsule_collisions(desc: RobotDescription, frame: str) -> list[str]:
+    """<collision> elements of the capsules on ``frame``: a cylinder plus a sphere at each
+    end of its segment (URDF has no capsule primitive), named ``<capsule>_cylinder``,
+    ``<capsule>_end0`` and ``<capsule>_end1``."""
+    out = []
+    for cap in desc.capsules:
+        if cap.frame != frame:
+            continue
+        a, b = cap.endpoints()
+        out.append(f'    <collision name="{cap.name}_cylinder">'
+                   f"{_origin(cap.placement())}"
+                   f'<geometry><cylinder radius="{_f(cap.radius)}" length="{_f(cap.length)}"/>'
+                   "</geometry></collision>")
+        for k, end in enumerate((a, b)):
+            out.append(f'    <collision name="{cap.name}_end{k}">'
+                       f"{_origin(xyz=end, rpy=(0.0, 0.0, 0.0))}"
+                       f'<geometry><sphere radius="{_f(cap.radius)}"/></geometry></collision>')
     return out
 
 
@@ -143,6 +159,7 @@ def generate_urdf(desc: RobotDescription) -> str:
         f'  <link name="{desc.base_frame}">',
         '    <visual><origin xyz="0 0 -0.02" rpy="0 0 0"/><geometry><cylinder radius="0.05" '
         'length="0.04"/></geometry><material name="bracket"/></visual>',
+        *_capsule_collisions(desc, desc.base_frame),
         "  </link>",
     ]
     parent = desc.base_frame
@@ -154,6 +171,7 @@ def generate_urdf(desc: RobotDescription) -> str:
         lines += _inertial(j.link.mass, j.link.com, j.link.inertia, j.dh.a, j.dh.d)
         lines += _segment_geometry(j.dh.a, j.dh.d, j.link.radius,
                                    "dxl_black" if i % 2 else "bracket")
+        lines += _capsule_collisions(desc, child)
         lines += ["  </link>",
                   f'  <joint name="{j.name}" type="revolute">',
                   f'    <parent link="{parent}"/>',
@@ -167,7 +185,9 @@ def generate_urdf(desc: RobotDescription) -> str:
         prev_fixed = _fixed_part(j.dh)
     g = desc.gripper
     lines += [
-        f'  <link name="{desc.tool_frame}"/>',
+        f'  <link name="{desc.tool_frame}">',
+        *_capsule_collisions(desc, desc.tool_frame),
+        "  </link>",
         f'  <joint name="{desc.tool_frame}_joint" type="fixed">',
         f'    <parent link="{parent}"/>',
         f'    <child link="{desc.tool_frame}"/>',

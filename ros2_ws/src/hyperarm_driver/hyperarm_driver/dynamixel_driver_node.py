@@ -4,6 +4,8 @@ See docs/dynamixel.md for the parameters, topics, services and diagnostics.
 """
 from __future__ import annotations
 
+import logging
+
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -20,7 +22,8 @@ from .common import (NonEmpty, OneOf, ParamSpec, Range, answer_reboot, answer_se
 from .dynamixel.bus import DynamixelBus, ftdi_latency_timer
 from .dynamixel.config import bus_config_from_description
 from .dynamixel.driver import DynamixelDriver
-from .dynamixel.errors import DynamixelError, StartupError
+from .dynamixel.errors import CommandError, DynamixelError, StartupError
+from .log_throttle import ReasonThrottle
 
 _SDK_BAUDS = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600,
               1000000, 1152000, 2000000, 2500000, 3000000, 3500000, 4000000)
@@ -62,6 +65,7 @@ class DynamixelDriverNode(Node):
         self._period = 1.0 / p["rate"]
         self._diag_period = p["diagnostics_period"]
         self.rejected_commands = 0   # joint_command messages rejected whole (NaN, ...)
+        self._throttle = ReasonThrottle(1.0)   # command logs: once a second per reason
         self._pub = self.create_publisher(JointState, contract.JOINT_STATES,
                                           qos_for(contract.JOINT_STATES))
         self._diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
@@ -102,11 +106,15 @@ class DynamixelDriverNode(Node):
     def _tick(self) -> None:
         was_up = self._drv.connected
         state = self._drv.cycle()
-        for event in self._drv.pop_events():
-            if "lost" in event or "watchdog" in event:
+        for level, event in self._drv.pop_events():
+            if level >= logging.ERROR:
+                self.get_logger().error(event)
+            elif level >= logging.WARNING:
                 self.get_logger().warn(event)
-            else:
+            elif level >= logging.INFO:
                 self.get_logger().info(event)
+            else:
+                self.get_logger().debug(event)
         if was_up and not self._drv.connected:
             self.get_logger().error(f"Dynamixel port lost: {self._drv.last_error}")
         if state is None:
@@ -130,21 +138,40 @@ class DynamixelDriverNode(Node):
                 "hardware error: " + "; ".join(f"{n}: {', '.join(b)}" for n, b in errs.items()),
                 throttle_duration_sec=2.0)
 
+    def _throttled(self, reason: str) -> str | None:
+        """None if ``reason`` was logged less than a second ago, else a suffix counting the
+        messages of that reason suppressed meanwhile (throttling is per reason)."""
+        if not self._throttle.allow(reason):
+            return None
+        n = self._throttle.suppressed(reason)
+        return f" ({n} more since the last report)" if n else ""
+
     def _on_command(self, msg: JointState) -> None:
         try:
             report = self._drv.command(list(msg.name), list(msg.position), list(msg.effort))
-        except DynamixelError as exc:
+        except CommandError as exc:
             self.rejected_commands += 1
-            self.get_logger().error(f"joint_command rejected: {exc}",
-                                    throttle_duration_sec=1.0)
+            more = self._throttled(f"rejected:{exc.reason}")
+            if more is not None:
+                self.get_logger().error(f"joint_command rejected: {exc}{more}")
             return
+        warnings = []
         if report.clamped:
-            self.get_logger().warn(f"joint_command clamped to joint limits: {report.clamped}",
-                                   throttle_duration_sec=1.0)
+            warnings.append(("clamped", f"joint_command clamped to joint limits: "
+                                        f"{report.clamped}"))
         if report.effort_clamped:
-            self.get_logger().warn(
-                f"joint_command effort clamped to the servo limit: {report.effort_clamped}",
-                throttle_duration_sec=1.0)
+            warnings.append(("effort_clamped", "joint_command effort clamped to the servo "
+                                               f"limit: {report.effort_clamped}"))
+        if report.port_down:
+            warnings.append(("port_down", "joint_command dropped: the Dynamixel port is down "
+                                          f"({self._drv.last_error})"))
+        elif report.torque_off:
+            warnings.append(("torque_off", f"joint_command for {report.torque_off} dropped: "
+                                           "torque is off (set_torque true first)"))
+        for reason, text in warnings:
+            more = self._throttled(reason)
+            if more is not None:
+                self.get_logger().warn(text + more)
 
     # -- services ----------------------------------------------------------------------------
     def _on_set_torque(self, req: SetBool.Request, res: SetBool.Response) -> SetBool.Response:
@@ -179,7 +206,7 @@ class DynamixelDriverNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node(DynamixelDriverNode, args)
+    run_node(DynamixelDriverNode, args, parameters=PARAMETERS, robot_description=False)
 
 
 if __name__ == "__main__":

@@ -294,7 +294,7 @@ class MockDriver(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node(MockDriver, args)
+    run_node(MockDriver, args, parameters=PARAMETERS)
 
 
 if __name__ == "__main__":

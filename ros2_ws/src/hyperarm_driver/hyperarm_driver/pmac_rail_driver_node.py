@@ -2,10 +2,13 @@
 
 Thin ROS wrapper around :class:`hyperarm_driver.pmac.driver.RailDriver` (which owns the TCP
 link in its own thread): publishes the ``rail`` joint on ``joint_states``, applies ``rail``
-setpoints from ``joint_command``, serves ``rail/home``, ``hold`` and ``set_torque`` and
+setpoints from ``joint_command``, serves ``rail/home``, ``rail/hold`` and ``rail/set_torque``
+(the arm driver owns ``hold`` and ``set_torque``: one owner per service on rail_arm) and
 reports on ``/diagnostics``. Parameters and behaviour: docs/pmac.md.
 """
 from __future__ import annotations
+
+import re
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
@@ -20,8 +23,9 @@ from hyperarm_description.ros_main import run_node
 from .common import NonEmpty, ParamSpec, Range, declare_parameters, diagnostic_status
 from .pmac.axis import RailAxis, RailConfig
 from .pmac.client import PmacClient
-from .pmac.driver import RailDriver
+from .pmac.driver import ReasonThrottle, RailDriver
 from .pmac.errors import PmacError, RailError
+from .pmac.watchdog import WatchdogConfig
 
 NODE_NAME = "pmac_rail_driver"
 _SERVICE_TIMEOUT = 1.0   # s, wait for the worker to run a service request
@@ -40,8 +44,17 @@ PARAMETERS: ParamSpec = {
                      "timeout + 1/rate)", Range(0.005, 0.4)),
     "reconnect_period": (1.0, "delay between reconnection attempts, s", Range(0.05, 60.0)),
     "require_homing": (True, "refuse setpoints until the card reports home complete", None),
-    "configure_card": (True, "write jog speed/acceleration (Ixx22, Ixx19, Ixx20, Ixx21) and "
-                             "soft limits (Ixx13, Ixx14) on every (re)connect", None),
+    "configure_card": (True, "on every (re)connect set I3=2 I6=1, write jog speed/acceleration "
+                             "(Ixx22, Ixx19, Ixx20, Ixx21) and soft limits (Ixx13, Ixx14) and "
+                             "download the safety PLC; false: only check I3/I6", None),
+    "watchdog_timeout": (0.1, "on-card watchdog: the safety PLC stops the rail when the "
+                              "driver's heartbeat stops for this long, s; 0 = no safety PLC "
+                              "(needs configure_card)", Range(0.0, 10.0)),
+    "watchdog_plc": (10, "PLC program number of the safety PLC", Range(1, 31)),
+    "watchdog_pvar": (8001, "first of the three P-variables of the safety PLC (heartbeat, "
+                            "seen, armed)", Range(0, 8189)),
+    "log_period": (10.0, "the same problem (unreachable card, rejected setpoint reason) is "
+                         "logged at most once per this period, s", Range(0.1, 3600.0)),
     "diagnostics_period": (0.5, "/diagnostics period, s", Range(0.1, 10.0)),
 }
 
@@ -68,10 +81,24 @@ class PmacRailDriver(Node):
         self._joint = desc.rail.name
         client = PmacClient(p["host"], int(p["port"]), timeout=float(p["timeout"]),
                             connect_timeout=max(0.2, min(2.0, float(p["reconnect_period"]))))
-        self._driver = RailDriver(RailAxis(client, config), rate=float(p["rate"]),
-                                  reconnect_period=float(p["reconnect_period"]),
-                                  require_homing=bool(p["require_homing"]),
-                                  configure_card=bool(p["configure_card"]), log=self._on_event)
+        try:
+            watchdog = None
+            if p["watchdog_timeout"] > 0:
+                if not p["configure_card"]:
+                    raise ValueError("watchdog_timeout > 0 needs configure_card (the driver "
+                                     "downloads the safety PLC); set watchdog_timeout:=0.0")
+                pv = int(p["watchdog_pvar"])
+                watchdog = WatchdogConfig(plc=int(p["watchdog_plc"]), heartbeat=pv, seen=pv + 1,
+                                          armed=pv + 2, timeout=float(p["watchdog_timeout"]))
+            self._driver = RailDriver(RailAxis(client, config, watchdog=watchdog),
+                                      rate=float(p["rate"]),
+                                      reconnect_period=float(p["reconnect_period"]),
+                                      require_homing=bool(p["require_homing"]),
+                                      configure_card=bool(p["configure_card"]),
+                                      log=self._on_event, log_period=float(p["log_period"]))
+        except (ValueError, RailError) as exc:
+            raise SystemExit(f"{NODE_NAME}: {exc}") from exc
+        self._rejections = ReasonThrottle(float(p["log_period"]))
         self._last_stamp = 0.0
         self._js_pub = self.create_publisher(JointState, contract.JOINT_STATES,
                                              qos_for(contract.JOINT_STATES))
@@ -80,15 +107,16 @@ class PmacRailDriver(Node):
         self.create_subscription(JointState, contract.JOINT_COMMAND, self._on_command,
                                  qos_for(contract.JOINT_COMMAND))
         self.create_service(Trigger, contract.RAIL_HOME, self._on_home)
-        self.create_service(Trigger, contract.HOLD, self._on_hold)
-        self.create_service(SetBool, contract.SET_TORQUE, self._on_torque)
+        self.create_service(Trigger, contract.RAIL_HOLD, self._on_hold)
+        self.create_service(SetBool, contract.RAIL_SET_TORQUE, self._on_torque)
         self.create_timer(1.0 / float(p["rate"]), self._publish_state)
         self.create_timer(float(p["diagnostics_period"]), self._publish_diagnostics)
         self._driver.start()
         self.get_logger().info(
             f"{NODE_NAME}: PMAC {client.endpoint} motor {config.motor}, "
             f"{config.counts_per_metre:g} counts/m, limits [{config.lower:g}, {config.upper:g}] m,"
-            f" {p['rate']:g} Hz, homing {'required' if p['require_homing'] else 'not required'}")
+            f" {p['rate']:g} Hz, homing {'required' if p['require_homing'] else 'not required'}"
+            + (f", watchdog {p['watchdog_timeout'] * 1e3:g} ms" if watchdog else ", no watchdog"))
 
     def _declare_parameters(self) -> dict[str, object]:
         return declare_parameters(self, PARAMETERS)
@@ -114,8 +142,9 @@ class PmacRailDriver(Node):
                 self._driver.reject(f"{len(msg.position)} positions for {len(names)} names")
             self._driver.set_target(msg.position[names.index(self._joint)])
         except RailError as exc:
-            self.get_logger().error(f"rail setpoint rejected, nothing sent: {exc}",
-                                    throttle_duration_sec=1.0)
+            # throttled per reason (numbers aside), so that one problem never hides another
+            if self._rejections.allow(re.sub(r"[-+]?[\d.]+(e[-+]?\d+)?", "#", str(exc))):
+                self.get_logger().error(f"rail setpoint rejected, nothing sent: {exc}")
 
     def _publish_state(self) -> None:
         snap = self._driver.snapshot()
@@ -164,7 +193,7 @@ class PmacRailDriver(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node(PmacRailDriver, args)
+    run_node(PmacRailDriver, args, parameters=PARAMETERS, robot_description=False)
 
 
 if __name__ == "__main__":

@@ -44,12 +44,32 @@ def test_stuffing_round_trip_and_reader_decodes(params):
     assert out == [p2.Packet(7, p2.INST_WRITE, params)]
 
 
-def test_reader_drops_bad_crc_and_resynchronises():
+def test_reader_flags_bad_crc_and_resynchronises():
     good = p2.build_packet(3, p2.INST_READ, bytes([132, 0, 4, 0]))
     bad = good[:-1] + bytes([good[-1] ^ 1])
     r = p2.PacketReader()
     got = r.feed(bad[:5]) + r.feed(bad[5:] + b"\x12" + good)
-    assert [pk.id for pk in got] == [3] and r.crc_errors == 1
+    assert [(pk.id, pk.crc_ok) for pk in got] == [(3, False), (3, True)]
+    assert r.crc_errors == 1 and r.packets == 1
+
+
+def test_reader_drops_an_incomplete_packet_after_the_frame_timeout():
+    """issue 16: a corrupt length field (4080) must not deafen the bus until 4 KB came in
+    and then replay what was buffered; a servo drops the incomplete packet after a timeout."""
+    ping = p2.build_packet(1, p2.INST_PING)
+    corrupt = bytearray(p2.build_packet(1, p2.INST_WRITE, bytes([65, 0, 1])))
+    corrupt[5:7] = (4080).to_bytes(2, "little")
+    r = p2.PacketReader()
+    assert r.feed(bytes(corrupt), now=0.0) == []
+    assert r.feed(ping, now=0.01) == []          # within the timeout: part of that packet
+    assert r.feed(ping, now=0.01 + p2.FRAME_TIMEOUT + 0.001) == [p2.Packet(1, p2.INST_PING, b"")]
+    assert r.timeouts == 1
+    # steady traffic does not keep an incomplete packet alive: the timeout runs from its start
+    r = p2.PacketReader()
+    r.feed(bytes(corrupt), now=0.0)
+    for k in range(1, 10):
+        got = r.feed(ping, now=k * 0.02)
+    assert got == [p2.Packet(1, p2.INST_PING, b"")] and r.timeouts == 1
 
 
 def test_model_table_and_error_decoding():
@@ -123,6 +143,51 @@ def test_commands_are_validated_and_clamped_without_a_port():
     assert d.control[3] == "current_based_position" and d.goal_effort[3] == 1.5
 
 
+def test_nan_in_any_joint_rejects_the_whole_message_even_another_drivers():
+    # issue 17: {joint1: 0.9, rail: NaN} moved joint1; the contract (docs/architecture.md)
+    # rejects a message with NaN/inf whole, whatever joint carries it
+    d = _driver()
+    for pos, eff in (([0.9, math.nan], []), ([0.9, 0.1], [0.5, math.inf]),
+                     ([], [0.5, -math.inf])):
+        with pytest.raises(CommandError, match=r"non-finite setpoint for \['rail'\]") as info:
+            d.command(["joint1", "rail"], pos, eff)
+        assert info.value.reason == "non_finite"
+    assert d.goal_position[0] == 0.0 and d.control[0] == "current_based_position"
+
+
+def test_effort_zero_means_the_default_limit_and_position_classes_share_one_mode():
+    """docs/architecture.md, joint_command: effort 0 (or none) with a position = no extra
+    limit, the joint's default limit; every position-class command is current-based
+    position; a position-only command after a position+effort one has the default limit."""
+    d = _driver()
+    default = d.max_effort[3]
+    grip = d.config.index("gripper")
+    d.command(["joint4", "gripper"], [0.2, 0.5], [0.0, -0.0])
+    assert d.control[3] == d.control[grip] == "current_based_position"
+    assert d.goal_effort[3] == default > 1.0
+    assert d.goal_effort[grip] == load_description().gripper.grip_effort
+    d.command(["joint4"], [0.2], [-1.5])           # the sign of a limit does not matter
+    assert d.goal_effort[3] == 1.5 and d.control[3] == "current_based_position"
+    d.command(["joint4"], [0.3])                    # position only: back to the default
+    assert d.goal_effort[3] == default and d.control[3] == "current_based_position"
+    d.command(["joint4"], effort=[0.0])             # effort only 0: zero torque
+    assert d.control[3] == "current" and d.goal_effort[3] == 0.0
+    with pytest.raises(CommandError) as info:
+        d.command(["joint4", "joint4"], [0.1, 0.1])
+    assert info.value.reason == "duplicate"
+
+
+def test_reason_throttle_is_per_reason():
+    from hyperarm_driver.log_throttle import ReasonThrottle
+    t = ReasonThrottle(1.0)
+    assert t.allow("duplicate", now=0.0) and not t.allow("duplicate", now=0.4)
+    assert t.allow("unknown_joint", now=0.5)       # another reason is not hidden
+    assert not t.allow("duplicate", now=0.9) and t.suppressed("duplicate") == 2
+    assert t.allow("duplicate", now=1.0) and t.suppressed("duplicate") == 0
+    with pytest.raises(ValueError):
+        ReasonThrottle(math.nan)
+
+
 def test_bus_goal_conversion_clamps_into_tick_limits():
     cfg = bus_config_from_description(load_description())
     bus = DynamixelBus(cfg, "/nonexistent")
@@ -187,11 +252,11 @@ def test_emulated_bus_watchdog_stops_a_torque_servo_on_a_silent_bus():
 
 
 def test_emulated_bus_instructions_byte_exact():
-    bus = EmulatedBus([EmulatedServo(1, model_by_name("MX-64")),
+    bus = EmulatedBus([EmulatedServo(1, model_by_name("XM430-W210")),
                        EmulatedServo(2, model_by_name("XM540-W270"))])
     # broadcast ping: both answer, in ID order, with their model numbers
     got = _status(bus, p2.build_packet(p2.BROADCAST_ID, p2.INST_PING))
-    assert [(pk.id, pk.params[1] | pk.params[2] << 8) for pk in got] == [(1, 311), (2, 1120)]
+    assert [(pk.id, pk.params[1] | pk.params[2] << 8) for pk in got] == [(1, 1030), (2, 1120)]
     # SYNC WRITE goal positions, then SYNC READ and BULK READ them back
     _status(bus, p2.build_packet(p2.BROADCAST_ID, p2.INST_SYNC_WRITE, bytes([116, 0, 4, 0])
                                  + bytes([1]) + (1000).to_bytes(4, "little")
@@ -202,7 +267,7 @@ def test_emulated_bus_instructions_byte_exact():
     got = _status(bus, p2.build_packet(p2.BROADCAST_ID, p2.INST_BULK_READ,
                                        bytes([2, 116, 0, 4, 0, 1, 0, 0, 2, 0])))
     assert [(pk.id, int.from_bytes(pk.params[1:], "little")) for pk in got] == [(2, 3000),
-                                                                               (1, 311)]
+                                                                               (1, 1030)]
     # FAST SYNC READ: one packet, ID 0xFE, segments ERR ID DATA CRC, running CRC
     (raw,) = bus.feed(p2.build_packet(p2.BROADCAST_ID, p2.INST_FAST_SYNC_READ,
                                       bytes([116, 0, 4, 0, 1, 2])), now=0.0)
@@ -210,10 +275,12 @@ def test_emulated_bus_instructions_byte_exact():
     assert raw[9] == 1 and int.from_bytes(raw[10:14], "little") == 1000
     assert raw[14] | raw[15] << 8 == p2.crc16(raw[:14])
     assert raw[17] == 2 and raw[-2] | raw[-1] << 8 == p2.crc16(raw[:-2])
-    # an instruction with a bad CRC gets no answer at all
-    bad = bytearray(p2.build_packet(1, p2.INST_PING))
+    # an instruction with a bad CRC: a CRC Error status (Protocol 2.0 error 0x03), no action
+    bad = bytearray(p2.build_packet(1, p2.INST_WRITE, bytes([65, 0, 1])))
     bad[-1] ^= 0xFF
-    assert bus.feed(bytes(bad), now=0.0) == [] and bus.reader.crc_errors == 1
+    (st,) = _status(bus, bytes(bad))
+    assert st.error == p2.ERR_CRC and bus.reader.crc_errors == 1
+    assert bus.servos[1].get("led") == 0
     # REBOOT: status first, then RAM reset (error cleared, torque off) and silent 50 ms
     bus.servos[1].raise_error(0x08)
     (st,) = _status(bus, p2.build_packet(1, p2.INST_REBOOT))

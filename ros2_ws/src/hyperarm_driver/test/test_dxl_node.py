@@ -113,8 +113,8 @@ def test_node_states_commands_torque_hold(executor, rclpy_context, emu, wait_for
                "joint5 in current mode", ["joint5"], effort=[0.2])
     res = probe.call("hold", Trigger.Request(), wait_for)
     assert res.success
-    wait_for(lambda: emu.ctl("state")["servos"]["5"]["operating_mode"] == 3, 5.0,
-             what="joint5 back in position mode")
+    wait_for(lambda: emu.ctl("state")["servos"]["5"]["operating_mode"] == 5, 5.0,
+             what="joint5 back in current-based position mode")
     res = probe.call("torque", SetBool.Request(data=False), wait_for)
     assert res.success
     assert all(emu.ctl("state")["servos"][str(i)]["torque_enable"] == 0 for i in range(1, 11))

@@ -133,6 +133,10 @@ def test_mock_and_dynamixel_driver_expose_the_same_interface(launch, rclpy_conte
                          ["bus"] + [f"joint{i}" for i in range(1, 10)] + ["gripper"])
 
 
+@pytest.mark.xfail(strict=True, reason="issue 17: the PMAC driver serves rail/set_torque, "
+                   "rail/hold, rail/home (one owner per service on rail_arm) and reports the "
+                   "diagnostics keys torque, latched_faults, watchdog; the mock's side is the "
+                   "mock helper's: remove this mark when it lands")
 def test_rail_variant_and_pmac_rail_driver_expose_the_same_interface(
         launch, rclpy_context, executor, wait_for):
     import socket
@@ -146,7 +150,7 @@ def test_rail_variant_and_pmac_rail_driver_expose_the_same_interface(
     cmp = Comparison(rclpy_context, executor, wait_for)
     needs = {"publishers": {contract.JOINT_STATES, contract.DIAGNOSTICS},
              "subscriptions": {contract.JOINT_COMMAND},
-             "services": {contract.SET_TORQUE, contract.HOLD, contract.RAIL_HOME}}
+             "services": {contract.RAIL_SET_TORQUE, contract.RAIL_HOLD, contract.RAIL_HOME}}
     cmp.same_interface("/pmac", "pmac_rail_driver", needs,
                        ("description_file", "rate", "require_homing", "diagnostics_period"))
     cmp.same_diagnostics("pmac_rail_driver", ["rail"])

@@ -30,6 +30,8 @@ class RecordingPort:
 
     def command(self, command: str) -> list[str]:
         self.sent.append(command)
+        if command.startswith("#1?#1J="):
+            return ["880000000000"]          # status read before a jog: enabled
         return self.replies.get(command, [])
 
 
@@ -137,17 +139,19 @@ def test_out_of_range_jog_never_sent(config: RailConfig, target) -> None:
 def test_jog_formats_counts_within_limits(config: RailConfig) -> None:
     port = RecordingPort()
     ax = RailAxis(port, config)
-    assert ax.jog_to(0.25) == 50000.0
-    assert ax.jog_to(1.5) == 300000.0
-    assert ax.jog_to(-1.5) == -300000.0
-    assert port.sent == ["#1J=50000.0", "#1J=300000.0", "#1J=-300000.0"]
+    assert ax.jog_to(0.25)[0] == 50000.0
+    assert ax.jog_to(1.5)[0] == 300000.0
+    counts, before = ax.jog_to(-1.5)
+    assert counts == -300000.0 and before.amp_enabled
+    # the status is read on the card in the same line, just before the jog
+    assert port.sent == ["#1?#1J=50000.0", "#1?#1J=300000.0", "#1?#1J=-300000.0"]
 
 
 def test_configure_writes_ivariables(config: RailConfig) -> None:
     port = RecordingPort({"I10": ["3713991"]})
     RailAxis(port, config).configure()
-    assert port.sent[0] == "I10"
-    sent = dict(kv.split("=") for kv in port.sent[1].split())
+    assert port.sent[:2] == ["I3=2 I6=1", "I10"]   # communication set-up first
+    sent = dict(kv.split("=") for kv in port.sent[2].split())
     # 0.5 m/s * 200000 counts/m = 100 counts/ms; 1 m/s^2 -> 0.2 counts/ms^2
     assert float(sent["I122"]) == pytest.approx(100.0)
     assert float(sent["I119"]) == pytest.approx(0.2)
@@ -165,8 +169,8 @@ def test_configure_never_disables_a_soft_limit_nor_writes_exponents(config: Rail
                    max_acceleration=0.02)
     port = RecordingPort({"I10": ["3713991"]})
     RailAxis(port, rail).configure()
-    assert "e" not in port.sent[1].lower()
-    sent = dict(kv.split("=") for kv in port.sent[1].split())
+    assert "e" not in port.sent[2].lower()
+    sent = dict(kv.split("=") for kv in port.sent[2].split())
     assert sent["I114"] == "-1" and sent["I113"] == "800"
     assert float(sent["I119"]) == pytest.approx(2e-05) and sent["I122"] == "0.5"
     mirrored = replace(config, lower=-0.5, upper=0.0, counts_per_metre=-1000.0)
@@ -203,8 +207,9 @@ def test_emulator_interpreter_replies() -> None:
     assert emu.execute("I100..103").count(b"\r") == 4
 
 
-@pytest.mark.parametrize("bad", ["#1Q", "#0P", "#33P", "#1J=", "#1J=abc", "I", "#1J*", "HELLO",
-                                 "I9000", "#"])
+@pytest.mark.parametrize("bad", ["#1Q", "#0P", "#33P", "#1J=abc", "I", "#1J*", "HELLO",
+                                 "I9000", "#1J=1e3", "#1J=2E-5", "P1=1e3", "LIST", "&17",
+                                 "OPEN PLC 32", "P1..", "M1->Z:$0"])
 def test_emulator_err003(bad: str) -> None:
     assert PmacEmulator().execute(bad).endswith(b"\x07ERR003\r")
 
@@ -213,3 +218,107 @@ def test_emulator_error_stops_the_line() -> None:
     emu = PmacEmulator()
     assert emu.execute("#1P #1XX #1K") == b"0\r\x07ERR003\r"
     assert MotorStatus.from_hex(emu.execute("#1?")[:12].decode()).open_loop
+
+
+# -- reply forms of a real card (Software Reference I3, I6, I64; Ethernet protocol) -----------
+def test_stx_messages_are_split_out() -> None:
+    msgs, rest = proto.split_messages(b"\x02PLC says hi\r12\r\x06")
+    assert msgs == ["PLC says hi"] and rest == b"12\r\x06"
+    msgs, rest = proto.split_messages(b"\x02half a mess")   # the CR is still on its way
+    assert msgs == [] and rest == b"\x02half a mess" and not proto.reply_complete(rest)
+
+
+@pytest.mark.parametrize("raw, complete", [(b"\x00", True), (b"\x07", True), (b"12\r", False),
+                                           (b"\n12\r\n", True), (b"12\r\x06", True)])
+def test_reply_complete_for_every_form(raw: bytes, complete: bool) -> None:
+    assert proto.reply_complete(raw) is complete
+
+
+def test_bell_without_number_and_lf_framing_are_explained() -> None:
+    with pytest.raises(PmacCommandError, match="I6=0 or 2"):
+        proto.parse_reply(b"\x07", "XYZ")
+    with pytest.raises(PmacProtocolError, match="I3=1"):
+        proto.parse_reply(b"\n12\r\n", "P1")
+    assert proto.is_busy(b"\x00") and not proto.is_busy(b"\x06")
+
+
+@pytest.mark.parametrize("x, text", [(2e-05, "0.00002"), (-0.0, "0"), (1e3, "1000"),
+                                     (12.5, "12.5")])
+def test_constants_are_written_without_exponent(x: float, text: str) -> None:
+    assert proto.format_constant(x) == text
+
+
+# -- emulator: variables, I-variable rules, commands (Turbo PMAC Software Reference) ---------
+def test_emulator_variables_ranges_and_hex() -> None:
+    emu = PmacEmulator()
+    assert emu.execute("P1=5 P2=P1*2+1 Q3=$20000 P1..3") == b"5\r11\r0\r\x06"
+    assert emu.execute("Q3 M7=-2.5 M7") == b"131072\r-2.5\r\x06"
+    assert emu.execute("&2 Q3 &1 Q3") == b"0\r131072\r\x06"       # Q per coordinate system
+    assert emu.execute("M1->Y:$0000C0,10 M1->") == b"Y:$0000C0,10\r\x06"
+    assert emu.execute("I102 I9=0 I102 I9=2") == b"$78002\r491522\r\x06"   # I9 bit 1: hex
+    assert emu.execute("I5=4 I5") == b"4\r\x06"
+
+
+def test_emulator_i3_wraps_and_frames_replies() -> None:
+    emu = PmacEmulator()
+    # I3 has the range 0..3: 5 keeps its low bits (1); replies are then <LF>data<CR>, <LF>
+    assert emu.execute("I3=5 I3") == b"\n1\r\n"
+    assert emu.execute("I3=2 I6=0 XYZ") == b"\x07"               # I6=0: BELL, no number
+    assert emu.execute("I6=1 I3=3 P1..2") == b"\n0\r\n0\r\x06"
+    assert emu.execute("I3=2 XYZ") == b"\x07ERR003\r"
+
+
+def test_emulator_identity_and_system_commands() -> None:
+    emu = PmacEmulator()
+    assert emu.execute("VER") == b"1.947\r\x06"                  # version only
+    assert emu.execute("DATE CID TYPE") == b"01/07/2013\r603382\rTURBO2\r\x06"
+    assert emu.execute("SAVE") == b"\x06"
+    assert emu.execute("% &1 %50 %") == b"100\r50\r\x06"
+    assert emu.execute("#2 #") == b"#2\r\x06"
+
+
+def test_emulator_incremental_jogs() -> None:
+    emu = PmacEmulator(start_position=100.0)
+    emu.execute("I122=1000 I119=1000 #1J^50")         # relative to the actual position
+    assert emu.motor(1).target == pytest.approx(150.0)
+    emu.execute("#1J:-30")                              # relative to the commanded one
+    assert emu.motor(1).target == pytest.approx(120.0)
+    emu.execute("#1J=")                                 # back to the pre-jog position
+    assert emu.motor(1).target == pytest.approx(150.0)
+
+
+def test_emulator_plc_download_list_and_scan() -> None:
+    emu = PmacEmulator()
+    for line in ("OPEN PLC 3 CLEAR", "IF (P1 > 2 AND P2 = 0)", "P2 = P1 * 10", "ELSE",
+                 "P3 = P3 + 1", "ENDIF", "CLOSE"):
+        assert emu.execute(line) == b"\x06", line
+    assert emu.execute("LIST PLC 3").count(b"\r") == 5
+    prog = emu.plcs[3]
+    prog.scan(emu, lambda cmd: None)
+    assert emu.pvars.get(3) == 1.0 and 2 not in emu.pvars
+    emu.execute("P1=4")
+    prog.scan(emu, lambda cmd: None)
+    assert emu.pvars[2] == 40.0
+
+
+@pytest.mark.parametrize("bad", ["WHILE (P1 > 0)", "P1 = = 2", "IF P1 > 0", "SEND\"x\"",
+                                 "P1 = 2E3", "GOTO 5"])
+def test_emulator_refuses_plc_lines_outside_the_subset(bad: str) -> None:
+    emu = PmacEmulator()
+    emu.execute("OPEN PLC 4 CLEAR")
+    assert emu.execute(bad) == b"\x07ERR003\r"
+    assert emu.execute("IF (P1 = 0)") == b"\x06"
+    assert emu.execute("CLOSE") == b"\x07ERR009\r"       # IF without ENDIF
+
+
+def test_watchdog_program_uses_only_the_emulated_subset(config: RailConfig) -> None:
+    from hyperarm_driver.pmac.watchdog import WatchdogConfig, download_lines
+    emu = PmacEmulator()
+    period = servo_period_from_i10(3713991)
+    cfg = WatchdogConfig(timeout=0.1)
+    assert cfg.cycles(period) == 226                   # 100 ms / 0.4427 ms, rounded up
+    for line in download_lines(cfg, 1, period):
+        assert emu.execute(line) == b"\x06", line
+    assert emu.plcs[10].enabled and len(emu.plcs[10].lines) > 5
+    with pytest.raises(RailConfigError):
+        WatchdogConfig(heartbeat=8001, seen=8001)

@@ -12,7 +12,8 @@ from hyperarm_driver.pmac.axis import RailAxis, RailConfig
 from hyperarm_driver.pmac.client import PmacClient
 from hyperarm_driver.pmac.driver import ERROR, OK, WARN, RailDriver
 from hyperarm_driver.pmac.emulator import PmacEmulator
-from hyperarm_driver.pmac.errors import (PmacCommandError, PmacLinkError, PmacTimeoutError,
+from hyperarm_driver.pmac.errors import (PmacCommandError, PmacLinkError, PmacProtocolError,
+                                         PmacTimeoutError,
                                          RailCommandError)
 
 pytestmark = pytest.mark.emulator
@@ -84,7 +85,7 @@ def test_non_ascii_command_bytes_get_err004(emu) -> None:
         s.sendall(proto.encode_request(proto.VR_DOWNLOAD, proto.Request.GETRESPONSE, b"#1P\xe9"))
         assert s.recv(100) == b"\x07ERR004\r"
         s.sendall(proto.flush_packet())
-        assert s.recv(10) == b"@"
+        assert s.recv(10) == b"\x18"      # one byte: the <CTRL-X> echo (I63=1)
 
 
 def test_unanswered_command_times_out_then_reconnects(client, emu) -> None:
@@ -257,9 +258,16 @@ def test_driver_hold_and_kill(driver, emu, wait_for) -> None:
     assert driver.request("kill") == "motor killed (torque off)"
     assert not emu.motor(1).closed_loop
     emu.set_amp_fault(1, True)
-    with pytest.raises(RailCommandError, match="amp_fault"):
+    with pytest.raises(RailCommandError, match="amplifier fault"):
         driver.request("enable")
     wait_for(lambda: driver.snapshot().diagnostic()[0] == ERROR, 2.0, what="ERROR level")
+    emu.set_amp_fault(1, False)                  # the cause is gone: still latched
+    time.sleep(0.05)
+    snap = driver.snapshot()
+    assert snap.latched == ("amplifier fault on the card",) and snap.diagnostic()[0] == ERROR
+    assert "set_torque true" in snap.diagnostic()[1]
+    assert "cleared: amplifier fault" in driver.request("enable")
+    assert driver.snapshot().latched == () and driver.snapshot().torque
 
 
 def test_driver_detects_link_loss_fast_and_reconnects(driver, emu, wait_for) -> None:
@@ -285,7 +293,8 @@ def test_driver_detects_link_loss_fast_and_reconnects(driver, emu, wait_for) -> 
     assert sum(1 for lvl, m in driver.events if lvl == "error" and "link lost" in m) == 2
 
 
-def test_driver_holds_a_motion_left_over_from_before_a_link_loss(driver, emu, wait_for) -> None:
+def test_driver_kills_a_motion_left_over_from_before_a_link_loss(driver, emu, wait_for) -> None:
+    # one torque rule (docs/architecture.md): after a reconnect torque stays off until asked
     wait_for(lambda: driver.snapshot().link_up, 2.0, what="link")
     driver.request("enable")
     emu.motor(1).homed = True
@@ -297,9 +306,13 @@ def test_driver_holds_a_motion_left_over_from_before_a_link_loss(driver, emu, wa
     wait_for(lambda: not driver.snapshot().link_up, 1.0, what="link loss")
     emu.refuse = False
     wait_for(lambda: driver.snapshot().link_up, 2.0, what="reconnect")
-    wait_for(lambda: emu.motor(1).mode == "idle" and emu.motor(1).vel == 0, 2.0, what="held")
+    assert not emu.motor(1).closed_loop and emu.motor(1).vel == 0     # killed at reconnect
     assert emu.motor(1).actual - emu.motor(1).ref < 0.09 * CPM - 100    # not finished
-    assert any("moving" in m and "held" in m for _, m in driver.events)
+    snap = driver.snapshot()
+    assert not snap.torque and snap.latched == ("link lost while torque was on",)
+    with pytest.raises(RailCommandError, match="latched"):
+        driver.set_target(0.05)
+    assert any("it was on: killed" in m for _, m in driver.events)
 
 
 def test_driver_stop_halts_a_motion_and_leaves_a_killed_motor_killed(axis, emu,
@@ -376,3 +389,121 @@ def test_serial_client_on_a_pty(emu) -> None:
             c.command("#1P")
         emu.mute = False
         assert c.command("#1P") == ["2000"]       # reopened
+
+
+# -- reply forms of a real card -------------------------------------------------------------
+def test_busy_nul_is_retried_not_a_link_loss(client, emu) -> None:
+    emu.busy = 3                                   # three NUL replies, then the answer
+    assert client.command("#1P") == ["2000"]
+    assert client.busy_replies == 3 and client.connects == 1
+    emu.busy = 10 ** 6                             # busy for longer than the timeout
+    from hyperarm_driver.pmac.errors import PmacBusyError
+    with pytest.raises(PmacBusyError, match="busy"):
+        client.command("#1P")
+    emu.busy = 0
+    assert client.command("#1P") == ["2000"]
+
+
+def test_stx_message_then_the_reply_via_getbuffer(client, emu) -> None:
+    client.command("I64=1")
+    emu.send_message("HELLO FROM PLC")
+    assert client.command("#1P #1V") == ["2000", "0"]
+    assert list(client.messages) == ["HELLO FROM PLC"]
+
+
+def test_check_communication_refuses_a_card_not_set_up(client, emu) -> None:
+    from hyperarm_driver.pmac.errors import RailConfigError
+    ax = RailAxis(client, RailConfig.from_rail(load_description(variant="rail_arm").rail))
+    client.command("I6=0")
+    with pytest.raises(RailConfigError, match="I6=0"):
+        ax.check_communication()
+    with pytest.raises(PmacProtocolError, match="I3=1"):
+        client.command("I3=1 I6=1")                 # its reply already ends with LF
+    ax.set_communication()                          # I3=2 I6=1 applies to its own reply
+    ax.check_communication()
+
+
+# -- the safety PLC: fault latch and host watchdog (watchdog.py) ----------------------------
+@pytest.fixture
+def wd_emu():
+    # overtravel switches at +-1 m: room for a long, fast move
+    with PmacEmulator(start_position=2000, limits=(-CPM, CPM)) as e:
+        yield e
+
+
+@pytest.fixture
+def wd_driver(wd_emu, wait_for):
+    from hyperarm_driver.pmac.watchdog import WatchdogConfig
+    client = PmacClient("127.0.0.1", wd_emu.port, timeout=0.2)
+    ax = RailAxis(client, RailConfig.from_rail(load_description(variant="rail_arm").rail),
+                  watchdog=WatchdogConfig(timeout=0.1))
+    events: list[tuple[str, str]] = []
+    d = RailDriver(ax, rate=100.0, reconnect_period=0.1,
+                   log=lambda level, msg: events.append((level, msg)))
+    d.events = events
+    d.start()
+    wait_for(lambda: d.snapshot().link_up, 3.0, what="link")
+    d.request("enable")
+    wd_emu.motor(1).homed = True
+    wait_for(lambda: d.snapshot().homed, 2.0, what="homed seen")
+    yield d
+    d.stop()
+
+
+def test_a_killed_motor_stays_killed_whatever_is_streamed(wd_driver, wd_emu, wait_for) -> None:
+    import threading
+    stop = threading.Event()
+    refused = []
+
+    def stream() -> None:                          # 200 Hz setpoints, as a task would
+        k = 0
+        while not stop.is_set():
+            try:
+                wd_driver.set_target(0.02 + 0.0001 * (k % 100))
+            except RailCommandError as exc:
+                refused.append(str(exc))
+            k += 1
+            time.sleep(0.005)
+
+    t = threading.Thread(target=stream)
+    t.start()
+    try:
+        wait_for(lambda: wd_emu.motor(1).vel != 0, 2.0, what="streamed motion")
+        enables = wd_emu.motor(1).enables
+        wd_emu.set_disturbance(1, 2500)            # a momentary fatal following error
+        wd_emu.set_disturbance(1, 0)               # gone at once: the cause has cleared
+        time.sleep(0.5)                            # ~100 setpoints streamed meanwhile
+    finally:
+        stop.set()
+        t.join()
+    m = wd_emu.motor(1)
+    assert not m.closed_loop and m.enables == enables    # never closed again
+    snap = wd_driver.snapshot()
+    assert snap.latched and "fatal following error" in snap.latched[0]
+    assert snap.diagnostic()[0] == ERROR and not snap.torque
+    assert refused and all("latched" in r for r in refused[-5:])
+    errors = [msg for lvl, msg in wd_driver.events if lvl == "error" and "latched" in msg]
+    assert len(errors) == 1                        # logged once
+    assert wd_driver.request("enable").startswith("torque on")
+    assert wd_emu.motor(1).closed_loop and wd_driver.snapshot().latched == ()
+
+
+def test_watchdog_stops_the_rail_when_the_link_is_cut_mid_move(wd_driver, wd_emu,
+                                                              wait_for) -> None:
+    wd_driver.set_target(0.9)
+    cruise = wd_emu.motor(1).ivars[22] * 1e3       # counts/s, the jog speed (0.5 m/s)
+    wait_for(lambda: wd_emu.motor(1).vel >= 0.999 * cruise, 3.0, what="full speed")
+    wd_emu.mute = True                             # the cable is cut: nothing gets through
+    m = wd_emu.motor(1)
+    t_cut, v = m.now, m.vel                        # (emulator clock) speed at the cut
+    wait_for(lambda: wd_emu.motor(1).vel == 0 and wd_emu.motor(1).mode == "idle", 3.0,
+               what="the rail stopped by the card")
+    m = wd_emu.motor(1)
+    decel = v / (m.ivars[19] * 1e6)                # s, at the jog acceleration Ixx19
+    assert m.motion_ended_at - t_cut <= 0.1 + decel + 0.01
+    assert m.closed_loop and m.actual - m.ref < 0.9 * CPM - 1000   # held, short of 0.9 m
+    assert wd_emu.pvars[8003] == 0                 # the PLC disarmed itself
+    wd_emu.mute = False
+    wait_for(lambda: wd_driver.snapshot().link_up and wd_driver.snapshot().reconnects, 3.0,
+               what="reconnected")
+    assert not wd_emu.motor(1).closed_loop         # torque off after a reconnect

@@ -42,9 +42,10 @@ class Probe:
                                       qos_for(contract.DIAGNOSTICS))
         self.pub = self.node.create_publisher(JointState, contract.JOINT_COMMAND,
                                               qos_for(contract.JOINT_COMMAND))
+        # the rail driver's own services (the arm driver owns hold and set_torque)
         self.clients = {"home": self.node.create_client(Trigger, contract.RAIL_HOME),
-                        "hold": self.node.create_client(Trigger, contract.HOLD),
-                        "torque": self.node.create_client(SetBool, contract.SET_TORQUE)}
+                        "hold": self.node.create_client(Trigger, contract.RAIL_HOLD),
+                        "torque": self.node.create_client(SetBool, contract.RAIL_SET_TORQUE)}
         self._types = {"home": Trigger, "hold": Trigger, "torque": SetBool}
         executor.add_node(self.node)
 
@@ -80,6 +81,8 @@ def make_node(rclpy_context, executor, **params):
 
     from hyperarm_driver.pmac_rail_driver_node import PmacRailDriver
 
+    # the watchdog is tested on its own (below); here a slow, loaded test host must not trip it
+    params.setdefault("watchdog_timeout", 1.0)
     node = PmacRailDriver(context=rclpy_context, parameter_overrides=[
         Parameter(k, value=v) for k, v in params.items()])
     executor.add_node(node)
@@ -160,7 +163,7 @@ def test_node_reports_faults(rclpy_context, executor, emu, wait_for) -> None:
     emu.set_disturbance(1, 0)
     emu.set_amp_fault(1, True)
     r = probe.call("torque", wait_for, data=True)
-    assert not r.success and "amp_fault" in r.message
+    assert not r.success and "amplifier fault" in r.message
     wait_for(lambda: (d := probe.diag()) and d["amp_fault"] == "true" and d["level"] == 2,
              2.0, what="amp fault reported")
     emu.set_amp_fault(1, False)
@@ -197,7 +200,9 @@ def test_node_link_loss_and_reconnect(rclpy_context, executor, emu, wait_for) ->
 @pytest.mark.node
 @pytest.mark.parametrize("params", [dict(rate=1000.0), dict(timeout=0.5), dict(motor=33),
                                     dict(variant="arm"), dict(counts_per_metre=math.nan),
-                                    dict(port="1025"), dict(motor=1.0), dict(host="")])
+                                    dict(port="1025"), dict(motor=1.0), dict(host=""),
+                                    dict(configure_card=False),          # watchdog needs it
+                                    dict(rate=5.0, watchdog_timeout=0.1)])  # < 2 polls
 def test_node_rejects_bad_parameters(rclpy_context, params) -> None:
     from rclpy.parameter import Parameter
 
@@ -219,3 +224,72 @@ def test_installed_emulator_and_driver(launch, rclpy_context, executor, wait_for
     assert probe.rail() == pytest.approx(0.01)
     assert probe.call("torque", wait_for, data=True).success
     wait_for(lambda: "connected to PMAC" in drv.output(), 5.0, what="driver log")
+
+
+def _free_port() -> int:
+    import socket
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.e2e
+def test_installed_driver_safety_on_the_emulator(launch, rclpy_context, executor,
+                                                 wait_for) -> None:
+    """Through the installed pmac_rail_driver (default watchdog, 100 ms): an unreachable
+    card is logged with its reason and retry period (throttled); a killed motor stays killed
+    whatever is streamed, latched on /diagnostics after the cause clears; cutting the link
+    mid-move, the card stops the rail within 100 ms plus its deceleration."""
+    port = _free_port()                        # nothing listens there yet
+    drv = launch("hyperarm_driver", "pmac_rail_driver",
+                 params={"port": port, "reconnect_period": 0.2, "require_homing": False,
+                         "diagnostics_period": 0.1})
+    wait_for(lambda: "Connection refused" in drv.output(), 15.0, what="reason in the log")
+    assert "retrying every 0.2 s" in drv.output()
+    time.sleep(1.0)                            # 5 more attempts: the same reason, not logged
+    assert drv.output().count("Connection refused") == 1
+
+    with PmacEmulator(port=port, start_position=2000, limits=(-CPM, CPM)) as emu:
+        probe = Probe(rclpy_context, executor)
+        wait_for(lambda: "connected to PMAC" in drv.output(), 10.0, what="connected")
+        assert emu.plcs[10].enabled                          # the safety PLC downloaded
+        assert probe.call("torque", wait_for, data=True).success
+
+        # 1. stream at 200 Hz; a momentary fatal following error kills the motor
+        k = 0
+        while emu.motor(1).vel == 0:
+            probe.command(["rail"], [0.02 + 1e-4 * k])
+            k += 1
+            time.sleep(0.005)
+        enables = emu.motor(1).enables
+        emu.set_disturbance(1, 2500)
+        emu.set_disturbance(1, 0)
+        for j in range(100):
+            probe.command(["rail"], [0.03 + 1e-4 * j])
+            time.sleep(0.005)
+        assert not emu.motor(1).closed_loop and emu.motor(1).enables == enables
+        wait_for(lambda: (d := probe.diag()) and "fatal following error" in d["latched_faults"],
+                 2.0, what="fault latched on /diagnostics")
+        d = probe.diag()
+        assert d["level"] == 2 and d["amp_enabled"] == "false" and d["torque"] == "off"
+        assert drv.output().count("rail fault latched") == 1
+        wait_for(lambda: "setpoint rejected" in drv.output() and "latched" in drv.output(),
+                 2.0, what="rejection logged")
+
+        # 2. torque on again; cut the link at full speed
+        assert probe.call("torque", wait_for, data=True).success
+        cruise = emu.motor(1).ivars[22] * 1e3
+        probe.command(["rail"], [0.9])
+        wait_for(lambda: emu.motor(1).vel >= 0.999 * cruise, 5.0, what="full speed")
+        emu.mute = True
+        m = emu.motor(1)
+        t_cut, v = m.now, m.vel
+        wait_for(lambda: emu.motor(1).vel == 0 and emu.motor(1).mode == "idle", 3.0,
+                 what="stopped by the card")
+        m = emu.motor(1)
+        assert m.motion_ended_at - t_cut <= 0.1 + v / (m.ivars[19] * 1e6) + 0.01
+        assert m.closed_loop and m.actual - m.ref < 0.9 * CPM - 1000
+        wait_for(lambda: "PMAC link lost" in drv.output(), 2.0, what="link loss logged")
+        emu.mute = False
+        wait_for(lambda: "reconnected to PMAC" in drv.output(), 5.0, what="reconnected")
+        wait_for(lambda: not emu.motor(1).closed_loop, 2.0, what="torque off after reconnect")

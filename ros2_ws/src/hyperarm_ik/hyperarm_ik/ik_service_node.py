@@ -14,6 +14,7 @@ from sensor_msgs.msg import JointState
 from hyperarm_description import contract
 from hyperarm_description.joints import JointStateError
 from hyperarm_description.model import VARIANTS, DescriptionError, load_description
+from hyperarm_description.params import ParamSpec
 from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import run_node
 from hyperarm_interfaces.srv import SolveIK
@@ -25,6 +26,21 @@ from .ros_conversions import joint_state
 from .solvers import DEFAULT_SOLVER, solver_names
 
 
+_D = IKDefaults()
+#: Every parameter of the node (also its --help): name -> (default, description, check).
+PARAMETERS: ParamSpec = {
+    "variant": ("arm", f"robot variant: {' or '.join(VARIANTS)}", None),
+    "description_file": ("", "robot description YAML ('' = the packaged one)", None),
+    "default_solver": (DEFAULT_SOLVER, "solver used when a request names none: "
+                       f"{', '.join(solver_names())}", None),
+    "position_tolerance": (_D.position_tolerance, "m, used when a request gives 0", None),
+    "orientation_tolerance": (_D.orientation_tolerance, "rad, used when a request gives 0",
+                              None),
+    "timeout": (_D.timeout, "s, solve time budget when a request gives 0", None),
+    "max_timeout": (_D.max_timeout, "s, requests asking for more are refused", None),
+}
+
+
 class IkServiceNode(Node):
     """Answers SolveIK requests; never raises out of the callback."""
 
@@ -32,22 +48,9 @@ class IkServiceNode(Node):
         """``kwargs`` go to rclpy's Node (e.g. context, parameter_overrides)."""
         kwargs.setdefault("namespace", contract.DEFAULT_NAMESPACE)
         super().__init__("ik_service", **kwargs)
-        d = IKDefaults()
-        params = {
-            "variant": ("arm", f"robot variant: {' or '.join(VARIANTS)}", True),
-            "description_file": ("", "robot description YAML ('' = the packaged one)", True),
-            "default_solver": (DEFAULT_SOLVER, "solver used when a request names none: "
-                               f"{', '.join(solver_names())}", True),
-            "position_tolerance": (d.position_tolerance,
-                                   "m, used when a request gives 0", True),
-            "orientation_tolerance": (d.orientation_tolerance,
-                                      "rad, used when a request gives 0", True),
-            "timeout": (d.timeout, "s, solve time budget when a request gives 0", True),
-            "max_timeout": (d.max_timeout, "s, requests asking for more are refused", True),
-        }
-        for name, (default, text, ro) in params.items():
+        for name, (default, text, _check) in PARAMETERS.items():
             self.declare_parameter(name, default, ParameterDescriptor(
-                description=text, read_only=ro, dynamic_typing=isinstance(default, float)))
+                description=text, read_only=True, dynamic_typing=isinstance(default, float)))
         get = lambda n: self.get_parameter(n).value  # noqa: E731
         try:
             desc = load_description(get("description_file") or None, get("variant"))
@@ -130,7 +133,7 @@ class IkServiceNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node(IkServiceNode, args)
+    run_node(IkServiceNode, args, parameters=PARAMETERS, robot_description=False)
 
 
 if __name__ == "__main__":

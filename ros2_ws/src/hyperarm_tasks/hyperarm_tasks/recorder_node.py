@@ -13,11 +13,15 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 
 from hyperarm_description import contract
+from hyperarm_description.params import NonEmpty, ParamSpec, declare_parameters
 from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import run_node
-from hyperarm_driver.common import NonEmpty, declare_parameters
 
 from .recording import RECORDED_TOPICS, McapRecorder
+
+
+#: Every parameter of the node (also its --help): name -> (default, description, check).
+PARAMETERS: ParamSpec = {"output": ("task.mcap", "MCAP file to write (overwritten)", NonEmpty())}
 
 
 def _type(full: str):
@@ -32,8 +36,7 @@ def _type(full: str):
 class TaskRecorder(Node):
     def __init__(self) -> None:
         super().__init__("task_recorder", namespace=contract.DEFAULT_NAMESPACE)
-        p = declare_parameters(self, {
-            "output": ("task.mcap", "MCAP file to write (overwritten)", NonEmpty())})
+        p = declare_parameters(self, PARAMETERS)
         # channels under the full names (/hyperarm/joint_states, ...), as rosbag2 records them
         topics = {self.resolve_topic_name(t): full for t, full in RECORDED_TOPICS.items()}
         try:
@@ -59,7 +62,7 @@ class TaskRecorder(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node(TaskRecorder, args)
+    run_node(TaskRecorder, args, parameters=PARAMETERS, robot_description=False)
 
 
 if __name__ == "__main__":

@@ -17,8 +17,8 @@ from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 
 from hyperarm_description import contract
+from hyperarm_description.params import ParamSpec, Range, declare_parameters
 from hyperarm_description.ros_main import declare_robot_description, run_node
-from hyperarm_driver.common import OneOf, Range, declare_parameters
 from hyperarm_ik.kinematics import Kinematics
 from hyperarm_ik.solvers import solver_names
 from hyperarm_interfaces.action import RunTask
@@ -30,26 +30,29 @@ from .sequence import load_task, packaged_tasks_dir
 
 FEEDBACK_PERIOD = 0.05   # s, feedback published at most this often
 
+#: Every parameter of the node (also its --help): name -> (default, description, check).
+PARAMETERS: ParamSpec = {
+    "command_rate": (50.0, "rate at which goals are streamed on joint_command, Hz",
+                     Range(1.0, 500.0)),
+    "tasks_dir": ("", "directories of user task files (':'-separated), searched before the "
+                      "package's share/hyperarm_tasks/tasks", None),
+    "detection_frames": (5, "camera frames averaged per object estimate", Range(1, 30)),
+    "detection_max_age": (1.0, "s: an older detection is stale", Range(0.05, 60.0)),
+    "detection_timeout": (3.0, "s: wait this long for fresh detections", Range(0.1, 60.0)),
+    "detection_outlier": (0.01, "m: detections this far from the median are rejected",
+                          Range(0.0005, 1.0)),
+    "solver": ("", "IK solver ('' = the default; see hyperarm_ik)", None),
+}
+
 
 class TaskNode(Node):
     def __init__(self) -> None:
         super().__init__("task_node", namespace=contract.DEFAULT_NAMESPACE)
         self._desc = declare_robot_description(self)
-        p = declare_parameters(self, {
-            "command_rate": (50.0, "rate at which goals are streamed on joint_command, Hz",
-                             Range(1.0, 500.0)),
-            "tasks_dir": ("", "directories of user task files (':'-separated), searched "
-                              "before the package's share/hyperarm_tasks/tasks", None),
-            "detection_frames": (5, "camera frames averaged per object estimate",
-                                 Range(1, 30)),
-            "detection_max_age": (1.0, "s: an older detection is stale", Range(0.05, 60.0)),
-            "detection_timeout": (3.0, "s: wait this long for fresh detections",
-                                  Range(0.1, 60.0)),
-            "detection_outlier": (0.01, "m: detections this far from the median are "
-                                        "rejected", Range(0.0005, 1.0)),
-            "solver": ("", "IK solver ('' = the default)",
-                       OneOf(("", *solver_names(self._desc.variant)))),
-        })
+        p = declare_parameters(self, PARAMETERS)
+        if p["solver"] and p["solver"] not in solver_names(self._desc.variant):
+            raise SystemExit(f"task_node: parameter solver={p['solver']!r} not one of "
+                             f"{', '.join(solver_names(self._desc.variant))}")
         self._dirs = [d for d in p.pop("tasks_dir").split(":") if d]
         self._params = RunnerParams(**p)
         self._kin = Kinematics(self._desc)
@@ -163,7 +166,8 @@ class TaskNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node(TaskNode, args, executor=lambda: MultiThreadedExecutor(num_threads=4))
+    run_node(TaskNode, args, executor=lambda: MultiThreadedExecutor(num_threads=4),
+             parameters=PARAMETERS)
 
 
 if __name__ == "__main__":

@@ -7,8 +7,10 @@ Targets (each served by a separate process, so the server does not share the cli
 - ``emulator``: ``pmac_emulator`` (command interpretation and motion simulation included);
 - ``--host H --port P``: an existing server or a real card (read-only commands only).
 
-Commands timed: ``#1P`` (one query) and ``#1P#1V#1F#1?`` (the driver's poll). Prints
-p50/p95/p99/max in ms, commands/s, and the client's CPU time per command.
+Commands timed: ``#1P`` (one query), ``#1P#1V#1F#1?`` (the poll without the safety PLC)
+and, on the loopback targets only (it writes the heartbeat P-variable), the driver's poll
+with the safety PLC ``P8001=P8001+1 #1P#1V#1F#1? P8003``. Prints p50/p95/p99/max in ms,
+commands/s, and the client's CPU time per command.
 """
 from __future__ import annotations
 
@@ -23,6 +25,7 @@ from hyperarm_driver.pmac import protocol as proto
 from hyperarm_driver.pmac.client import PmacClient
 
 COMMANDS = ("#1P", "#1P#1V#1F#1?")
+WATCHDOG_POLL = "P8001=P8001+1 #1P#1V#1F#1? P8003"   # writes: not sent to a real card
 
 
 def _ack_server(port_out) -> None:   # multiprocessing.Connection
@@ -104,9 +107,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'server':<10} {'command':<14} {'p50 ms':>8} {'p95 ms':>8} {'p99 ms':>8} "
           f"{'max ms':>8} {'cmd/s':>8} {'client CPU us/cmd':>18}")
     try:
-        for name, host, port, _ in cases:
+        for name, host, port, proc in cases:
             with PmacClient(host, port, timeout=1.0) as client:
-                for cmd in COMMANDS:
+                for cmd in COMMANDS + ((WATCHDOG_POLL,) if proc is not None else ()):
                     r = measure(client, cmd, args.n, args.warmup)
                     print(f"{name:<10} {cmd:<14} {r['p50']:8.3f} {r['p95']:8.3f} "
                           f"{r['p99']:8.3f} {r['max']:8.3f} {r['rate']:8.0f} "

@@ -1,9 +1,8 @@
 """The Dynamixel bus on the official dynamixel-sdk (Protocol 2.0), in SI units (no ROS).
 
-One cycle = one (fast) sync read of a 15-byte indirect block per servo (hardware error,
-present current, velocity, position, input voltage, temperature, bus watchdog) + one sync
-write of a
-6-byte indirect block (goal current, goal position). The indirect addresses are set up by
+One cycle = one (fast) sync read of a 16-byte indirect block per servo (hardware error,
+present current, velocity, position, input voltage, temperature, bus watchdog, torque
+enable) + one sync write of a 6-byte indirect block (goal current, goal position). The indirect addresses are set up by
 :meth:`DynamixelBus.configure`, so both transfers are single instructions.
 Every SDK call is wrapped: port failures raise :class:`PortLostError`, failed transactions
 :class:`CommError` (after ``retries`` retries).
@@ -39,7 +38,7 @@ _log = logging.getLogger(__name__)
 # (register, size) laid out in indirect data, in this order
 READ_BLOCK = ("hardware_error_status", "present_current", "present_velocity",
               "present_position", "present_input_voltage", "present_temperature",
-              "bus_watchdog")
+              "bus_watchdog", "torque_enable")
 WRITE_BLOCK = ("goal_current", "goal_position")
 
 
@@ -64,7 +63,7 @@ _PORT_ERRORS = (OSError, termios.error)  # serial.SerialException is an OSError
 @dataclass
 class BusState:
     """One sync read, arrays in joint order: rad, rad/s, N·m, A, V, °C, raw error bits,
-    Bus Watchdog register (-1 = tripped)."""
+    Bus Watchdog register (-1 = tripped), Torque Enable as the servo reports it (bool)."""
 
     stamp: float
     position: np.ndarray
@@ -76,6 +75,7 @@ class BusState:
     temperature: np.ndarray
     ticks: np.ndarray
     bus_watchdog: np.ndarray
+    torque: np.ndarray
 
 
 @dataclass
@@ -116,6 +116,7 @@ class DynamixelBus:
         self.baud = baud
         self.want_fast = fast_sync_read
         self.fast = False
+        self.fast_error = ""     # why Fast Sync Read is not used (start-up check)
         self.retries = retries
         self.stats = BusStats()
         self.port: PortHandler | None = None
@@ -127,8 +128,9 @@ class DynamixelBus:
         self._lo_tick = np.array([j.tick_limits[0] for j in config.joints], dtype=np.int64)
         self._hi_tick = np.array([j.tick_limits[1] for j in config.joints], dtype=np.int64)
         self._climit = np.array([j.model.current_limit for j in config.joints], dtype=np.int64)
-        self.modes = [j.mode_value for j in config.joints]   # as written to each servo
-        self.torque = [False] * len(config.joints)
+        # as written to each servo: every position-class command runs in current-based position
+        self.modes = [OperatingMode.CURRENT_BASED_POSITION] * len(config.joints)
+        self.torque = [False] * len(config.joints)   # as read from each servo every cycle
         self.bus_watchdog = 0    # Bus Watchdog units armed in current mode (0 = off)
         self.has_watchdog = [False] * len(config.joints)   # firmware >= v38, see configure
 
@@ -150,7 +152,8 @@ class DynamixelBus:
         """Open the port at ``baud``; PortOpenError naming the port if impossible."""
         port = PortHandler(self.port_name)
         try:
-            ok = port.openPort()
+            ok = port.setBaudRate(self.baud)    # opens the port at this rate (openPort()
+            # would use the SDK's default, 1 Mbit/s, whatever ``baud`` says)
         except _PORT_ERRORS as exc:
             raise PortOpenError(f"cannot open Dynamixel port {self.port_name}: {exc}") from exc
         if not ok:
@@ -303,8 +306,8 @@ class DynamixelBus:
             _log.warning("%s (ID %d): firmware older than v%d has no Bus Watchdog: a lost port "
                          "will not stop it in current mode", j.name, j.id,
                          BUS_WATCHDOG_FIRMWARE)
-        self.write(index, "operating_mode", j.mode_value)
-        self.modes[index] = j.mode_value
+        self.write(index, "operating_mode", OperatingMode.CURRENT_BASED_POSITION)
+        self.modes[index] = OperatingMode.CURRENT_BASED_POSITION
         lo, hi = j.tick_limits
         self.write(index, "min_position_limit", lo)
         self.write(index, "max_position_limit", hi)
@@ -323,13 +326,19 @@ class DynamixelBus:
         for i in range(len(self.config.joints)):
             self.configure(i)
         self.fast = False
-        if self.want_fast and hasattr(self._reader, "fastSyncRead"):
+        self.fast_error = ""
+        if not self.want_fast:
+            self.fast_error = "Fast Sync Read disabled (fast_sync_read false)"
+        elif not hasattr(self._reader, "fastSyncRead"):
+            self.fast_error = "this dynamixel-sdk has no Fast Sync Read"
+        else:
             self.fast = True
             try:
                 self.read_state()
-            except CommError:
+            except CommError as exc:
+                # MX(2.0) firmware does not implement Fast Sync Read (0x8A): no reply
                 self.fast = False
-                _log.warning("fast sync read failed at start-up; using plain sync read")
+                self.fast_error = f"Fast Sync Read (0x8A) failed at start-up ({exc})"
         self.read_state()
 
     # -- cycle -------------------------------------------------------------------------------
@@ -351,7 +360,9 @@ class DynamixelBus:
         raw = np.empty((len(self.config.joints), READ_LEN), dtype=np.uint8)
         for i, j in enumerate(self.config.joints):
             raw[i] = reader.data_dict[j.id]
-        return self._decode(raw)
+        state = self._decode(raw)
+        self.torque = [bool(t) for t in state.torque]
+        return state
 
     def _decode(self, raw: np.ndarray) -> BusState:
         def field_(name: str, dtype: str) -> np.ndarray:
@@ -371,7 +382,8 @@ class DynamixelBus:
             hardware_error=raw[:, _READ_OFF["hardware_error_status"]].astype(np.int64),
             voltage=field_("present_input_voltage", "<u2") * 0.1,
             temperature=raw[:, _READ_OFF["present_temperature"]].astype(float),
-            ticks=ticks, bus_watchdog=field_("bus_watchdog", "i1"))
+            ticks=ticks, bus_watchdog=field_("bus_watchdog", "i1"),
+            torque=raw[:, _READ_OFF["torque_enable"]] == 1)
 
     def goal_ticks(self, position: np.ndarray) -> np.ndarray:
         """Joint angles (rad, finite) -> goal ticks, clamped into each servo's tick limits."""

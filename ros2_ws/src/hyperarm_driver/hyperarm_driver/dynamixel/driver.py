@@ -3,13 +3,25 @@
 :class:`DynamixelDriver` owns a :class:`DynamixelBus`. ``cycle(now)`` does one sync read +
 one sync write; while the port is down it retries opening it every ``reconnect_period``.
 Commands arrive by joint name (``command``); positions are clamped into the joint limits,
-NaN/inf rejected; efforts clamped to the servo's current limit. A joint in current (torque)
-control whose effort command is older than ``command_timeout`` is switched to hold its
-present position (watchdog); in current control a torque pushing a joint further past a
-limit is zeroed (the servo does not enforce position limits in current mode). The servo side
-of the same watchdog: a joint in current mode has its Bus Watchdog armed with
-``command_timeout``, so it stops by itself if the bus goes silent (port lost, driver dead);
-a trip seen after a stall is logged and the joint held.
+NaN/inf rejected (in any joint of the message, also one another driver owns); efforts clamped
+to the servo's current limit. Every position-class command (position only, position +
+effort) runs in current-based position (mode 5), so switching between them never switches
+the operating mode; effort only runs in current mode (0). The current limit of a position
+command is its effort, or the joint's default limit when the effort is 0 or absent.
+
+A joint in current (torque) control whose effort command is older than ``command_timeout``
+is switched to hold its present position (watchdog). The servo does not enforce position
+limits in current mode, so the driver brakes before a limit: inside a margin that grows with
+the velocity toward the limit (``limit_margin`` + v·horizon + v²/(2·``brake_decel``)) a
+moving joint gets the full torque against its motion (the horizon is ``brake_cycles`` times
+the worst recent cycle gap), a slow one no torque toward the limit;
+over ``limit_ramp`` before that margin a torque toward the limit fades out linearly.
+The servo side of the watchdog: a joint in current mode has its Bus Watchdog armed (at most
+``command_timeout``, 0.1 s by default), so it stops by itself if the driver's cycle stops
+(host stalled, port lost, driver dead);
+a trip seen after a stall is logged and the joint held. The torque state reported is the one
+read from each servo every cycle (a servo turns its torque off by itself on overload or
+overheating).
 """
 from __future__ import annotations
 
@@ -32,9 +44,9 @@ OK, WARN, ERROR, STALE = 0, 1, 2, 3   # diagnostic levels (diagnostic_msgs/Diagn
 
 _log = logging.getLogger(__name__)
 
-POSITION = "position"
-CBP = "current_based_position"
-CURRENT = "current"
+CBP = "current_based_position"    # every position-class command
+CURRENT = "current"               # effort-only commands
+BRAKE_MIN_SPEED = 0.05            # rad/s: slower joints are not braked, only not pushed
 
 
 @dataclass
@@ -43,6 +55,8 @@ class CommandReport:
 
     clamped: list[str] = field(default_factory=list)
     effort_clamped: list[str] = field(default_factory=list)
+    torque_off: list[str] = field(default_factory=list)   # accepted, but their torque is off
+    port_down: bool = False       # accepted while the port is down: nothing can move
 
 
 @dataclass(frozen=True)
@@ -60,15 +74,42 @@ class DynamixelDriver:
     """Bus + per-joint goals + safety. Arrays are in ``config.joints`` order."""
 
     def __init__(self, bus: DynamixelBus, *, command_timeout: float = 0.5,
-                 reconnect_period: float = 0.5, other_joints: Sequence[str] = ()) -> None:
+                 reconnect_period: float = 0.5, other_joints: Sequence[str] = (),
+                 brake_decel: float = 10.0, limit_margin: float = 0.005,
+                 limit_ramp: float = 0.3, brake_cycles: float = 2.0,
+                 bus_watchdog: float | None = None) -> None:
         """``other_joints``: names of joints driven by other drivers (e.g. ``rail``), ignored
-        in commands; any other name not on this bus makes a command invalid."""
+        in commands; any other name not on this bus makes a command invalid.
+
+        Torque mode near a limit: ``brake_decel`` (rad/s²) is the deceleration assumed when
+        braking, ``limit_margin`` (rad) the margin kept at rest, ``limit_ramp`` (rad) the
+        distance before the margin over which a torque toward the limit fades out,
+        ``brake_cycles`` the number of (measured) cycle periods the joint may travel before
+        the brake acts. ``bus_watchdog`` (s, default min(command_timeout, 0.1)): the servos'
+        Bus Watchdog in current mode, fed by this driver's own cycle: if the cycle stops
+        (host stalled, port lost, driver dead) a servo in current mode stops by itself, also
+        before a limit the host can no longer brake for.
+        """
         if not 0.0 < command_timeout <= 60.0:
             raise ValueError(f"command_timeout must be in (0, 60] s, got {command_timeout}")
         if not 0.0 < reconnect_period <= 60.0:
             raise ValueError(f"reconnect_period must be in (0, 60] s, got {reconnect_period}")
+        if not 0.0 < brake_decel < math.inf:
+            raise ValueError(f"brake_decel must be > 0 rad/s², got {brake_decel}")
+        if not 0.0 <= limit_margin < 1.0:
+            raise ValueError(f"limit_margin must be in [0, 1) rad, got {limit_margin}")
+        if not 0.0 < limit_ramp < 1.0:
+            raise ValueError(f"limit_ramp must be in (0, 1) rad, got {limit_ramp}")
+        if not 0.0 <= brake_cycles <= 100.0:
+            raise ValueError(f"brake_cycles must be in [0, 100], got {brake_cycles}")
+        self.brake_decel = brake_decel
+        self.limit_margin = limit_margin
+        self.limit_ramp = limit_ramp
+        self.brake_cycles = brake_cycles
+        self._last_apply = -math.inf
+        self._gap = 0.01                 # s, worst recent cycle gap (brake horizon)
         self.bus = bus
-        bus.set_bus_watchdog(command_timeout)   # the servo-side twin of the effort watchdog
+        bus.set_bus_watchdog(min(command_timeout, 0.1) if bus_watchdog is None else bus_watchdog)
         self.config: BusConfig = bus.config
         self.other_joints = frozenset(other_joints) - set(bus.config.names)
         self.command_timeout = command_timeout
@@ -81,7 +122,7 @@ class DynamixelDriver:
                                       else j.effort_limit for j in self.config.joints])
         self.goal_position = np.zeros(n)        # rad
         self.goal_effort = self._hold_effort.copy()  # N·m (limit in cbp, torque in current)
-        self.control = [self._configured(i) for i in range(n)]  # wanted control mode
+        self.control = [CBP] * n          # wanted control mode (CBP or CURRENT)
         self.effort_stamp = np.full(n, -math.inf)
         self.state: BusState | None = None
         self.connected = False
@@ -94,17 +135,17 @@ class DynamixelDriver:
         self.watchdog_trips = 0
         self.cycles = 0                  # successful cycles since start
         self._window = (0, 0)            # bus transactions, failures at the last diagnostics
-        self.events: list[str] = []      # human-readable events for the node to log
+        self.brakes = 0                  # cycles in which a joint was braked before a limit
+        # (logging level, text) of events for the node to log
+        self.events: list[tuple[int, str]] = []
 
     # -- helpers -----------------------------------------------------------------------------
-    def _configured(self, i: int) -> str:
-        return self.config.joints[i].mode
+    def _event(self, text: str, level: int = logging.INFO) -> None:
+        self.events.append((level, text))
+        _log.debug(text)     # the node logs the events (pop_events) at their level
 
-    def _event(self, text: str) -> None:
-        self.events.append(text)
-        _log.info(text)
-
-    def pop_events(self) -> list[str]:
+    def pop_events(self) -> list[tuple[int, str]]:
+        """Events since the last call: (logging level, text)."""
         out, self.events = self.events, []
         return out
 
@@ -131,12 +172,14 @@ class DynamixelDriver:
         self.missing = []
         self.state = self.bus.read_state()
         self._reset_goals_to_present()
+        if self.bus.want_fast and not self.bus.fast:
+            self._event(f"{self.bus.fast_error}; using plain Sync Read (0x82)", logging.WARNING)
 
     def _reset_goals_to_present(self) -> None:
         assert self.state is not None
         self.goal_position = np.clip(self.state.position, self.lower, self.upper)
         self.goal_effort = self._hold_effort.copy()
-        self.control = [self._configured(i) for i in range(len(self.control))]
+        self.control = [CBP] * len(self.control)
         self.effort_stamp[:] = -math.inf
         self._have_goal = True
 
@@ -146,17 +189,20 @@ class DynamixelDriver:
         self.last_error = str(exc)
         self.bus.close()
         self._next_attempt = now + self.reconnect_period
-        self._event(f"port lost: {exc}; torque will be off after reconnecting")
+        self._event(f"port lost: {exc}; torque will be off after reconnecting",
+                    logging.WARNING)
 
     # -- commands ----------------------------------------------------------------------------
     def command(self, names: Sequence[str], position: Sequence[float] = (),
                 effort: Sequence[float] = (), now: float | None = None) -> CommandReport:
         """Apply a by-name command (names in ``other_joints`` are ignored).
 
-        position only -> position control; effort only -> current control (torque, N·m);
-        both -> current-based position with |effort| as the torque limit. Raises
-        CommandError (nothing applied) on length mismatch, duplicates, NaN/inf or an
-        unknown joint name. A command for other drivers' joints only changes nothing.
+        position only -> current-based position with the joint's default current limit;
+        position and effort -> current-based position with |effort| (N·m) as the limit, an
+        effort of 0 meaning the default limit; effort only -> current control (torque, N·m).
+        Raises CommandError (nothing applied) on length mismatch, duplicates, an unknown joint
+        name or NaN/inf in any joint, one of ``other_joints`` included. A command for other
+        drivers' joints only changes nothing.
         """
         now = time.monotonic() if now is None else now
         n = len(names)
@@ -164,14 +210,14 @@ class DynamixelDriver:
             position = [float(x) for x in position]
             effort = [float(x) for x in effort]
         except (TypeError, ValueError) as exc:
-            raise CommandError(f"setpoints must be numbers: {exc}") from None
+            raise CommandError(f"setpoints must be numbers: {exc}", "type") from None
         if len(position) not in (0, n) or len(effort) not in (0, n):
             raise CommandError(f"{len(position)} positions and {len(effort)} efforts for "
-                               f"{n} joint names (each must be 0 or {n})")
+                               f"{n} joint names (each must be 0 or {n})", "length")
         if not position and not effort:
-            raise CommandError("command has neither positions nor efforts")
+            raise CommandError("command has neither positions nor efforts", "empty")
         if len(set(names)) != n:
-            raise CommandError(f"duplicate joint names in command: {list(names)}")
+            raise CommandError(f"duplicate joint names in command: {list(names)}", "duplicate")
         idx: list[tuple[int, int]] = []
         unknown = []
         for k, name in enumerate(names):
@@ -182,42 +228,38 @@ class DynamixelDriver:
                     unknown.append(name)
         if unknown:
             raise CommandError(f"unknown joint(s) {unknown}; known: "
-                               f"{self.names + sorted(self.other_joints)}")
-        bad = [names[k] for k, _ in idx
+                               f"{self.names + sorted(self.other_joints)}", "unknown_joint")
+        bad = [names[k] for k in range(n)
                if (position and not math.isfinite(position[k]))
                or (effort and not math.isfinite(effort[k]))]
         if bad:
-            raise CommandError(f"non-finite setpoint for {bad}: command rejected")
-        report = CommandReport()
+            raise CommandError(f"non-finite setpoint for {bad}: command rejected whole",
+                               "non_finite")
+        report = CommandReport(port_down=bool(idx) and not self.connected)
         for k, i in idx:
             name = self.config.joints[i].name
-            if position:
-                q = float(position[k])
-                qc = min(max(q, self.lower[i]), self.upper[i])
-                if qc != q:
-                    report.clamped.append(name)
-                self.goal_position[i] = qc
+            e = 0.0
             if effort:
                 e = float(effort[k])
                 lim = self.max_effort[i]
                 if abs(e) > lim:
                     report.effort_clamped.append(name)
                     e = math.copysign(lim, e)
-            if position and effort:
+            if position:
+                q = float(position[k])
+                qc = min(max(q, self.lower[i]), self.upper[i])
+                if qc != q:
+                    report.clamped.append(name)
+                self.goal_position[i] = qc
                 self.control[i] = CBP
-                self.goal_effort[i] = abs(e)
-                self.effort_stamp[i] = now
-            elif effort:
+                # effort 0 or absent: no extra limit, the joint's default limit applies
+                self.goal_effort[i] = abs(e) if e != 0.0 else self._hold_effort[i]
+            else:
                 self.control[i] = CURRENT
                 self.goal_effort[i] = e
                 self.effort_stamp[i] = now
-            else:
-                if self.control[i] == CURRENT:
-                    self.control[i] = self._configured(i)
-                if self.control[i] == CBP and self._configured(i) != CBP:
-                    self.goal_effort[i] = self.max_effort[i]
-                elif self.control[i] == CBP:
-                    self.goal_effort[i] = self._hold_effort[i]
+            if self.connected and not self.bus.torque[i]:
+                report.torque_off.append(name)
         self._have_goal = True
         return report
 
@@ -245,7 +287,9 @@ class DynamixelDriver:
                         "torque off")
         t0 = time.perf_counter()
         try:
+            before = list(self.bus.torque)
             self.state = self.bus.read_state()
+            self._torque_dropped(before)
             self.last_ok = now
             self._apply(now)
         except PortLostError as exc:
@@ -262,6 +306,55 @@ class DynamixelDriver:
         """Seconds since the last successful sync read (0 while the port is down)."""
         now = time.monotonic() if now is None else now
         return max(0.0, now - self.last_ok) if self.connected else 0.0
+
+    def _torque_dropped(self, before: Sequence[bool]) -> None:
+        """Log the servos that turned their torque off by themselves (hardware error)."""
+        st = self.state
+        assert st is not None
+        off = [i for i, (was, is_on) in enumerate(zip(before, self.bus.torque))
+               if was and not is_on]
+        if off:
+            what = [f"{self.config.joints[i].name} "
+                    f"({', '.join(decode_hardware_error(int(st.hardware_error[i]))) or 'no error'})"
+                    for i in off]
+            self._event(f"servo turned its torque off by itself: {', '.join(what)}; "
+                        "reboot, then set_torque true", logging.ERROR)
+
+    def _margin(self, speed: np.ndarray, horizon: float) -> np.ndarray:
+        """Braking margin (rad) at ``speed`` (rad/s toward a limit, >= 0)."""
+        return self.limit_margin + speed * horizon + speed * speed / (2.0 * self.brake_decel)
+
+    def _limit_guard(self, effort: np.ndarray, now: float) -> None:
+        """Current mode: brake before a limit (in place on ``effort``, N·m)."""
+        st = self.state
+        assert st is not None
+        dt = now - self._last_apply
+        self._last_apply = now
+        # the worst recent cycle gap (decaying over ~100 cycles): a host that stalls now and
+        # then gets a wider margin
+        dt = min(max(dt, 0.002), 0.25) if math.isfinite(dt) else 0.01
+        self._gap = max(dt, 0.99 * self._gap)
+        horizon = self.brake_cycles * self._gap
+        q, v = st.position, st.velocity
+        up, down = np.maximum(v, 0.0), np.maximum(-v, 0.0)
+        # room left before the margin: torque toward a limit fades out over limit_ramp
+        room_up = self.upper - q - self._margin(up, horizon)
+        room_down = q - self.lower - self._margin(down, horizon)
+        fade_up = np.clip(room_up / self.limit_ramp, 0.0, 1.0)
+        fade_down = np.clip(room_down / self.limit_ramp, 0.0, 1.0)
+        braked = False
+        for i, c in enumerate(self.control):
+            if c != CURRENT:
+                continue
+            if effort[i] > 0.0:
+                effort[i] *= fade_up[i]
+            elif effort[i] < 0.0:
+                effort[i] *= fade_down[i]
+            if room_up[i] <= 0.0 and up[i] > BRAKE_MIN_SPEED:
+                effort[i], braked = -self.max_effort[i], True
+            elif room_down[i] <= 0.0 and down[i] > BRAKE_MIN_SPEED:
+                effort[i], braked = self.max_effort[i], True
+        self.brakes += braked
 
     def _apply(self, now: float) -> None:
         """Watchdog, mode switches, limit guard, then the sync write of goals."""
@@ -284,21 +377,16 @@ class DynamixelDriver:
                 self._event(f"watchdog: no effort command for {self.command_timeout:g} s on "
                             f"{names}; holding position")
             for i in stale:
-                self.control[i] = self._configured(i)
+                self.control[i] = CBP
                 self.goal_position[i] = min(max(st.position[i], self.lower[i]), self.upper[i])
                 self.goal_effort[i] = self._hold_effort[i]
         effort = np.where([c == CURRENT for c in self.control], self.goal_effort,
                           np.abs(self.goal_effort))
+        # the servo ignores position limits in current mode: brake before them
+        self._limit_guard(effort, now)
         for i, c in enumerate(self.control):
-            if c == CURRENT:
-                # servo ignores position limits in current mode: never push further out
-                if (st.position[i] >= self.upper[i] and effort[i] > 0) or (
-                        st.position[i] <= self.lower[i] and effort[i] < 0):
-                    effort[i] = 0.0
-                # keep the position goal at the present position for the switch back
+            if c == CURRENT:   # keep the position goal at the present position (switch back)
                 self.goal_position[i] = min(max(st.position[i], self.lower[i]), self.upper[i])
-            elif c == POSITION:
-                effort[i] = self.max_effort[i]
         ticks = self.bus.goal_ticks(self.goal_position)
         current = self.bus.goal_current(effort)
         # limits in cbp/position are unsigned magnitudes; direction applies to torque only
@@ -308,7 +396,8 @@ class DynamixelDriver:
             want = OperatingMode.BY_NAME[c]
             if self.bus.modes[i] != want:
                 self.bus.set_mode(i, want, int(ticks[i]), int(current[i]))
-                self._event(f"{self.config.joints[i].name}: operating mode -> {c}")
+                self._event(f"{self.config.joints[i].name}: operating mode -> {c}",
+                            logging.DEBUG)
         self.bus.write_goals(ticks, current)
 
     # -- diagnostics -------------------------------------------------------------------------
@@ -409,7 +498,7 @@ class DynamixelDriver:
             for i in indices:
                 self.bus.reboot(i)
                 done.append(self.config.joints[i].name)
-                self.control[i] = self._configured(i)
+                self.control[i] = CBP
             self.state = self.bus.read_state()
             for i in indices:
                 self.goal_position[i] = min(max(self.state.position[i], self.lower[i]),

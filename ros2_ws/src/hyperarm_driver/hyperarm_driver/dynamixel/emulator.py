@@ -31,8 +31,9 @@ from typing import Any
 
 from . import protocol2 as p2
 from .control_table import (
-    CENTER_TICK, EEPROM_END, INDIRECT_ADDRESS_1, INDIRECT_COUNT, INDIRECT_DATA_1, MODELS,
-    REGISTERS, TABLE_SIZE, TICKS_PER_REV, VELOCITY_UNIT_RPM, ModelSpec, OperatingMode,
+    BAUD_RATES, CENTER_TICK, EEPROM_END, INDIRECT_ADDRESS_1, INDIRECT_ADDRESS_29,
+    INDIRECT_COUNT, INDIRECT_DATA_1, INDIRECT_DATA_29, MODELS, REGISTERS, TABLE_SIZE,
+    TICKS_PER_REV, VELOCITY_UNIT_RPM, Item, ModelSpec, OperatingMode, Register, control_items,
     model_by_name)
 
 __all__ = ["EmulatedServo", "EmulatedBus", "PtyEmulator", "main"]
@@ -42,7 +43,23 @@ POSITION_TAU = 0.03          # s, first-order time constant of the position loop
 POSITION_GAIN = 4.0          # raw current per tick of position error (position loop)
 CURRENT_TO_VEL = 2.0         # ticks/s per raw current unit in current mode (free load)
 REBOOT_TIME = 0.05           # s a rebooted servo stays silent
+TICK = 0.005                 # s, the emulator advances its servos at least this often
+STARVED = 0.03               # s: a longer gap between two loop turns means the emulator
+                             # process was not scheduled (a real servo never stalls)
 _GOAL_REGS = ("goal_position", "goal_current")
+_TERMIOS_BAUDS = {getattr(termios, f"B{b}"): b for b in BAUD_RATES.values()
+                  if hasattr(termios, f"B{b}")}
+_CLEAR_MULTI_TURN = bytes([0x01, 0x44, 0x58, 0x4C, 0x22])   # Clear (0x10): multi-turn reset
+_READS = frozenset((p2.INST_READ, p2.INST_SYNC_READ, p2.INST_FAST_SYNC_READ, p2.INST_BULK_READ,
+                    p2.INST_FAST_BULK_READ))
+_COMMON = frozenset((p2.INST_PING, p2.INST_READ, p2.INST_WRITE, p2.INST_REG_WRITE,
+                     p2.INST_ACTION, p2.INST_FACTORY_RESET, p2.INST_REBOOT, p2.INST_CLEAR,
+                     p2.INST_SYNC_READ, p2.INST_SYNC_WRITE, p2.INST_BULK_READ,
+                     p2.INST_BULK_WRITE))
+# instruction set per series (e-Manual "Instruction" tables: X series firmware v45+ adds Fast
+# Sync Read and Fast Bulk Read; MX(2.0) has neither)
+_INSTRUCTIONS = {"X": _COMMON | {p2.INST_FAST_SYNC_READ, p2.INST_FAST_BULK_READ},
+                 "MX": _COMMON}
 
 
 def _reg_bytes(name: str, value: int) -> bytes:
@@ -52,21 +69,38 @@ def _reg_bytes(name: str, value: int) -> bytes:
 
 @dataclass
 class WriteRecord:
-    """One write the emulator received into a goal register (after indirect resolution)."""
+    """One write the emulator received into a goal register, Torque Enable or Operating
+    Mode (after indirect resolution): the instruction that carried it and when (monotonic
+    s)."""
 
     id: int
     register: str
     value: int
     accepted: bool
     mode: int
+    inst: int = 0
+    t: float = 0.0
 
 
 class EmulatedServo:
-    """One servo: control table bytes + a simple motion model (ticks, s)."""
+    """One servo: control table bytes + a simple motion model (ticks, s).
 
-    def __init__(self, dxl_id: int, model: ModelSpec, position: int = CENTER_TICK) -> None:
+    ``baud_index`` is its Baud Rate register (3 = 1 Mbit/s, as the arm is set up; a servo
+    from the factory has ID 1 and 1 = 57600, see :meth:`factory`)."""
+
+    def __init__(self, dxl_id: int, model: ModelSpec, position: int = CENTER_TICK, *,
+                 baud_index: int = 3) -> None:
+        if not 0 <= dxl_id <= p2.MAX_ID:
+            raise ValueError(f"servo ID must be 0..{p2.MAX_ID}, got {dxl_id}")
+        if baud_index not in BAUD_RATES:
+            raise ValueError(f"baud rate index must be one of {sorted(BAUD_RATES)}")
         self.id = dxl_id
         self.model = model
+        self.items = control_items(model)
+        self._byte_item: list[Item | None] = [None] * TABLE_SIZE
+        for it in self.items:
+            for a in range(it.address, it.address + it.size):
+                self._byte_item[a] = it
         self.table = bytearray(TABLE_SIZE)
         self.pos = float(position)
         self.vel = 0.0          # ticks/s
@@ -77,26 +111,50 @@ class EmulatedServo:
         self.last_rx = time.monotonic()   # last instruction packet seen (Bus Watchdog)
         self.temperature = 36
         self.voltage = 120      # 0.1 V
-        self._set_eeprom_defaults()
+        self.overshoot = -float("inf")   # largest excursion past Min/Max Position Limit, ticks
+        self.registered: tuple[int, bytes] | None = None   # REG_WRITE waiting for ACTION
+        self._set_eeprom_defaults(dxl_id, baud_index)
         self._set_ram_defaults()
+
+    @classmethod
+    def factory(cls, model: ModelSpec) -> "EmulatedServo":
+        """A servo as it comes from the factory: ID 1, 57600 baud (e-Manual, Baud Rate 8)."""
+        return cls(1, model, baud_index=1)
+
+    @property
+    def baud(self) -> int:
+        """The servo's bit rate (bit/s) from its Baud Rate register."""
+        return BAUD_RATES[self.get("baud_rate")]
 
     # -- control table ---------------------------------------------------------------------
     def _set(self, name: str, value: int) -> None:
-        r = REGISTERS[name]
-        self.table[r.address:r.address + r.size] = _reg_bytes(name, value)
+        r = REGISTERS[name] if name in REGISTERS else self._item(name)
+        self.table[r.address:r.address + r.size] = int(value).to_bytes(
+            r.size, "little", signed=r.signed)
+
+    def _item(self, name: str) -> Item:
+        for it in self.items:
+            if it.name == name:
+                return it
+        raise KeyError(name)
 
     def get(self, name: str) -> int:
-        r = REGISTERS[name]
+        r = REGISTERS[name] if name in REGISTERS else self._item(name)
         return int.from_bytes(self.table[r.address:r.address + r.size], "little",
                               signed=r.signed)
 
-    def _set_eeprom_defaults(self) -> None:
+    def _set_eeprom_defaults(self, dxl_id: int, baud_index: int) -> None:
         m = self.model
+        self.table[:EEPROM_END] = bytes(EEPROM_END)
         for name, value in (("model_number", m.number), ("firmware_version", 46),
-                            ("id", self.id), ("baud_rate", 3), ("return_delay_time", 250),
+                            ("id", dxl_id), ("baud_rate", baud_index),
+                            ("return_delay_time", 250),
                             ("operating_mode", OperatingMode.POSITION),
+                            ("secondary_id", 255), ("protocol_type", 2),
+                            ("moving_threshold", 10),
                             ("temperature_limit", 80), ("max_voltage_limit", 160),
-                            ("min_voltage_limit", 95), ("current_limit", m.current_limit),
+                            ("min_voltage_limit", 95), ("pwm_limit", 885),
+                            ("current_limit", m.current_limit),
                             ("velocity_limit", m.velocity_limit),
                             ("max_position_limit", TICKS_PER_REV - 1),
                             ("min_position_limit", 0), ("shutdown", 0b110100)):
@@ -106,11 +164,23 @@ class EmulatedServo:
         self.table[EEPROM_END:] = bytes(TABLE_SIZE - EEPROM_END)
         self._set("status_return_level", 2)
         self._set("goal_current", self.model.current_limit)
+        self._set("goal_pwm", 885)
         self._set("goal_position", int(round(self.pos)))
-        for n in range(INDIRECT_COUNT):
-            a = INDIRECT_ADDRESS_1 + 2 * n
-            self.table[a:a + 2] = (INDIRECT_DATA_1 + n).to_bytes(2, "little")
+        for name, value in (("velocity_i_gain", 1920), ("velocity_p_gain", 100),
+                            ("position_p_gain", 800)):
+            self._set(name, value)
+        for n in range(2 * INDIRECT_COUNT):    # Indirect Address n -> Indirect Data n
+            a, d = self._indirect(n)
+            self.table[a:a + 2] = d.to_bytes(2, "little")
+        self.registered = None
         self._refresh_present()
+
+    @staticmethod
+    def _indirect(n: int) -> tuple[int, int]:
+        """(address of Indirect Address n+1, address of Indirect Data n+1), n = 0..55."""
+        if n < INDIRECT_COUNT:
+            return INDIRECT_ADDRESS_1 + 2 * n, INDIRECT_DATA_1 + n
+        return INDIRECT_ADDRESS_29 + 2 * (n - INDIRECT_COUNT), INDIRECT_DATA_29 + n - INDIRECT_COUNT
 
     def reboot(self, now: float) -> None:
         """Reset the RAM area (torque off, error cleared); EEPROM kept."""
@@ -119,11 +189,22 @@ class EmulatedServo:
         self.current = 0.0
         self.silent_until = now + REBOOT_TIME
 
+    def factory_reset(self, option: int, now: float) -> None:
+        """FACTORY RESET (0x06): 0xFF everything, 0x01 all but ID, 0x02 all but ID and baud
+        rate; ID 1 and 57600 baud are the factory values. The servo restarts."""
+        dxl_id = self.id if option in (0x01, 0x02) else 1
+        baud = self.get("baud_rate") if option == 0x02 else 1
+        self._set_eeprom_defaults(dxl_id, baud)
+        self.reboot(now)
+
     def _resolve(self, addr: int) -> int:
         if INDIRECT_DATA_1 <= addr < INDIRECT_DATA_1 + INDIRECT_COUNT:
             a = INDIRECT_ADDRESS_1 + 2 * (addr - INDIRECT_DATA_1)
-            return int.from_bytes(self.table[a:a + 2], "little")
-        return addr
+        elif INDIRECT_DATA_29 <= addr < INDIRECT_DATA_29 + INDIRECT_COUNT:
+            a = INDIRECT_ADDRESS_29 + 2 * (addr - INDIRECT_DATA_29)
+        else:
+            return addr
+        return int.from_bytes(self.table[a:a + 2], "little")
 
     def _refresh_present(self) -> None:
         self._set("present_position", int(round(self.pos)))
@@ -132,31 +213,59 @@ class EmulatedServo:
         self._set("present_input_voltage", self.voltage)
         self._set("present_temperature", self.temperature)
         self._set("moving", 1 if abs(self.vel) > 1.0 else 0)
+        self._set("registered_instruction", 1 if self.registered else 0)
+        self._set("realtime_tick", int(time.monotonic() * 1000) % 32768)
 
     def read(self, addr: int, length: int) -> tuple[int, bytes]:
-        """(error, data) of a READ of ``length`` bytes at ``addr``."""
-        if addr < 0 or length < 0 or addr + length > TABLE_SIZE:
-            return p2.ERR_ACCESS, b""
+        """(error, data) of a READ of ``length`` bytes at ``addr``: an Access Error if it
+        starts on an undefined address or runs past the table (undefined bytes inside a
+        longer read read 0, as Dynamixel Wizard's block reads rely on)."""
+        if (addr < 0 or length <= 0 or addr + length > TABLE_SIZE
+                or self._byte_item[addr] is None):
+            return self.status_error(p2.ERR_ACCESS), b""
         self._refresh_present()
         out = bytearray()
         for a in range(addr, addr + length):
             r = self._resolve(a)
-            out.append(self.table[r] if r < TABLE_SIZE else 0)
+            out.append(self.table[r] if 0 <= r < TABLE_SIZE else 0)
         return self.status_error(), bytes(out)
 
     def status_error(self, code: int = 0) -> int:
         return code | (p2.ERRBIT_ALERT if self.get("hardware_error_status") else 0)
 
+    def _check_write(self, addr: int, n: int) -> tuple[int, list[int]]:
+        """(error code, target addresses) of writing ``n`` bytes at ``addr`` (Protocol 2.0
+        status errors: Access Error for undefined / read-only addresses, Data Length Error
+        for a write that covers an item only in part)."""
+        if addr < 0 or n <= 0 or addr + n > TABLE_SIZE:
+            return p2.ERR_ACCESS, []
+        items = [self._byte_item[a] for a in range(addr, addr + n)]
+        if any(it is None or it.access != "RW" for it in items):
+            return p2.ERR_ACCESS, []
+        first, last = items[0], items[-1]
+        assert first is not None and last is not None
+        if addr != first.address or addr + n != last.address + last.size:
+            return p2.ERR_DATA_LENGTH, []
+        targets = [self._resolve(a) for a in range(addr, addr + n)]
+        for t, a in zip(targets, range(addr, addr + n)):
+            if t == a:
+                continue
+            it = self._byte_item[t] if 0 <= t < TABLE_SIZE else None
+            if it is None or it.access != "RW" or it.name.startswith("indirect_data"):
+                return p2.ERR_ACCESS, []
+        return 0, targets
+
     def write(self, addr: int, data: bytes, log: list[WriteRecord] | None = None) -> int:
-        """Apply a WRITE; returns the status error byte. Rules of the real firmware:
-        EEPROM only with torque off; goal position within Min/Max Position Limit (position
-        modes); goal current within Current Limit; torque on refused during a hardware error.
-        """
-        if addr < 0 or addr + len(data) > TABLE_SIZE:
-            return self.status_error(p2.ERR_ACCESS)
-        targets = [self._resolve(a) for a in range(addr, addr + len(data))]
-        if any(t >= TABLE_SIZE for t in targets):
-            return self.status_error(p2.ERR_ACCESS)
+        """Apply a WRITE; returns the status error byte. Rules of the real firmware
+        (e-Manual, Protocol 2.0 status packet errors and the control table): undefined or
+        read-only address -> Access Error, part of an item -> Data Length Error, EEPROM with
+        torque on -> Access Error, a value outside the item's range -> Data Range Error
+        (nothing applied); goal position outside Min/Max Position Limit (position modes) or
+        goal current beyond Current Limit -> Data Limit Error (that goal not applied);
+        torque on refused during a hardware error (Result Fail)."""
+        code, targets = self._check_write(addr, len(data))
+        if code:
+            return self.status_error(code)
         torque_on = self.get("torque_enable") == 1
         if torque_on and any(t < EEPROM_END for t in targets):
             return self.status_error(p2.ERR_ACCESS)
@@ -164,48 +273,62 @@ class EmulatedServo:
         for t, b in zip(targets, data):
             new[t] = b
         touched = set(targets)
-        code = 0
 
-        def val(name: str, table: bytearray) -> int:
-            r = REGISTERS[name]
-            return int.from_bytes(table[r.address:r.address + r.size], "little", signed=r.signed)
+        def val(it: Item | Register, table: bytearray) -> int:
+            return int.from_bytes(table[it.address:it.address + it.size], "little",
+                                  signed=it.signed)
+
+        touched_items = {self._byte_item[t] for t in touched}
+        for it in touched_items:
+            assert it is not None
+            if it.name in _GOAL_REGS:
+                continue
+            v = val(it, new)
+            if it.name == "operating_mode":
+                ok = v in self.model.modes
+            else:
+                ok = it.lo <= v <= it.hi
+            if not ok:
+                return self.status_error(p2.ERR_DATA_RANGE)
 
         def touches(name: str) -> bool:
             r = REGISTERS[name]
             return any(a in touched for a in range(r.address, r.address + r.size))
 
-        mode = val("operating_mode", new)
+        code = 0
+        mode = val(REGISTERS["operating_mode"], new)
         watchdog_tripped = self.get("bus_watchdog") == -1 and not (
-            touches("bus_watchdog") and val("bus_watchdog", new) == 0)
+            touches("bus_watchdog") and val(REGISTERS["bus_watchdog"], new) == 0)
         for name in _GOAL_REGS:
             if not touches(name):
                 continue
-            v = val(name, new)
+            r = REGISTERS[name]
+            v = val(r, new)
             if watchdog_tripped:      # goal registers are read-only after a watchdog trip
                 if log is not None:
                     log.append(WriteRecord(self.id, name, v, False, mode))
-                r = REGISTERS[name]
                 new[r.address:r.address + r.size] = self.table[r.address:r.address + r.size]
                 code = p2.ERR_DATA_RANGE     # (e-Manual: Data Range Error in the status)
                 continue
             if name == "goal_position":
                 ok = (mode not in (OperatingMode.POSITION, OperatingMode.CURRENT_BASED_POSITION)
-                      or val("min_position_limit", new) <= v <= val("max_position_limit", new))
+                      or val(REGISTERS["min_position_limit"], new) <= v
+                      <= val(REGISTERS["max_position_limit"], new))
             else:
-                ok = abs(v) <= val("current_limit", new)
+                ok = abs(v) <= val(REGISTERS["current_limit"], new)
             if log is not None:
                 log.append(WriteRecord(self.id, name, v, ok, mode))
             if not ok:
-                r = REGISTERS[name]
                 new[r.address:r.address + r.size] = self.table[r.address:r.address + r.size]
                 code = p2.ERR_DATA_LIMIT
-        if touches("torque_enable") and val("torque_enable", new) == 1 \
+        if touches("torque_enable") and val(REGISTERS["torque_enable"], new) == 1 \
                 and self.get("hardware_error_status"):
-            r = REGISTERS["torque_enable"]
-            new[r.address] = 0
+            new[REGISTERS["torque_enable"].address] = 0
             code = p2.ERR_RESULT_FAIL
-        if val("operating_mode", new) not in self.model.modes:
-            return self.status_error(p2.ERR_DATA_RANGE)
+        if log is not None:
+            for name in ("torque_enable", "operating_mode"):
+                if touches(name):
+                    log.append(WriteRecord(self.id, name, val(REGISTERS[name], new), True, mode))
         self.table[:] = new
         return self.status_error(code)
 
@@ -268,6 +391,8 @@ class EmulatedServo:
                 new = self.obstacle
                 self.vel = 0.0
         self.pos = new
+        self.overshoot = max(self.overshoot, new - self.get("max_position_limit"),
+                             self.get("min_position_limit") - new)
         if mode != OperatingMode.CURRENT and self.vel == 0.0 and self.obstacle is None \
                 and new == self.get("goal_position"):
             self.current = 0.0
@@ -287,20 +412,33 @@ class Faults:
 class EmulatedBus:
     """Servos on one bus: turns received bytes into replies (``feed``)."""
 
-    def __init__(self, servos: list[EmulatedServo], seed: int = 0) -> None:
+    def __init__(self, servos: list[EmulatedServo], seed: int = 0, *,
+                 allow_duplicate_ids: bool = False) -> None:
+        """``allow_duplicate_ids``: servos may share an ID (e.g. several fresh from the
+        factory, all ID 1): they all answer at once, and the host reads a garbled reply."""
         ids = [s.id for s in servos]
-        if len(set(ids)) != len(ids):
+        if len(set(ids)) != len(ids) and not allow_duplicate_ids:
             raise ValueError(f"duplicate servo IDs: {ids}")
-        self.servos = {s.id: s for s in servos}
+        self.units = list(servos)
         self.faults = Faults()
         self.reader = p2.PacketReader()
         self.write_log: list[WriteRecord] = []
         self.instructions: dict[int, int] = {}
-        self.baud = 1_000_000
+        self.host_baud: int | None = None     # bit/s the host talks at (None: any)
         self._rng = random.Random(seed)
         self._last = time.monotonic()
+        self.frozen = 0.0          # s of emulator starvation skipped (see freeze)
 
     # -- time ------------------------------------------------------------------------------
+    def freeze(self, seconds: float) -> None:
+        """The emulator process was not scheduled for ``seconds``: its servos do not move
+        over that time (packets that queued up meanwhile are handled as if just in time)."""
+        seconds = max(0.0, seconds)
+        self._last += seconds
+        self.frozen += seconds
+        for s in self.servos.values():   # nor does their Bus Watchdog count it
+            s.last_rx += seconds
+
     def advance(self, now: float | None = None) -> None:
         now = time.monotonic() if now is None else now
         dt = min(max(0.0, now - self._last), 1.0)
@@ -314,11 +452,22 @@ class EmulatedBus:
                 s.step(h)
             dt -= h
 
+    @property
+    def servos(self) -> dict[int, EmulatedServo]:
+        """ID -> servo (of servos sharing an ID, the last one)."""
+        return {s.id: s for s in self.units}
+
+    def _hears(self, s: EmulatedServo, now: float) -> bool:
+        return s.silent_until <= now and (self.host_baud is None or s.baud == self.host_baud)
+
+    def _addressed(self, dxl_id: int, now: float) -> list[EmulatedServo]:
+        """Servos that receive a packet for ``dxl_id`` (all of them for broadcast)."""
+        return [s for s in self.units if self._hears(s, now)
+                and (dxl_id == p2.BROADCAST_ID or s.id == dxl_id)]
+
     def _available(self, dxl_id: int, now: float) -> EmulatedServo | None:
-        s = self.servos.get(dxl_id)
-        if s is None or s.silent_until > now:
-            return None
-        return s
+        found = self._addressed(dxl_id, now) if dxl_id != p2.BROADCAST_ID else []
+        return found[0] if len(found) == 1 else None
 
     # -- replies ---------------------------------------------------------------------------
     def _emit(self, dxl_id: int, packet: bytes, out: list[bytes]) -> None:
@@ -338,102 +487,204 @@ class EmulatedBus:
         """Bytes from the host -> reply packets, in order."""
         now = time.monotonic() if now is None else now
         out: list[bytes] = []
-        for pkt in self.reader.feed(data):
+        for pkt in self.reader.feed(data, now):
             self.advance(now)
-            for s in self.servos.values():   # every instruction packet feeds Bus Watchdog
-                s.last_rx = now
+            for s in self.units:   # every instruction packet feeds Bus Watchdog
+                if self._hears(s, now):
+                    s.last_rx = now
             self.instructions[pkt.instruction] = self.instructions.get(pkt.instruction, 0) + 1
-            self._handle(pkt, now, out)
+            n0 = len(self.write_log)
+            if pkt.crc_ok:
+                self._handle(pkt, now, out)
+            elif pkt.id != p2.BROADCAST_ID:
+                # Protocol 2.0: "CRC Error: CRC of the sent Packet does not match"
+                for s in self._addressed(pkt.id, now):
+                    self._reply(s, pkt.instruction, p2.build_status(
+                        s.id, s.status_error(p2.ERR_CRC)), out)
+            for rec in self.write_log[n0:]:
+                rec.inst, rec.t = pkt.instruction, now
         return out
+
+    def _reply(self, s: EmulatedServo, inst: int, packet: bytes, out: list[bytes]) -> None:
+        """Send ``packet`` if the servo's Status Return Level (68) allows it for ``inst``:
+        0 = PING only, 1 = PING and reads, 2 = every instruction (e-Manual)."""
+        level = s.get("status_return_level")
+        if inst == p2.INST_PING or level >= 2 or (level == 1 and inst in _READS):
+            self._emit(s.id, packet, out)
+
+    def _unicast(self, pkt: p2.Packet, now: float, out: list[bytes], answer) -> None:
+        """Run ``answer(servo) -> status packet or None`` on the servo(s) with the packet's
+        ID; two servos with one ID answer at once: the host gets a garbled reply."""
+        found = self._addressed(pkt.id, now)
+        replies = [(s, answer(s)) for s in found]
+        replies = [(s, r) for s, r in replies if r is not None]
+        if len(replies) > 1:        # bus collision
+            for s, r in replies:
+                self._reply(s, pkt.instruction, r[:-2] + bytes([r[-2] ^ 0xA5, r[-1]]), out)
+            return
+        for s, r in replies:
+            self._reply(s, pkt.instruction, r, out)
+
+    def _write_effects(self, s: EmulatedServo) -> None:
+        """A new ID or baud rate takes effect once the status packet is sent."""
+        s.id = s.get("id")
 
     def _handle(self, pkt: p2.Packet, now: float, out: list[bytes]) -> None:
         inst, prm = pkt.instruction, pkt.params
         broadcast = pkt.id == p2.BROADCAST_ID
         if inst == p2.INST_PING:
-            ids = sorted(self.servos) if broadcast else [pkt.id]
-            for i in ids:
-                s = self._available(i, now)
-                if s:
-                    data = _reg_bytes("model_number", s.model.number) + bytes([46])
-                    self._emit(i, p2.build_status(i, s.status_error(), data), out)
-        elif inst == p2.INST_READ and not broadcast:
-            s = self._available(pkt.id, now)
-            if s and len(prm) == 4:
+            for s in sorted(self._addressed(pkt.id, now), key=lambda s: s.id):
+                data = _reg_bytes("model_number", s.model.number) + bytes(
+                    [s.get("firmware_version")])
+                self._emit(s.id, p2.build_status(s.id, s.status_error(), data), out)
+            return
+        targets = self._addressed(pkt.id, now)
+        supported = [s for s in targets if inst in _INSTRUCTIONS[s.model.series]]
+        if not broadcast and targets and not supported:
+            self._unicast(pkt, now, out, lambda s: p2.build_status(
+                s.id, s.status_error(p2.ERR_INSTRUCTION)))
+            return
+        if inst == p2.INST_READ and not broadcast:
+            def answer(s: EmulatedServo) -> bytes:
+                if len(prm) != 4:
+                    return p2.build_status(s.id, s.status_error(p2.ERR_DATA_LENGTH))
                 err, data = s.read(prm[0] | prm[1] << 8, prm[2] | prm[3] << 8)
-                self._emit(s.id, p2.build_status(s.id, err, data), out)
-            elif s:
-                self._emit(s.id, p2.build_status(s.id, s.status_error(p2.ERR_DATA_LENGTH)), out)
-        elif inst == p2.INST_WRITE:
-            targets = list(self.servos) if broadcast else [pkt.id]
-            for i in targets:
-                s = self._available(i, now)
-                if s is None:
-                    continue
-                err = (s.write(prm[0] | prm[1] << 8, prm[2:], self.write_log) if len(prm) >= 3
-                       else s.status_error(p2.ERR_DATA_LENGTH))
-                if not broadcast:
-                    self._emit(i, p2.build_status(i, err), out)
-        elif inst == p2.INST_REBOOT:
-            s = self._available(pkt.id, now)
-            if s and not broadcast:
-                self._emit(s.id, p2.build_status(s.id, s.status_error()), out)
+                return p2.build_status(s.id, err, data)
+            self._unicast(pkt, now, out, answer)
+        elif inst in (p2.INST_WRITE, p2.INST_REG_WRITE):
+            def answer(s: EmulatedServo) -> bytes:
+                if len(prm) < 3:
+                    return p2.build_status(s.id, s.status_error(p2.ERR_DATA_LENGTH))
+                addr = prm[0] | prm[1] << 8
+                if inst == p2.INST_REG_WRITE:
+                    code, _ = s._check_write(addr, len(prm) - 2)
+                    if not code:
+                        s.registered = (addr, bytes(prm[2:]))
+                    return p2.build_status(s.id, s.status_error(code))
+                return p2.build_status(s.id, s.write(addr, prm[2:], self.write_log))
+            for s in supported if broadcast else []:
+                answer(s)
+                self._write_effects(s)
+            if not broadcast:
+                self._unicast(pkt, now, out, answer)
+                for s in targets:
+                    self._write_effects(s)
+        elif inst == p2.INST_ACTION:
+            def answer(s: EmulatedServo) -> bytes:
+                if s.registered is None:   # "Action has been used without Reg Write"
+                    return p2.build_status(s.id, s.status_error(p2.ERR_INSTRUCTION))
+                (addr, data), s.registered = s.registered, None
+                return p2.build_status(s.id, s.write(addr, data, self.write_log))
+            if broadcast:
+                for s in supported:
+                    if s.registered is not None:
+                        answer(s)
+                        self._write_effects(s)
+            else:
+                self._unicast(pkt, now, out, answer)
+                for s in targets:
+                    self._write_effects(s)
+        elif inst == p2.INST_REBOOT and not broadcast:
+            self._unicast(pkt, now, out, lambda s: p2.build_status(s.id, s.status_error()))
+            for s in targets:
                 s.reboot(now)
+        elif inst == p2.INST_FACTORY_RESET:
+            option = prm[0] if len(prm) == 1 else None
+            if broadcast:
+                if option in (0x01, 0x02):     # 0xFF is refused for broadcast (e-Manual)
+                    for s in supported:
+                        s.factory_reset(option, now)
+                        s.id = s.get("id")
+                return
+            def answer(s: EmulatedServo) -> bytes:
+                if option is None:
+                    return p2.build_status(s.id, s.status_error(p2.ERR_DATA_LENGTH))
+                if option not in (0x01, 0x02, 0xFF):
+                    return p2.build_status(s.id, s.status_error(p2.ERR_DATA_RANGE))
+                return p2.build_status(s.id, s.status_error())
+            self._unicast(pkt, now, out, answer)
+            if option in (0x01, 0x02, 0xFF):
+                for s in targets:
+                    s.factory_reset(option, now)
+                    s.id = s.get("id")
+        elif inst == p2.INST_CLEAR and not broadcast:
+            def answer(s: EmulatedServo) -> bytes:
+                if len(prm) != 5:
+                    return p2.build_status(s.id, s.status_error(p2.ERR_DATA_LENGTH))
+                if bytes(prm) != _CLEAR_MULTI_TURN:
+                    return p2.build_status(s.id, s.status_error(p2.ERR_DATA_RANGE))
+                if abs(s.vel) > 1.0:     # only while stopped (e-Manual, Clear)
+                    return p2.build_status(s.id, s.status_error(p2.ERR_RESULT_FAIL))
+                s.pos = s.pos % TICKS_PER_REV
+                s._set("goal_position", int(round(s.pos)))
+                return p2.build_status(s.id, s.status_error())
+            self._unicast(pkt, now, out, answer)
         elif inst in (p2.INST_SYNC_READ, p2.INST_FAST_SYNC_READ) and broadcast and len(prm) >= 5:
             addr, length = prm[0] | prm[1] << 8, prm[2] | prm[3] << 8
             ids = list(prm[4:])
             if inst == p2.INST_SYNC_READ:
                 for i in ids:
-                    s = self._available(i, now)
-                    if s:
-                        err, data = s.read(addr, length)
-                        self._emit(i, p2.build_status(i, err, data), out)
+                    for s in self._addressed(i, now):
+                        if inst in _INSTRUCTIONS[s.model.series]:
+                            err, data = s.read(addr, length)
+                            self._reply(s, inst, p2.build_status(i, err, data), out)
             else:
-                self._fast_sync_read(ids, addr, length, now, out)
+                self._fast_read([(i, addr, length) for i in ids], inst, now, out)
+        elif inst in (p2.INST_BULK_READ, p2.INST_FAST_BULK_READ) and broadcast:
+            req = [(prm[k], prm[k + 1] | prm[k + 2] << 8, prm[k + 3] | prm[k + 4] << 8)
+                   for k in range(0, len(prm) - 4, 5)]
+            if inst == p2.INST_BULK_READ:
+                for i, addr, length in req:
+                    for s in self._addressed(i, now):
+                        err, data = s.read(addr, length)
+                        self._reply(s, inst, p2.build_status(i, err, data), out)
+            else:
+                self._fast_read(req, inst, now, out)
         elif inst == p2.INST_SYNC_WRITE and broadcast and len(prm) >= 4:
             addr, length = prm[0] | prm[1] << 8, prm[2] | prm[3] << 8
             body = prm[4:]
             step = 1 + length
             for k in range(0, len(body) - step + 1, step):
-                s = self._available(body[k], now)
-                if s:
+                for s in self._addressed(body[k], now):
                     s.write(addr, body[k + 1:k + step], self.write_log)
-        elif inst == p2.INST_BULK_READ and broadcast:
-            for k in range(0, len(prm) - 4, 5):
-                i = prm[k]
-                s = self._available(i, now)
-                if s:
-                    err, data = s.read(prm[k + 1] | prm[k + 2] << 8, prm[k + 3] | prm[k + 4] << 8)
-                    self._emit(i, p2.build_status(i, err, data), out)
+                    self._write_effects(s)
         elif inst == p2.INST_BULK_WRITE and broadcast:
             k = 0
             while k + 5 <= len(prm):
                 i, addr, length = prm[k], prm[k + 1] | prm[k + 2] << 8, prm[k + 3] | prm[k + 4] << 8
-                s = self._available(i, now)
-                if s:
+                for s in self._addressed(i, now):
                     s.write(addr, prm[k + 5:k + 5 + length], self.write_log)
+                    self._write_effects(s)
                 k += 5 + length
-        elif not broadcast and self._available(pkt.id, now):
-            s = self.servos[pkt.id]
-            self._emit(s.id, p2.build_status(s.id, s.status_error(p2.ERR_INSTRUCTION)), out)
+        elif not broadcast:
+            self._unicast(pkt, now, out, lambda s: p2.build_status(
+                s.id, s.status_error(p2.ERR_INSTRUCTION)))
 
-    def _fast_sync_read(self, ids: list[int], addr: int, length: int, now: float,
-                        out: list[bytes]) -> None:
+    def _fast_read(self, req: list[tuple[int, int, int]], inst: int, now: float,
+                   out: list[bytes]) -> None:
+        """Fast Sync Read (0x8A) / Fast Bulk Read (0x9A): one status packet, each servo
+        appending its segment after its predecessor's; a servo that does not take part (an
+        MX(2.0), which has neither instruction, or a silent one) ends the chain there."""
         items = []
-        for i in ids:
-            s = self._available(i, now)
-            if s is None:
+        for i, addr, length in req:
+            found = self._addressed(i, now)
+            s = found[0] if len(found) == 1 else None
+            if s is None or inst not in _INSTRUCTIONS[s.model.series] \
+                    or s.get("status_return_level") == 0:
                 break
             if self.faults.drop_next.get(i, 0) > 0:   # this servo stays silent
                 self.faults.drop_next[i] -= 1
                 break
             err, data = s.read(addr, length)
+            if not data:          # an error reply carries no data: it would break the chain
+                data = bytes(length)
             items.append((i, err, data))
         if not items:
             return
         full = p2.build_fast_sync_status(items)
-        if len(items) < len(ids):
+        if len(items) < len(req):
             # the chain stops at the silent servo: the length field announces all of them
-            length_all = 1 + len(ids) * (4 + length)
+            length_all = 1 + sum(4 + n for _, _, n in req)
             full = full[:5] + bytes([length_all & 0xFF, length_all >> 8]) + full[7:]
         self._emit(-1, full, out)  # per-servo drops handled above
 
@@ -474,6 +725,13 @@ class EmulatedBus:
                 self.servos[int(cmd["id"])].pos = float(cmd["position"])
             elif op == "register":        # poke any register, as Dynamixel Wizard would
                 self.servos[int(cmd["id"])]._set(str(cmd["name"]), int(cmd["value"]))
+            elif op == "overshoot":       # largest excursion past the limits, then reset
+                s = self.servos[int(cmd["id"])]
+                value, s.overshoot = s.overshoot, -float("inf")
+                return {"ok": True, "ticks": value if value > -float("inf") else None}
+            elif op == "units":           # every servo, also several sharing one ID
+                return {"ok": True, "units": [
+                    {"id": s.id, "model": s.model.name, "baud": s.baud} for s in self.units]}
             elif op == "state":
                 self.advance()
                 return {"ok": True, "servos": {str(i): self._state(s)
@@ -484,8 +742,9 @@ class EmulatedBus:
                     self.write_log.clear()
                 return {"ok": True, "log": log}
             elif op == "stats":
-                return {"ok": True, "packets": self.reader.packets,
+                return {"ok": True, "packets": self.reader.packets, "frozen_s": self.frozen,
                         "crc_errors": self.reader.crc_errors,
+                        "frame_timeouts": self.reader.timeouts,
                         "instructions": {hex(k): v for k, v in self.instructions.items()}}
             elif op != "ping":
                 return {"ok": False, "error": f"unknown op {op!r}"}
@@ -496,7 +755,8 @@ class EmulatedBus:
     @staticmethod
     def _state(s: EmulatedServo) -> dict[str, Any]:
         s._refresh_present()
-        names = ("model_number", "firmware_version", "operating_mode", "torque_enable",
+        names = ("model_number", "firmware_version", "id", "baud_rate", "status_return_level",
+                 "registered_instruction", "led", "operating_mode", "torque_enable",
                  "goal_position",
                  "goal_current", "present_position", "present_velocity", "present_current",
                  "hardware_error_status", "return_delay_time", "min_position_limit",
@@ -521,6 +781,7 @@ class PtyEmulator:
         self._ctl_srv: socket.socket | None = None
         self._clients: dict[int, tuple[socket.socket, bytearray]] = {}
         self._stop = False
+        self._last_turn: float | None = None
 
     def open(self) -> str:
         """Create the pty (and the link); returns the device path."""
@@ -605,13 +866,18 @@ class PtyEmulator:
             fds.append(self._ctl_srv.fileno())
         if self.master is not None:
             fds.append(self.master)
-        timeout = 0.05
+        if self._last_turn is not None and now - self._last_turn > STARVED:
+            self.bus.freeze(now - self._last_turn)    # not scheduled between two turns
+        self.bus.advance(now)
+        timeout = TICK
         if self._pending:
             timeout = max(0.0, min(timeout, self._pending[0][0] - now))
         if self._back_at is not None:
             timeout = max(0.0, min(timeout, self._back_at - now))
         readable, _, _ = select.select(fds, [], [], timeout)
-        now = time.monotonic()
+        before, now = now, time.monotonic()
+        if now - before > timeout + STARVED:    # runnable, but not scheduled, in select
+            self.bus.freeze(now - before - timeout)
         for fd in readable:
             if fd == self.master:
                 try:
@@ -621,6 +887,7 @@ class PtyEmulator:
                 except OSError:
                     data = b""
                 if data:
+                    self.bus.host_baud = self._host_baud()
                     delay = self.bus.faults.reply_delay
                     for reply in self.bus.feed(data, now):
                         if delay > 0:
@@ -659,6 +926,18 @@ class PtyEmulator:
         now = time.monotonic()
         while self._pending and self._pending[0][0] <= now:
             self._write(self._pending.pop(0)[1])
+        self._last_turn = time.monotonic()
+
+    def _host_baud(self) -> int | None:
+        """The bit rate the host set on its end of the pty (termios), None if not a
+        standard rate (then every servo hears it)."""
+        if self._keep_slave is None:
+            return None
+        try:
+            speed = termios.tcgetattr(self._keep_slave)[4]
+        except termios.error:
+            return None
+        return _TERMIOS_BAUDS.get(speed)
 
     def _write(self, data: bytes) -> None:
         if self.master is None:
@@ -711,6 +990,22 @@ def servos_from_description(path: str | None, omit: list[int],
     return out
 
 
+def _parse_servo(item: str) -> EmulatedServo:
+    """``ID:MODEL[@BAUD]`` -> a servo (BAUD in bit/s, one of the Baud Rate register's)."""
+    sid, _, rest = item.partition(":")
+    model, _, baud = rest.partition("@")
+    index = 3
+    if baud:
+        by_rate = {v: k for k, v in BAUD_RATES.items()}
+        if not baud.strip().isdigit() or int(baud) not in by_rate:
+            raise ValueError(f"--servos {item!r}: baud must be one of "
+                             f"{', '.join(map(str, BAUD_RATES.values()))}")
+        index = by_rate[int(baud)]
+    if not sid.strip().isdigit():
+        raise ValueError(f"--servos expects ID:MODEL[@BAUD], got {item!r}")
+    return EmulatedServo(int(sid), model_by_name(model.strip()), baud_index=index)
+
+
 def _parse_model_overrides(items: list[str]) -> dict[int, str]:
     out = {}
     for item in items:
@@ -731,8 +1026,12 @@ def build_parser() -> argparse.ArgumentParser:
                     help="robot description YAML giving the servo IDs/models "
                          "('' = the packaged one)")
     ap.add_argument("--servos", default="",
-                    help="instead of the description: comma-separated ID:MODEL list, "
-                         f"e.g. 1:XM430-W350,2:MX-64 (models: {', '.join(MODELS)})")
+                    help="instead of the description: comma-separated ID:MODEL[@BAUD] list, "
+                         "e.g. 1:XM430-W350,2:MX-64@57600 (default baud 1000000; "
+                         f"models: {', '.join(MODELS)})")
+    ap.add_argument("--factory", action="append", default=[], metavar="MODEL",
+                    help="add a servo as it comes from the factory: ID 1, 57600 baud "
+                         "(repeatable; several share ID 1 and collide, as on a real bus)")
     ap.add_argument("--omit", type=int, action="append", default=[], metavar="ID",
                     help="leave this servo off the bus (repeatable)")
     ap.add_argument("--model", action="append", default=[], metavar="ID=MODEL",
@@ -753,14 +1052,14 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         if args.servos:
+            servos = [_parse_servo(item) for item in args.servos.split(",")]
+        elif args.factory:
             servos = []
-            for item in args.servos.split(","):
-                sid, _, model = item.partition(":")
-                servos.append(EmulatedServo(int(sid), model_by_name(model.strip())))
         else:
             servos = servos_from_description(args.description, args.omit,
                                              _parse_model_overrides(args.model))
-        bus = EmulatedBus(servos, seed=args.seed)
+        servos += [EmulatedServo.factory(model_by_name(m)) for m in args.factory]
+        bus = EmulatedBus(servos, seed=args.seed, allow_duplicate_ids=True)
     except (ValueError, argparse.ArgumentTypeError, OSError) as exc:
         print(f"dxl_emulator: {exc}", file=sys.stderr)
         return 2
@@ -771,7 +1070,8 @@ def main(argv: list[str] | None = None) -> int:
     device = emu.open()
     signal.signal(signal.SIGTERM, lambda *_: emu.stop())
     signal.signal(signal.SIGINT, lambda *_: emu.stop())
-    ids = ", ".join(f"{s.id}:{s.model.name}" for s in servos)
+    ids = ", ".join(f"{s.id}:{s.model.name}" + (f"@{s.baud}" if s.baud != 1_000_000 else "")
+                    for s in servos)
     print(device, flush=True)
     print(f"dxl_emulator: {len(servos)} servos [{ids}] on {device}"
           + (f" (link {args.link})" if args.link else "")

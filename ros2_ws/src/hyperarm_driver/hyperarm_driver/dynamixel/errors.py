@@ -53,7 +53,15 @@ class StartupError(DynamixelError):
 
 
 class CommandError(DynamixelError, ValueError):
-    """A joint command was rejected (unknown joint, NaN/inf, length mismatch)."""
+    """A joint command was rejected (unknown joint, NaN/inf, length mismatch).
+
+    ``reason`` names the kind of defect (``length``, ``empty``, ``type``, ``duplicate``,
+    ``unknown_joint``, ``non_finite``), so that logs can be throttled per reason.
+    """
+
+    def __init__(self, message: str, reason: str = "invalid") -> None:
+        super().__init__(message)
+        self.reason = reason
 
 
 class ProtocolError(DynamixelError, ValueError):

@@ -18,6 +18,7 @@ __all__ = [
     "INST_PING", "INST_READ", "INST_WRITE", "INST_REG_WRITE", "INST_ACTION",
     "INST_FACTORY_RESET", "INST_REBOOT", "INST_CLEAR", "INST_STATUS", "INST_SYNC_READ",
     "INST_SYNC_WRITE", "INST_FAST_SYNC_READ", "INST_BULK_READ", "INST_BULK_WRITE",
+    "INST_FAST_BULK_READ", "FRAME_TIMEOUT",
     "ERR_RESULT_FAIL", "ERR_INSTRUCTION", "ERR_CRC", "ERR_DATA_RANGE", "ERR_DATA_LENGTH",
     "ERR_DATA_LIMIT", "ERR_ACCESS", "ERRBIT_ALERT",
     "crc16", "stuff", "unstuff", "Packet", "build_packet", "build_status",
@@ -42,6 +43,7 @@ INST_SYNC_WRITE = 0x83
 INST_FAST_SYNC_READ = 0x8A
 INST_BULK_READ = 0x92
 INST_BULK_WRITE = 0x93
+INST_FAST_BULK_READ = 0x9A
 
 ERR_RESULT_FAIL = 1
 ERR_INSTRUCTION = 2
@@ -110,6 +112,7 @@ class Packet:
     id: int
     instruction: int
     params: bytes
+    crc_ok: bool = True
 
     @property
     def error(self) -> int:
@@ -158,22 +161,40 @@ def build_fast_sync_status(items: list[tuple[int, int, bytes]]) -> bytes:
     return bytes(out)
 
 
-class PacketReader:
-    """Incremental decoder of a byte stream into packets.
+FRAME_TIMEOUT = 0.05   # s an incomplete packet may wait for its remaining bytes
 
-    ``feed(data)`` returns the packets completed by ``data``. Garbage before a header is
-    skipped; a packet with a bad CRC is dropped and counted in ``crc_errors`` (its bytes are
-    discarded after the header so resynchronisation starts after it).
+
+class PacketReader:
+    """Incremental decoder of a byte stream into packets, as a servo's receiver does it.
+
+    ``feed(data, now)`` returns the packets completed by ``data``. Garbage before a header
+    is skipped. A packet with a bad CRC is returned with ``crc_ok=False`` (the servo answers
+    a CRC Error) and counted in ``crc_errors``. An incomplete packet (e.g. a corrupt length
+    field announcing 4000 bytes) is dropped once it has waited ``FRAME_TIMEOUT`` since its
+    first bytes (counted in ``timeouts``), so the bytes that come after that are read
+    afresh (without ``now``, nothing times out).
     """
 
     MAX_LENGTH = 4096
 
     def __init__(self) -> None:
         self._buf = bytearray()
+        self._since = 0.0      # arrival of the first bytes of the buffered, incomplete packet
         self.crc_errors = 0
+        self.timeouts = 0
         self.packets = 0
 
-    def feed(self, data: bytes) -> list[Packet]:
+    def feed(self, data: bytes, now: float | None = None) -> list[Packet]:
+        if now is not None and self._buf and now - self._since > FRAME_TIMEOUT:
+            self._buf.clear()
+            self.timeouts += 1
+        fresh = not self._buf
+        out = self._parse(data)
+        if now is not None and self._buf and (fresh or out):
+            self._since = now        # a new incomplete packet starts waiting
+        return out
+
+    def _parse(self, data: bytes) -> list[Packet]:
         self._buf += data
         out: list[Packet] = []
         while True:
@@ -199,11 +220,11 @@ class PacketReader:
                 return out
             raw = bytes(self._buf[:total])
             crc = raw[-2] | raw[-1] << 8
-            if crc16(raw[:-2]) != crc:
-                self.crc_errors += 1
-                del self._buf[:3]
-                continue
             del self._buf[:total]
             body = unstuff(raw[7:-2])
+            if crc16(raw[:-2]) != crc:
+                self.crc_errors += 1
+                out.append(Packet(raw[4], body[0], body[1:], crc_ok=False))
+                continue
             self.packets += 1
             out.append(Packet(raw[4], body[0], body[1:]))

@@ -36,7 +36,15 @@ class EmulatorProcess:
                 self.stop()
                 raise RuntimeError("dxl_emulator did not start")
             time.sleep(0.02)
-        self.ctl = EmulatorControl(self.control_path)
+        while True:    # the socket file exists from bind(), connections from listen() on
+            try:
+                self.ctl = EmulatorControl(self.control_path)
+                break
+            except ConnectionRefusedError:
+                if time.monotonic() > deadline:
+                    self.stop()
+                    raise RuntimeError("dxl_emulator control socket refuses connections")
+                time.sleep(0.02)
 
     def stop(self) -> None:
         if getattr(self, "ctl", None) is not None:

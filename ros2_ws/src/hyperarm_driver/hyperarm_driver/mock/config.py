@@ -9,12 +9,13 @@ Units: SI throughout (m, rad, s, N, N·m). World coordinates are in the robot's 
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
 from hyperarm_description.model import check_number, check_vector, read_yaml
+from hyperarm_description.world import (MOCK_WORLD_KEYS, WORLD_KEYS, BlockSpec, PegSpec,
+                                        PoleSpec, WorldSpec, parse_world)
 
 __all__ = [
     "MockError",
@@ -23,6 +24,7 @@ __all__ = [
     "ImperfectionConfig",
     "PegConfig",
     "BlockConfig",
+    "PoleConfig",
     "GraspConfig",
     "WorldConfig",
     "CameraConfig",
@@ -86,8 +88,7 @@ _KNOWN = {
     "imperfections": frozenset({"repeatability", "move_threshold", "position_noise",
                                 "velocity_noise", "effort_noise", "state_latency",
                                 "command_latency", "seed"}),
-    "world": frozenset({"table_height", "contact_stiffness", "friction", "pegs", "block",
-                        "grasp"}),
+    "world": WORLD_KEYS | MOCK_WORLD_KEYS,
     "camera": frozenset({"rate", "position_noise", "orientation_noise", "latency", "seed"}),
 }
 
@@ -133,25 +134,11 @@ class ImperfectionConfig:
     seed: int | None = None
 
 
-@dataclass(frozen=True)
-class PegConfig:
-    """A vertical cylindrical peg standing on the table: axis at ``xy`` (m), height, radius."""
-
-    name: str
-    xy: tuple[float, float]
-    height: float
-    radius: float
-
-
-@dataclass(frozen=True)
-class BlockConfig:
-    """The block: box of ``size`` (x, y, z; m) with a vertical through-hole of ``hole_radius``
-    at its centre, mass (kg), starting on peg ``start``."""
-
-    size: tuple[float, float, float]
-    hole_radius: float
-    mass: float
-    start: str
+# The work cell's geometry is the shared schema of hyperarm_description.world (the IK
+# collision checker reads the same files); these names are kept for the mock's users.
+PegConfig = PegSpec
+BlockConfig = BlockSpec
+PoleConfig = PoleSpec
 
 
 @dataclass(frozen=True)
@@ -167,25 +154,37 @@ class GraspConfig:
 
 @dataclass(frozen=True)
 class WorldConfig:
-    """The work cell: table height (m), contact stiffness (N/m), Coulomb friction
-    coefficient of the block on the peg tops and the table, pegs, block, grasping."""
+    """The work cell: its geometry ``spec`` (table, pegs, block or None, poles; see
+    hyperarm_description.world) and the mock's contact settings: contact stiffness (N/m),
+    Coulomb friction coefficient of the block on the peg tops and the table, grasping."""
 
-    table_height: float
+    spec: WorldSpec
     contact_stiffness: float
     friction: float
-    pegs: tuple[PegConfig, ...]
-    block: BlockConfig
     grasp: GraspConfig
 
-    def peg(self, name: str) -> PegConfig:
-        for p in self.pegs:
-            if p.name == name:
-                return p
-        raise MockConfigError(f"no peg named {name!r} (pegs: {[p.name for p in self.pegs]})")
+    @property
+    def table_height(self) -> float:
+        return self.spec.table_height
+
+    @property
+    def pegs(self) -> tuple[PegSpec, ...]:
+        return self.spec.pegs
+
+    @property
+    def block(self) -> BlockSpec | None:
+        return self.spec.block
+
+    @property
+    def poles(self) -> tuple[PoleSpec, ...]:
+        return self.spec.poles
+
+    def peg(self, name: str) -> PegSpec:
+        return self.spec.peg(name)
 
     def clearance(self, peg: str) -> float:
         """Radial clearance (m) between the block's hole and peg ``peg``."""
-        return self.block.hole_radius - self.peg(peg).radius
+        return self.spec.clearance(peg)
 
 
 @dataclass(frozen=True)
@@ -221,48 +220,9 @@ def _seed(raw: Mapping[str, Any], where: str) -> int | None:
 
 def _world(raw: Mapping[str, Any]) -> WorldConfig:
     w = "world"
-    raw_pegs = raw.get("pegs")
-    if not isinstance(raw_pegs, Mapping) or not raw_pegs:
-        raise MockConfigError(f"{w}.pegs: must be a non-empty mapping of peg name to peg")
-    pegs = []
-    for name, rp in raw_pegs.items():
-        pw = f"{w}.pegs.{name}"
-        if not isinstance(rp, Mapping):
-            raise MockConfigError(f"{pw}: expected a mapping")
-        _reject_unknown(rp, frozenset({"xy", "height", "radius"}), pw)
-        pegs.append(PegConfig(name=str(name), xy=_vec(rp, "xy", pw, 2),  # type: ignore[arg-type]
-                              height=_num(rp, "height", pw, positive=True),
-                              radius=_num(rp, "radius", pw, positive=True)))
-    rb = raw.get("block")
-    if not isinstance(rb, Mapping):
+    spec = parse_world(raw, w, extra_keys=MOCK_WORLD_KEYS, error=MockConfigError)
+    if spec.block is None:
         raise MockConfigError(f"{w}.block: missing or not a mapping")
-    _reject_unknown(rb, frozenset({"size", "hole_radius", "mass", "start"}), f"{w}.block")
-    size = _vec(rb, "size", f"{w}.block", 3)
-    if min(size) <= 0.0:
-        raise MockConfigError(f"{w}.block.size: every side must be > 0, got {list(size)}")
-    block = BlockConfig(size=size,  # type: ignore[arg-type]
-                        hole_radius=_num(rb, "hole_radius", f"{w}.block", positive=True),
-                        mass=_num(rb, "mass", f"{w}.block", 0.05, positive=True),
-                        start=str(rb.get("start", "")))
-    names = [p.name for p in pegs]
-    if block.start not in names:
-        raise MockConfigError(f"{w}.block.start: {block.start!r} is not a peg (pegs: {names})")
-    if 2.0 * block.hole_radius >= min(size[0], size[1]):
-        raise MockConfigError(f"{w}.block.hole_radius: a hole of radius {block.hole_radius:g} m "
-                              f"does not fit in a block of {size[0]:g} x {size[1]:g} m")
-    for p in pegs:
-        if p.radius >= block.hole_radius:
-            raise MockConfigError(
-                f"{w}.pegs.{p.name}.radius: {p.radius:g} m does not fit the block's hole "
-                f"(hole_radius {block.hole_radius:g} m): clearance must be > 0")
-        if p.height <= size[2]:
-            raise MockConfigError(f"{w}.pegs.{p.name}.height: {p.height:g} m must exceed the "
-                                  f"block's height {size[2]:g} m")
-    for i, a in enumerate(pegs):
-        for b in pegs[i + 1:]:
-            if math.dist(a.xy, b.xy) < max(size[0], size[1]) + a.radius + b.radius:
-                raise MockConfigError(f"{w}.pegs: {a.name} and {b.name} are too close for the "
-                                      f"block to sit on one of them")
     rg = raw.get("grasp", {}) or {}
     if not isinstance(rg, Mapping):
         raise MockConfigError(f"{w}.grasp: expected a mapping")
@@ -272,10 +232,9 @@ def _world(raw: Mapping[str, Any]) -> WorldConfig:
                         capture_radius=_num(rg, "capture_radius", f"{w}.grasp", 0.015,
                                             positive=True),
                         min_effort=_num(rg, "min_effort", f"{w}.grasp", 0.3, positive=True))
-    return WorldConfig(table_height=_num(raw, "table_height", w),
+    return WorldConfig(spec=spec,
                        contact_stiffness=_num(raw, "contact_stiffness", w, 5000.0, positive=True),
-                       friction=_num(raw, "friction", w, 0.5, nonneg=True),
-                       pegs=tuple(pegs), block=block, grasp=grasp)
+                       friction=_num(raw, "friction", w, 0.5, nonneg=True), grasp=grasp)
 
 
 def parse_mock_config(data: Any, source: str = "<data>") -> MockConfig:

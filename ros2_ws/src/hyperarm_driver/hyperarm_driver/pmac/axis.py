@@ -12,8 +12,9 @@ import math
 from dataclasses import dataclass, fields
 from typing import Protocol
 
-from .protocol import parse_number
+from .protocol import format_constant, parse_number
 from .errors import PmacProtocolError, RailCommandError, RailConfigError
+from .watchdog import WatchdogConfig, download_lines
 
 __all__ = ["MotorStatus", "RailConfig", "RailState", "RailAxis", "CommandPort",
            "I10_DEFAULT", "servo_period_from_i10"]
@@ -121,9 +122,9 @@ class MotorStatus:
 
 
 def _decimal(x: float) -> str:
-    """``x`` as a plain decimal with up to 9 places: the PMAC command parser takes no
-    exponent (``%g`` would write 2e-05). RailCommandError if it would round to 0."""
-    text = f"{x:.9f}".rstrip("0").rstrip(".")
+    """``x`` as a plain decimal with up to 9 places (:func:`protocol.format_constant`: the
+    card takes no exponent). RailCommandError if it would round to 0."""
+    text = format_constant(x)
     if float(text) == 0.0:
         raise RailCommandError(f"value {x!r} too small for the card (rounds to 0)")
     return text
@@ -192,27 +193,37 @@ class RailConfig:
 
 @dataclass(frozen=True)
 class RailState:
-    """One poll of the axis (m, m/s, m) with the decoded status."""
+    """One poll of the axis (m, m/s, m) with the decoded status; ``armed`` is the safety
+    PLC's armed flag (None without the PLC)."""
 
     position: float
     velocity: float
     following_error: float
     status: MotorStatus
+    armed: bool | None = None
 
 
 class RailAxis:
     """Commands for one PMAC motor, in metres. Blocking; errors from the client propagate.
 
     ``servo_period`` (s) converts ``#nV``; :meth:`configure` reads it from I10.
+    ``watchdog``: the on-card safety PLC (:mod:`.watchdog`) that :meth:`configure`
+    downloads and every poll feeds; None = no PLC (the card then finishes a jog on its own
+    if the host goes away).
     """
 
     def __init__(self, port: CommandPort, config: RailConfig,
-                 servo_period: float | None = None) -> None:
+                 servo_period: float | None = None,
+                 watchdog: WatchdogConfig | None = None) -> None:
         self.port = port
         self.config = config
         self.servo_period = servo_period or servo_period_from_i10(I10_DEFAULT)
+        self.watchdog = watchdog
         m = config.motor
         self._poll = f"#{m}P#{m}V#{m}F#{m}?"
+        if watchdog is not None:
+            hb = f"P{watchdog.heartbeat}"
+            self._poll = f"{hb}={hb}+1 {self._poll} P{watchdog.armed}"
 
     @property
     def motor(self) -> int:
@@ -227,9 +238,35 @@ class RailAxis:
         self.servo_period = servo_period_from_i10(parse_number(lines, "I10"))
         return self.servo_period
 
+    def set_communication(self) -> None:
+        """``I3=2 I6=1``: ACK-terminated replies with CR line ends, errors as ``ERRnnn``
+        (Software Reference, I3 and I6; public Turbo PMAC Ethernet drivers such as
+        dls-pmaclib send the same at connect). Applies to this very command's reply."""
+        self.port.command("I3=2 I6=1")
+
+    def check_communication(self) -> None:
+        """Read I3 and I6; RailConfigError unless I3 is 2 or 3 and I6 is 1 or 3 (a card at
+        I3=1 already fails to answer in ACK framing: PmacProtocolError names it)."""
+        lines = self.port.command("I3 I6")
+        if len(lines) != 2:
+            raise PmacProtocolError(f"I3 I6: expected two values, got {lines!r}")
+        i3, i6 = (parse_number([x], "I3/I6") for x in lines)
+        if i3 not in (2, 3) or i6 not in (1, 3):
+            raise RailConfigError(f"the card has I3={i3:g}, I6={i6:g}; the driver needs I3=2 "
+                                  "(ACK replies) and I6=1 (ERRnnn errors): set them on the "
+                                  "card or let the driver configure it")
+
+    def download_watchdog(self) -> None:
+        """Download and enable the safety PLC (needs :attr:`servo_period` from I10)."""
+        if self.watchdog is None:
+            return
+        for line in download_lines(self.watchdog, self.motor, self.servo_period):
+            self.port.command(line)
+
     def configure(self, speed: float | None = None) -> None:
-        """Read I10; write jog speed/acceleration (Ixx22, Ixx19, Ixx20=0, Ixx21=0) and the
-        soft limits Ixx13/Ixx14 (counts from home) from the config.
+        """Set I3/I6; read I10; write jog speed/acceleration (Ixx22, Ixx19, Ixx20=0,
+        Ixx21=0) and the soft limits Ixx13/Ixx14 (counts from home) from the config;
+        download the safety PLC.
 
         ``speed`` (m/s) defaults to ``max_velocity``; it must be within (0, max_velocity].
         """
@@ -237,6 +274,7 @@ class RailAxis:
         v = c.max_velocity if speed is None else float(speed)
         if not 0 < v <= c.max_velocity:
             raise RailCommandError(f"jog speed {v} m/s not within (0, {c.max_velocity:g}] m/s")
+        self.set_communication()
         self.read_servo_period()
         cpm = abs(c.counts_per_metre)
         lo, hi = sorted((c.to_counts(c.lower), c.to_counts(c.upper)))
@@ -248,6 +286,7 @@ class RailAxis:
             f"{self._ivar(19)}={_decimal(c.max_acceleration * cpm / 1e6)} "   # counts/ms^2
             f"{self._ivar(20)}=0 {self._ivar(21)}=0 "
             f"{self._ivar(13)}={pos_limit} {self._ivar(14)}={neg_limit}")
+        self.download_watchdog()
 
     def read_ivar(self, n: int) -> float:
         """Read motor I-variable Ixx{n} (n = 0..99)."""
@@ -259,8 +298,9 @@ class RailAxis:
     def read(self) -> RailState:
         """Position, velocity, following error and status in one round trip."""
         lines = self.port.command(self._poll)
-        if len(lines) != 4:
-            raise PmacProtocolError(f"{self._poll!r}: expected 4 lines, got {lines!r}")
+        want = 4 if self.watchdog is None else 5
+        if len(lines) != want:
+            raise PmacProtocolError(f"{self._poll!r}: expected {want} lines, got {lines!r}")
         try:
             p, v, f = (float(x) for x in lines[:3])
         except ValueError:
@@ -269,7 +309,9 @@ class RailAxis:
         return RailState(position=c.to_metres(p),
                          velocity=c.to_metres(v) / self.servo_period,
                          following_error=c.to_metres(f),
-                         status=MotorStatus.from_hex(lines[3]))
+                         status=MotorStatus.from_hex(lines[3]),
+                         armed=None if self.watchdog is None else
+                         parse_number(lines[4:5], "armed flag") == 1.0)
 
     def status(self) -> MotorStatus:
         lines = self.port.command(f"#{self.motor}?")
@@ -278,9 +320,12 @@ class RailAxis:
         return MotorStatus.from_hex(lines[0])
 
     # -- motion ---------------------------------------------------------------------------
-    def jog_to(self, metres: float) -> float:
-        """Jog to an absolute position (m) at the jog speed; returns the target in counts.
+    def jog_to(self, metres: float) -> tuple[float, MotorStatus]:
+        """Jog to an absolute position (m) at the jog speed; returns (target in counts, the
+        motor status read on the card just before the jog, in the same command line).
 
+        A jog closes the loop of a killed motor, so the caller must check that status: if it
+        shows the motor killed, the jog re-enabled it and the caller must kill it again.
         Raises RailCommandError (nothing sent) if not finite or outside the soft limits.
         """
         c = self.config
@@ -290,20 +335,31 @@ class RailAxis:
         # that formatting can never push the target past them.
         counts = min(max(math.floor(c.to_counts(x) * 10 + 0.5) / 10, math.ceil(lo * 10) / 10),
                      math.floor(hi * 10) / 10)
-        self.port.command(f"#{self.motor}J={counts:.1f}")
-        return counts
+        lines = self.port.command(f"#{self.motor}?#{self.motor}J={counts:.1f}")
+        if len(lines) != 1:
+            raise PmacProtocolError(f"jog: expected the status line, got {lines!r}")
+        return counts, MotorStatus.from_hex(lines[0])
 
     def stop(self) -> None:
         """``#nJ/``: decelerate and hold position with the servo on (also closes the loop)."""
         self.port.command(f"#{self.motor}J/")
 
     def enable(self) -> None:
-        """Close the loop and hold at the present position (``#nJ/``)."""
-        self.port.command(f"#{self.motor}J/")
+        """Close the loop and hold at the present position (``#nJ/``); with the safety PLC
+        also re-activate the motor (Ixx00=1) and arm the watchdog."""
+        m = self.motor
+        if self.watchdog is None:
+            self.port.command(f"#{m}J/")
+        else:
+            self.port.command(f"I{m * 100}=1 P{self.watchdog.armed}=1 #{m}J/")
 
     def kill(self) -> None:
-        """``#nK``: open the loop and disable the amplifier."""
-        self.port.command(f"#{self.motor}K")
+        """``#nK``: open the loop and disable the amplifier (and disarm the watchdog)."""
+        m = self.motor
+        if self.watchdog is None:
+            self.port.command(f"#{m}K")
+        else:
+            self.port.command(f"P{self.watchdog.armed}=0 #{m}K")
 
     def home(self) -> None:
         """``#nHM``: start the home search (Ixx23 speed/direction, Ixx26 offset)."""

@@ -5,20 +5,29 @@ response lines out, ``PmacCommandError`` for an ``ERRnnn`` reply, ``PmacLinkErro
 subclass ``PmacTimeoutError``) when the link is unusable. After a link error the client has
 closed its socket; the next call reconnects if ``auto_reconnect`` (default), so a caller
 simply retries later. Thread-safe: one command at a time.
+
+Every reply form of a real card is handled (see :mod:`.protocol`): ``<STX>text<CR>`` lines
+the card sends on its own are taken out of the reply and kept in :attr:`messages`; a NUL
+(busy, the command was not taken) makes the client send the command again every 2 ms until
+the reply timeout, then raise ``PmacBusyError`` (a ``PmacTimeoutError``); the FLUSH
+acknowledgement is any one byte.
 """
 from __future__ import annotations
 
+import collections
 import socket
 import threading
 import time
 from typing import Any
 
 from . import protocol as proto
-from .errors import PmacError, PmacLinkError, PmacProtocolError, PmacTimeoutError
+from .errors import PmacBusyError, PmacError, PmacLinkError, PmacProtocolError, \
+    PmacTimeoutError
 
-__all__ = ["PmacClient", "PmacSerialClient", "DEFAULT_PORT"]
+__all__ = ["PmacClient", "PmacSerialClient", "DEFAULT_PORT", "BUSY_RETRY"]
 
 DEFAULT_PORT = 1025
+BUSY_RETRY = 0.002     # s, pause before sending a command again after a NUL (busy) reply
 
 
 class _Base:
@@ -30,7 +39,9 @@ class _Base:
         self.timeout = float(timeout)
         self._lock = threading.Lock()
         self.commands_sent = 0
+        self.busy_replies = 0
         self.last_round_trip = float("nan")   # s, last successful command
+        self.messages: collections.deque[str] = collections.deque(maxlen=100)
 
     def command(self, command: str) -> list[str]:  # pragma: no cover - overridden
         raise NotImplementedError
@@ -124,10 +135,10 @@ class PmacClient(_Base):
     def _flush_locked(self) -> None:
         deadline = time.monotonic() + self.timeout
         self._send(proto.flush_packet())
-        got = self._recv_some(deadline)
-        if got != proto.FLUSH_REPLY:
+        got = self._recv_some(deadline, 1)      # "one byte is returned": ^X echo, '@', ...
+        if len(got) != 1:
             self._drop()
-            raise PmacProtocolError(f"FLUSH answered {got!r}, expected {proto.FLUSH_REPLY!r}")
+            raise PmacProtocolError(f"FLUSH answered {got!r}, expected one byte")
 
     def command(self, command: str) -> list[str]:
         """Send one on-line command line; return its response lines.
@@ -144,18 +155,19 @@ class PmacClient(_Base):
                 self._connect_locked()
             t0 = time.perf_counter()
             deadline = time.monotonic() + self.timeout
-            self._send(packet)
-            buf = bytearray()
-            chunk = 0
-            while not proto.reply_complete(buf):
-                if chunk >= proto.REPLY_CHUNK:        # long reply: ask for the next piece
-                    self._send(proto.getbuffer_packet())
-                    chunk = 0
-                data = self._recv_some(deadline, proto.REPLY_CHUNK - chunk)
-                buf += data
-                chunk += len(data)
+            while True:
+                self._send(packet)
+                buf = self._receive_reply(deadline)
+                if not proto.is_busy(buf):
+                    break
+                self.busy_replies += 1
+                if time.monotonic() + BUSY_RETRY >= deadline:
+                    self._drop()
+                    raise PmacBusyError(f"PMAC at {self.endpoint} busy (NUL replies) for "
+                                        f"{self.timeout:g} s")
+                time.sleep(BUSY_RETRY)
             try:
-                reply = proto.parse_reply(bytes(buf), command)
+                reply = proto.parse_reply(buf, command)
             except PmacProtocolError:
                 self._drop()                           # stream state unknown: resync
                 raise
@@ -163,6 +175,28 @@ class PmacClient(_Base):
                 self.commands_sent += 1
             self.last_round_trip = time.perf_counter() - t0
             return list(reply.lines)
+
+    def _receive_reply(self, deadline: float) -> bytes:
+        """One whole reply (STX lines moved to :attr:`messages`), fetching GETBUFFER pieces."""
+        buf = bytearray()
+        chunk = 0
+        while True:
+            data = self._recv_some(deadline, proto.REPLY_CHUNK - chunk)
+            buf += data
+            chunk += len(data)
+            msgs, rest = proto.split_messages(buf)
+            if msgs:
+                self.messages.extend(msgs)
+                buf = bytearray(rest)
+                if not buf:              # the card stopped after the message line
+                    self._send(proto.getbuffer_packet())
+                    chunk = 0
+                    continue
+            if proto.reply_complete(buf):
+                return bytes(buf)
+            if chunk >= proto.REPLY_CHUNK:        # long reply: ask for the next piece
+                self._send(proto.getbuffer_packet())
+                chunk = 0
 
     def _send(self, packet: bytes) -> None:
         assert self._sock is not None
@@ -261,7 +295,14 @@ class PmacSerialClient(_Base):
                             f"PMAC at {self.endpoint}: no reply within {self.timeout:g} s")
                     self._ser.timeout = max(0.0, deadline - time.monotonic())
                     buf += self._ser.read(max(1, self._ser.in_waiting))
-            except PmacTimeoutError:
+                    msgs, rest = proto.split_messages(buf)
+                    if msgs:
+                        self.messages.extend(msgs)
+                        buf = bytearray(rest)
+                if proto.is_busy(buf):
+                    self.busy_replies += 1
+                    raise PmacBusyError(f"PMAC at {self.endpoint} busy (NUL reply)")
+            except PmacTimeoutError:   # (PmacBusyError too)
                 self._close_quietly()
                 raise
             except OSError as exc:

@@ -1,12 +1,21 @@
 """The rail driver core (no ROS): a worker thread that owns the PMAC link.
 
-The worker polls the axis at ``rate`` (one round trip: position, velocity, following error,
-status), sends the newest setpoint, runs one-shot requests (home, hold, enable, kill) and
-supervises the link: a timeout or a closed socket marks the link down at once (so loss is
-seen within ``timeout + 1/rate``), drops any pending setpoint (nothing stale is sent later),
-fails waiting requests, and reconnects every ``reconnect_period``. After a reconnect the
-card is configured again and a moving motor is stopped (``J/``): motion resumes only on a new
-setpoint. Callers (the ROS node) read :meth:`RailDriver.snapshot` and call
+The worker polls the axis at ``rate`` (one round trip: heartbeat, position, velocity,
+following error, status, the safety PLC's armed flag), sends the newest setpoint, runs
+one-shot requests (home, hold, enable, kill) and supervises the link: a timeout or a closed
+socket marks the link down at once (so loss is seen within ``timeout + 1/rate``), drops any
+pending setpoint (nothing stale is sent later), fails waiting requests, and reconnects every
+``reconnect_period``, logging why it cannot connect (throttled per reason).
+
+Torque rule (one for every driver, docs/architecture.md): torque is on only after a
+successful ``enable`` (``set_torque true``) on the present connection. On every (re)connect
+the driver kills a motor that is enabled; setpoints, hold and home are refused until
+``enable``. A motor the card killed (fatal following error, amplifier fault), one killed by
+the safety PLC's watchdog, or one found killed while the driver had torque on is *latched*:
+the driver stops sending anything that moves it, kills it again if a jog raced with the kill
+(every jog closes a killed motor's loop on the card, see watchdog.py), reports the fault in
+:attr:`DriverSnapshot.latched` (and so on ``/diagnostics``) until ``enable`` succeeds, and
+logs it once. Callers (the ROS node) read :meth:`RailDriver.snapshot` and call
 :meth:`set_target` / :meth:`request` from any thread.
 """
 from __future__ import annotations
@@ -16,23 +25,46 @@ import time
 import traceback
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, NoReturn
 
-from .axis import RailAxis, RailState
+from .axis import MotorStatus, RailAxis, RailState
 from .errors import PmacCommandError, PmacError, PmacLinkError, PmacProtocolError, \
     RailCommandError, RailError
 
-__all__ = ["RailDriver", "DriverSnapshot", "REQUESTS", "OK", "WARN", "ERROR"]
+__all__ = ["RailDriver", "DriverSnapshot", "REQUESTS", "OK", "WARN", "ERROR", "ReasonThrottle"]
 
 OK, WARN, ERROR = 0, 1, 2          # diagnostic levels (diagnostic_msgs/DiagnosticStatus)
 REQUESTS = ("home", "hold", "enable", "kill")
 Logger = Callable[[str, str], None]   # (level: "info" | "warn" | "error", message)
 
 
+class ReasonThrottle:
+    """Lets a message through at once when its reason is new, else at most once per
+    ``period`` s per reason, so that throttling one problem never hides another."""
+
+    def __init__(self, period: float) -> None:
+        self.period = float(period)
+        self._last: dict[str, float] = {}
+        self._lock = threading.Lock()
+
+    def allow(self, reason: str, now: float | None = None) -> bool:
+        t = time.monotonic() if now is None else now
+        with self._lock:
+            last = self._last.get(reason)
+            if last is not None and t - last < self.period:
+                return False
+            self._last[reason] = t
+            if len(self._last) > 256:          # forget the oldest reasons
+                for k in sorted(self._last, key=self._last.get)[:128]:
+                    del self._last[k]
+            return True
+
+
 @dataclass(frozen=True)
 class DriverSnapshot:
-    """What the driver knows now. ``state`` is the last poll (None before the first)."""
+    """What the driver knows now. ``state`` is the last poll (None before the first);
+    ``latched``: faults seen since the last successful enable (cleared only by it)."""
 
     link_up: bool
     state: RailState | None
@@ -43,6 +75,9 @@ class DriverSnapshot:
     last_error: str
     endpoint: str
     motor: int
+    torque: bool = False         # the driver has torque on (enabled on this connection)
+    latched: tuple[str, ...] = ()
+    watchdog: bool = False       # the safety PLC is downloaded and fed
 
     @property
     def homed(self) -> bool:
@@ -52,7 +87,9 @@ class DriverSnapshot:
         """(level, message, key/values) for ``/diagnostics``."""
         s = self.state
         kv = [("link", "up" if self.link_up else "down"), ("endpoint", self.endpoint),
-              ("motor", str(self.motor))]
+              ("motor", str(self.motor)), ("torque", "on" if self.torque else "off"),
+              ("latched_faults", ", ".join(self.latched) or "none"),
+              ("watchdog", "on" if self.watchdog else "off")]
         if s is not None:
             st = s.status
             kv += [("position_m", f"{s.position:.6f}"), ("velocity_mps", f"{s.velocity:.6f}"),
@@ -70,13 +107,12 @@ class DriverSnapshot:
                ("last_error", self.last_error)]
         if not self.link_up:
             return ERROR, f"PMAC link down: {self.last_error}", kv
+        if self.latched:
+            return ERROR, (f"latched: {'; '.join(self.latched)} "
+                           "(motor killed; set_torque true clears)"), kv
         if s is None:
             return WARN, "connected, no status yet", kv
         st = s.status
-        if st.amp_fault or st.i2t_fault:
-            return ERROR, "amplifier fault (motor killed)", kv
-        if st.fatal_following_error or st.integrated_following_error:
-            return ERROR, "fatal following error (motor killed)", kv
         problems = []
         if st.neg_limit or st.pos_limit:
             problems.append("on " + " and ".join(
@@ -95,6 +131,15 @@ class DriverSnapshot:
         return OK, "ok", kv
 
 
+_FAULT_TEXT = {"amp_fault": "amplifier fault", "fatal_following_error": "fatal following error",
+               "i2t_fault": "I2T amplifier fault",
+               "integrated_following_error": "integrated following error"}
+
+
+def _fault_reason(st: MotorStatus) -> str:
+    return ", ".join(_FAULT_TEXT.get(f, f) for f in st.faults)
+
+
 class _Request:
     def __init__(self, kind: str) -> None:
         self.kind = kind
@@ -105,12 +150,14 @@ class RailDriver:
     """Owns ``axis.port`` (a PMAC client) in one worker thread; see the module docstring.
 
     ``rate`` Hz (polls), ``reconnect_period`` s; ``require_homing``: refuse setpoints before
-    home complete; ``configure_card``: write Ixx22/19/20/21/13/14 on each connect.
+    home complete; ``configure_card``: set I3/I6, write Ixx22/19/20/21/13/14 and download the
+    safety PLC on each connect (else I3/I6 are only checked); ``log_period`` s: the same
+    connection problem is logged at most this often.
     """
 
     def __init__(self, axis: RailAxis, rate: float = 50.0, reconnect_period: float = 1.0,
                  require_homing: bool = True, configure_card: bool = True,
-                 log: Logger | None = None) -> None:
+                 log: Logger | None = None, log_period: float = 10.0) -> None:
         if not 1.0 <= rate <= 1000.0:
             raise ValueError(f"rate must be within 1..1000 Hz, got {rate}")
         if not 0.01 <= reconnect_period <= 600.0:
@@ -118,6 +165,12 @@ class RailDriver:
         for attr in ("connect", "close", "connected"):
             if not hasattr(axis.port, attr):
                 raise TypeError(f"axis.port must be a PMAC client (no {attr!r})")
+        if axis.watchdog is not None and not configure_card:
+            raise ValueError("the watchdog PLC is downloaded when the driver configures the "
+                             "card: it needs configure_card")
+        if axis.watchdog is not None and axis.watchdog.timeout < 2.0 / rate:
+            raise ValueError(f"watchdog timeout {axis.watchdog.timeout:g} s must be at least "
+                             f"two poll periods ({2.0 / rate:g} s at {rate:g} Hz)")
         self.axis = axis
         self.client = axis.port
         self.period = 1.0 / rate
@@ -125,6 +178,7 @@ class RailDriver:
         self.require_homing = bool(require_homing)
         self.configure_card = bool(configure_card)
         self._logger = log
+        self._throttle = ReasonThrottle(log_period)
         self._lock = threading.Lock()
         self._wake = threading.Event()
         self._stop = threading.Event()
@@ -143,6 +197,10 @@ class RailDriver:
             self._logger(level, message)
         except Exception:  # noqa: BLE001 - a logging problem must not stop the worker
             traceback.print_exc()
+
+    def _log_throttled(self, level: str, reason: str, message: str) -> None:
+        if self._throttle.allow(reason):
+            self._log(level, message)
 
     # -- life cycle -----------------------------------------------------------------------
     def start(self) -> None:
@@ -184,19 +242,19 @@ class RailDriver:
 
     def set_target(self, metres: float) -> float:
         """Queue a rail setpoint (m); returns it. Raises RailCommandError if refused:
-        not finite, outside the soft limits, link down, torque off, fault, homing or not
-        homed (when required). Nothing is sent for a refused setpoint."""
+        not finite, outside the soft limits, link down, torque off, fault latched, homing or
+        not homed (when required). Nothing is sent for a refused setpoint."""
         try:
             x = self.axis.config.check_position(metres)
             snap = self.snapshot()
             if not snap.link_up or snap.state is None:
                 raise RailCommandError(f"PMAC link down ({snap.last_error})")
+            if snap.latched:
+                raise RailCommandError(f"fault latched: {'; '.join(snap.latched)}; "
+                                       "call rail/set_torque true to clear it")
+            if not snap.torque:
+                raise RailCommandError("torque is off; call rail/set_torque true")
             st = snap.state.status
-            if st.faults:
-                raise RailCommandError(f"motor fault: {', '.join(st.faults)}; "
-                                       "clear it and enable torque first")
-            if not st.amp_enabled:
-                raise RailCommandError("torque is off (motor killed); call set_torque true")
             if st.home_search:
                 raise RailCommandError("homing in progress")
             if self.require_homing and not st.home_complete:
@@ -211,7 +269,7 @@ class RailDriver:
     def reject(self, reason: str) -> NoReturn:
         """Count a refused setpoint (shown in diagnostics) and raise RailCommandError."""
         with self._lock:
-            self._snap = _replace(self._snap, rejected_setpoints=self._snap.rejected_setpoints + 1)
+            self._snap = replace(self._snap, rejected_setpoints=self._snap.rejected_setpoints + 1)
         raise RailCommandError(reason)
 
     def request(self, kind: str, timeout: float = 2.0) -> str:
@@ -250,6 +308,7 @@ class RailDriver:
                     next_poll += self.period
                     if next_poll < time.monotonic():      # fell behind: don't burst
                         next_poll = time.monotonic() + self.period
+                self._report_messages()
             except (PmacLinkError, PmacProtocolError) as exc:
                 self._link_lost(exc)
                 continue
@@ -269,43 +328,75 @@ class RailDriver:
             if self.configure_card:
                 self.axis.configure()
             else:
+                self.axis.check_communication()
                 self.axis.read_servo_period()
             state = self.axis.read()
-            if state.status.amp_enabled and not state.status.desired_velocity_zero:
-                self.axis.stop()     # a move from before the link loss: hold, don't finish it
-                self._log("warn", f"rail was moving at {state.position:.4f} m on connect: held")
+            killed = state.status.amp_enabled
+            if killed:          # the torque rule: on only after enable on this connection
+                self.axis.kill()
+                state = self.axis.read()
         except PmacError as exc:
             self.client.close()
             with self._lock:
-                self._snap = _replace(self._snap, link_up=False, last_error=str(exc))
+                self._snap = replace(self._snap, link_up=False, last_error=str(exc),
+                                     torque=False)
+            self._log_throttled("error", f"connect:{type(exc).__name__}:{exc}",
+                                f"cannot use the PMAC at {self._snap.endpoint}: {exc}; "
+                                f"retrying every {self.reconnect_period:g} s")
             return False
         with self._lock:
             reconnects = self._snap.reconnects + (1 if self._ever_connected else 0)
-            self._snap = _replace(self._snap, link_up=True, state=state, stamp=time.monotonic(),
-                                  reconnects=reconnects, last_error="")
+            self._snap = replace(self._snap, link_up=True, state=state, stamp=time.monotonic(),
+                                 reconnects=reconnects, last_error="", torque=False,
+                                 watchdog=self.configure_card and self.axis.watchdog is not None)
             self._target, self._sent_counts = None, None
         word = "reconnected to" if self._ever_connected else "connected to"
         self._ever_connected = True
         self._log("info", f"{word} PMAC at {self._snap.endpoint}, motor {self.axis.motor}: "
                           f"{state.position:.4f} m, homed={state.status.home_complete}, "
-                          f"torque={'on' if state.status.amp_enabled else 'off'}")
+                          f"torque off{' (it was on: killed)' if killed else ''}, watchdog "
+                          f"{'on' if self._snap.watchdog else 'off'}; "
+                          "set_torque true to move")
         return True
 
     def _link_lost(self, exc: Exception) -> None:
         self.client.close()
         with self._lock:
-            self._snap = _replace(self._snap, link_up=False, last_error=str(exc))
+            had_torque = self._snap.torque
+            latched = self._snap.latched + (
+                ("link lost while torque was on",) if had_torque else ())
+            self._snap = replace(self._snap, link_up=False, last_error=str(exc), torque=False,
+                                 latched=_unique(latched))
             self._target, self._sent_counts = None, None
             reqs, self._requests = self._requests, []
         for r in reqs:
             r.future.set_exception(RailCommandError(f"PMAC link lost: {exc}"))
-        self._log("error", f"PMAC link lost ({exc}); setpoints dropped, reconnecting every "
-                           f"{self.reconnect_period:g} s")
+        self._log("error", f"PMAC link lost ({exc}); setpoints dropped, "
+                           f"{'the watchdog PLC stops the rail, ' if self._snap.watchdog else ''}"
+                           f"reconnecting every {self.reconnect_period:g} s")
 
     def _note_error(self, msg: str, level: str) -> None:
         with self._lock:
-            self._snap = _replace(self._snap, last_error=msg)
-        self._log(level, msg)
+            self._snap = replace(self._snap, last_error=msg)
+        self._log_throttled(level, f"error:{msg}", msg)
+
+    def _report_messages(self) -> None:
+        msgs = getattr(self.client, "messages", None)
+        while msgs:
+            text = msgs.popleft()
+            self._log_throttled("info", f"message:{text}", f"message from the card: {text!r}")
+
+    def _latch(self, reason: str, detail: str = "") -> None:
+        """Latch a fault: disarm, kill (again), report once; the worker thread only."""
+        with self._lock:
+            new = reason not in self._snap.latched
+            self._snap = replace(self._snap, torque=False,
+                                 latched=_unique(self._snap.latched + (reason,)))
+            self._target, self._sent_counts = None, None
+        self.axis.kill()
+        if new:
+            self._log("error", f"rail fault latched: {reason}{detail}; motor killed, "
+                               "setpoints refused until set_torque true")
 
     def _poll(self) -> None:
         t0 = time.perf_counter()
@@ -313,14 +404,22 @@ class RailDriver:
         rt = time.perf_counter() - t0
         with self._lock:
             prev = self._snap.state
-            self._snap = _replace(self._snap, state=state, stamp=time.monotonic(), round_trip=rt)
+            torque = self._snap.torque
+            self._snap = replace(self._snap, state=state, stamp=time.monotonic(), round_trip=rt)
+        st = state.status
+        if st.faults:
+            self._latch(f"{_fault_reason(st)} on the card")
+        elif torque and state.armed is False:
+            self._latch("watchdog PLC tripped (heartbeat lost): the card stopped the rail")
+        elif torque and not st.amp_enabled:
+            self._latch("motor killed by the card")
+        elif not torque and st.amp_enabled:
+            self._latch("motor enabled by someone else while the driver had torque off")
         if prev is not None:
-            self._report_transitions(prev.status, state.status)
+            self._report_transitions(prev.status, st)
 
-    def _report_transitions(self, a, b) -> None:  # MotorStatus, MotorStatus
+    def _report_transitions(self, a: MotorStatus, b: MotorStatus) -> None:
         for name, level, text in (
-                ("amp_fault", "error", "amplifier fault: motor killed"),
-                ("fatal_following_error", "error", "fatal following error: motor killed"),
                 ("neg_limit", "warn", "negative limit switch active"),
                 ("pos_limit", "warn", "positive limit switch active"),
                 ("home_complete", "info", "home complete")):
@@ -332,12 +431,17 @@ class RailDriver:
     def _send_target(self) -> None:
         with self._lock:
             target, self._target = self._target, None
-        if target is None:
+            torque = self._snap.torque
+        if target is None or not torque:
             return
         counts = self.axis.config.to_counts(target)
         if self._sent_counts is not None and abs(counts - self._sent_counts) < 0.05:
             return
-        self._sent_counts = self.axis.jog_to(target)
+        self._sent_counts, before = self.axis.jog_to(target)
+        if before.faults or not before.amp_enabled:
+            # the card had killed the motor since the last poll: the jog just closed its loop
+            self._latch(f"{_fault_reason(before)} on the card" if before.faults else
+                        "motor killed by the card", " (seen with a setpoint: killed again)")
 
     def _serve_requests(self) -> None:
         with self._lock:
@@ -347,6 +451,9 @@ class RailDriver:
                 try:
                     result = self._do(r.kind)
                     self._poll()          # the caller sees the state after the request
+                    if r.kind == "enable" and self.snapshot().latched:
+                        raise RailCommandError(
+                            f"enabled, but {'; '.join(self.snapshot().latched)}")
                     r.future.set_result(result)
                 except (PmacLinkError, PmacProtocolError) as exc:
                     r.future.set_exception(RailCommandError(f"PMAC link lost: {exc}"))
@@ -360,19 +467,29 @@ class RailDriver:
             self._target, self._sent_counts = None, None
         if kind == "kill":
             ax.kill()
+            with self._lock:
+                self._snap = replace(self._snap, torque=False)
             return "motor killed (torque off)"
-        st = ax.status()
         if kind == "enable":
             ax.enable()
             st = ax.status()
-            if not st.amp_enabled:
+            if not st.amp_enabled or st.faults:
+                ax.kill()
                 raise RailCommandError("the card did not enable the motor"
-                                       + (f": {', '.join(st.faults)}" if st.faults else ""))
-            return "torque on, holding position"
-        if st.faults:
-            raise RailCommandError(f"motor fault: {', '.join(st.faults)}; enable torque to clear")
-        if not st.amp_enabled:
-            raise RailCommandError("torque is off (motor killed); call set_torque true first")
+                                       + (f": {_fault_reason(st)}" if st.faults else ""))
+            with self._lock:
+                cleared = self._snap.latched
+                self._snap = replace(self._snap, torque=True, latched=())
+            if cleared:
+                self._log("info", f"torque on; cleared latched: {'; '.join(cleared)}")
+            return "torque on, holding position" + (
+                f" (cleared: {'; '.join(cleared)})" if cleared else "")
+        snap = self.snapshot()
+        if snap.latched:
+            raise RailCommandError(f"fault latched: {'; '.join(snap.latched)}; "
+                                   "call rail/set_torque true first")
+        if not snap.torque:
+            raise RailCommandError("torque is off; call rail/set_torque true first")
         if kind == "hold":
             ax.stop()
             return "holding"
@@ -380,6 +497,5 @@ class RailDriver:
         return "home search started"
 
 
-def _replace(snap: DriverSnapshot, **kw: object) -> DriverSnapshot:
-    from dataclasses import replace
-    return replace(snap, **kw)
+def _unique(items: tuple[str, ...]) -> tuple[str, ...]:
+    return tuple(dict.fromkeys(items))

@@ -1,20 +1,31 @@
 """pmac_emulator: a Turbo PMAC on 127.0.0.1 speaking the Ethernet protocol (for tests and demos).
 
-Simulated, per motor (counts and seconds inside; the card's units on the wire):
+What it implements (Turbo PMAC Software Reference; Turbo PMAC User Manual, "Writing a Host
+Communications Program"; the full list, and what is *not* implemented, is in docs/pmac.md):
 
-- jog motion with a trapezoidal profile: ``J=`` (to position), ``J+``/``J-`` (continuous),
+- per motor: jog motion with a trapezoidal profile: ``J=`` (to position), ``J^`` (relative
+  to the actual position), ``J:`` (relative to the commanded position), ``J+``/``J-``,
   ``J/`` (stop and hold; closes the loop), ``K`` (kill), speed Ixx22 (counts/ms),
-  acceleration Ixx19 (counts/ms²) limited by Ixx20 (ms) when non-zero; soft limits Ixx13/Ixx14;
-- home search ``HM`` (speed and direction Ixx23 counts/ms, offset Ixx26 1/16 count, switch at
-  a physical position) and ``HMZ`` (zero here);
-- hardware overtravel switches at physical positions: motion into them stops at once;
-- following error = servo lag x velocity + an injectable disturbance; fatal (Ixx11, 1/16
-  count) kills the motor, warning (Ixx12) is flagged; amplifier fault (injected) kills it;
-- queries ``P`` (counts), ``V`` (counts per servo cycle, I10), ``F`` (counts), ``?`` (two
-  24-bit status words), ``Innn`` / ``Innn=v`` / ``Innn..mmm``, ``VER``, ``TYPE``;
-- ``<BELL>ERR003<CR>`` for unknown or malformed commands, ``ERR004`` for non-ASCII bytes;
-- link faults for tests: :meth:`PmacEmulator.drop_connections`, ``mute`` (no answers),
-  ``refuse`` (connections closed at once);
+  acceleration Ixx19 (counts/ms²) limited by Ixx20 (ms); soft limits Ixx13/Ixx14; every jog
+  closes the loop of a killed motor, as on the card;
+- home search ``HM`` (Ixx23, Ixx26, switch at a physical position) and ``HMZ``;
+- hardware overtravel switches; following error = servo lag x velocity + an injectable
+  disturbance; fatal (Ixx11) kills the motor, warning (Ixx12) is flagged; amplifier fault;
+- queries ``P`` ``V`` ``F`` ``?``; variables ``P``/``Q``/``M``/``I`` read, written (with
+  expressions: ``P1=P1+1``), ranges ``P1..3`` (one value per line), hex constants
+  ``$20000``; I-variables keep the card's ranges (``I3=5`` keeps the low 2 bits: 1) and
+  address I-variables reply in hex while I9 has bit 1 set; ``Isx11``/``Isx12`` count down
+  every servo cycle (PLC timers); M-variable definitions ``Mn->...`` are stored, not mapped;
+- ``VER``/``VERSION`` (version only), ``DATE``, ``CID``, ``TYPE``, ``SAVE`` (acknowledged),
+  ``&n`` (coordinate system), ``%``/``%n`` (feed-rate override, stored per coordinate
+  system), ``OPEN PLC n [CLEAR]`` ... ``CLOSE``, ``ENABLE PLC n``, ``DISABLE PLC n``,
+  ``LIST PLC n``; PLC programs in the subset of :mod:`.plc`, scanned every millisecond;
+- replies framed by I3 (0..3) and I6 (0..3) as the card does; ``ERR003`` for anything
+  else, ``ERR004`` for non-ASCII bytes; FLUSH answered with one byte (``<CTRL-X>`` with
+  I63=1, else ``@``); ``<STX>message<CR>`` lines for unsolicited messages while I64=1;
+- link faults for tests: :meth:`PmacEmulator.drop_connections`, ``mute`` (no answers, no
+  execution: a cut cable), ``refuse`` (connections closed at once), ``busy`` (the next n
+  commands answer NUL: busy, not executed);
 - optionally the RS-232 protocol on a pseudo-terminal (:meth:`PmacEmulator.serve_pty`).
 
 Command line: ``pmac_emulator --port 0`` prints ``pmac_emulator: listening on 127.0.0.1:PORT``.
@@ -23,6 +34,7 @@ Only 127.0.0.1 is ever bound.
 from __future__ import annotations
 
 import argparse
+import collections
 import math
 import re
 import signal
@@ -32,21 +44,31 @@ import threading
 import time
 from dataclasses import dataclass, field
 
+from . import plc as plclang
 from . import protocol as proto
 from .axis import I10_DEFAULT, MotorStatus
 
-__all__ = ["PmacEmulator", "MotorSim", "main"]
+__all__ = ["PmacEmulator", "MotorSim", "main", "VERSION", "DATE", "CID"]
 
-_NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:E[-+]?\d+)?"
-_RE_MOTOR = re.compile(r"#(\d+)")
-_RE_NUM = re.compile(_NUM)
-_RE_IVAR = re.compile(rf"I(\d+)(?:\.\.(\d+)|=({_NUM}))?")
-_MAX_STEP = 1e-3   # s, integration step
+VERSION = "1.947"                 # firmware version (VER answers this only)
+DATE = "01/07/2013"               # firmware date (DATE)
+CID = 603382                      # card ID (CID): a 3U Turbo PMAC2 with Ethernet (Geo Brick)
+_MAX_STEP = 1e-3   # s, integration step and PLC scan period
 _LAG = 0.002       # s, servo lag: following error = lag * velocity
 
 # Turbo PMAC factory defaults of the motor I-variables the emulator uses.
 _MOTOR_DEFAULTS = {0: 1.0, 11: 32000.0, 12: 16000.0, 13: 0.0, 14: 0.0, 19: 0.015625,
                    20: 250.0, 21: 50.0, 22: 32.0, 23: 32.0, 26: 0.0, 28: 160.0}
+# Motor I-variables holding addresses (reported in hex while I9 bit 1 is set).
+_MOTOR_ADDRESS_IVARS = (1, 2, 3, 4, 5, 10, 24, 25, 42, 43, 81, 82, 83, 91)
+_GLOBAL_ADDRESS_IVARS = (20, 21, 22, 23, 24)
+# Integer I-variables with a range 0..2**bits-1: a larger value keeps its low bits.
+_GLOBAL_BITS = {3: 2, 6: 2, 9: 2, 63: 1, 64: 1}
+_MOTOR_BITS = {0: 1}
+_RE_VAR = re.compile(r"([PQMI])(\d+)")
+_RE_INT = re.compile(r"\d+")
+_RE_STATUS_MDEF = re.compile(r"([XY]):\$?([0-9A-F]+),(\d+)(?:,1)?")
+_RE_MDEF = re.compile(r"\*|[XYDLF]:\$?[0-9A-F]+(?:,\d+)*(?:,[SU])?")
 
 
 class _CmdError(Exception):
@@ -56,9 +78,17 @@ class _CmdError(Exception):
 
 
 def _fmt(x: float) -> str:
+    """A value as the card prints it: decimal, no exponent, no trailing zeros."""
     if float(x).is_integer():
         return str(int(x))
-    return f"{x:.4f}".rstrip("0").rstrip(".")
+    return f"{x:.10f}".rstrip("0").rstrip(".")
+
+
+def _motor_address_defaults(m: int) -> dict[int, float]:
+    base = 0x078000 + ((m - 1) // 4) * 0x100 + ((m - 1) % 4) * 8
+    ect = 0x003501 + (m - 1)
+    return {1: base + 1, 2: base + 2, 3: ect, 4: ect, 5: 0x0035C0, 10: 0, 24: 0x800001,
+            25: base, 42: base, 43: base, 81: 0, 82: 0, 83: base + 1, 91: 0}
 
 
 @dataclass
@@ -82,7 +112,11 @@ class MotorSim:
     home_at: float = 0.0            # physical position of the home switch
     neg_limit_at: float = -math.inf
     pos_limit_at: float = math.inf
+    enables: int = 0                # times the loop was closed (J/, a jog, HM on a killed motor)
+    prejog: float = 0.0             # counts, where the last jog started (J= alone)
     ivars: dict[int, float] = field(default_factory=lambda: dict(_MOTOR_DEFAULTS))
+    now: float = 0.0                # s, simulated time of the last step (emulator clock)
+    motion_ended_at: float = math.nan   # s, when the motor last came to rest (or was killed)
 
     # -- derived --------------------------------------------------------------------------
     @property
@@ -124,6 +158,8 @@ class MotorSim:
 
     # -- commands -------------------------------------------------------------------------
     def kill(self) -> None:
+        if self.vel != 0.0 or self.mode != "idle":
+            self.motion_ended_at = self.now
         self.pos = self.actual
         self.closed_loop = False
         self.vel = 0.0
@@ -137,6 +173,7 @@ class MotorSim:
                 return
             self.amp_fault = self.fatal_fe = False
             self.closed_loop = True
+            self.enables += 1
             self.vel = 0.0
             self.mode = "idle"
             self._check_following_error()
@@ -147,7 +184,13 @@ class MotorSim:
             self.mode, self.target = "jog", self.pos + stop
 
     def jog(self, target_counts: float) -> None:
-        """Jog to a position in motor counts (relative to the motor zero)."""
+        """Jog to a position in motor counts (relative to the motor zero).
+
+        Like every jog command on the card, this closes the loop of a killed motor first
+        (PMAC Software Reference, O{constant}: "Closed-loop control for the motor can be
+        re-established with the J command"). The rail driver therefore never sends a jog to
+        a motor it has not enabled itself; see driver.py and watchdog.py.
+        """
         self.enable_if_needed()
         if not self.closed_loop:
             return
@@ -185,7 +228,14 @@ class MotorSim:
         self.mode = "idle"
 
     # -- simulation -----------------------------------------------------------------------
-    def step(self, dt: float) -> None:
+    def step(self, dt: float, now: float) -> None:
+        self.now = now
+        moving = self.vel != 0.0 or self.mode != "idle"
+        self._step(dt)
+        if moving and self.vel == 0.0 and self.mode == "idle":
+            self.motion_ended_at = now
+
+    def _step(self, dt: float) -> None:
         if not self.closed_loop:
             return
         if self.mode == "idle":
@@ -231,6 +281,17 @@ class MotorSim:
             self.kill()
 
 
+@dataclass
+class _Port:
+    """What the card keeps per communication port: addressed motor and coordinate system,
+    the open program buffer, and (Ethernet) the rest of a long reply."""
+
+    motor: int = 1
+    cs: int = 1
+    open_plc: plclang.PlcProgram | None = None
+    pending: bytes = b""
+
+
 class PmacEmulator:
     """A Turbo PMAC on 127.0.0.1 (TCP). ``port=0`` picks a free port (see :attr:`port`).
 
@@ -247,19 +308,37 @@ class PmacEmulator:
         if not limits[0] < limits[1]:
             raise ValueError(f"limits must be (neg, pos) with neg < pos, got {limits}")
         self._req_port = int(port)
-        self.globals: dict[int, float] = {10: float(i10), 3: 2.0, 6: 1.0}
+        # I3=2, I6=1: set up for a host program, as the driver and dls-pmaclib set them
+        self.globals: dict[int, float] = {10: float(i10), 3: 2.0, 6: 1.0, 9: 2.0, 63: 1.0,
+                                          64: 0.0, 20: 0.0, 21: 0.0, 22: 0.0, 23: 0.0,
+                                          24: 0x060000}
         self.motors = {m: MotorSim(m, pos=float(start_position), home_at=float(home_switch),
                                    neg_limit_at=float(limits[0]), pos_limit_at=float(limits[1]))
                        for m in range(1, motors + 1)}
+        for m in self.motors.values():
+            m.ivars.update(_motor_address_defaults(m.number))
+        self.pvars: dict[int, float] = {}
+        self.qvars: dict[int, dict[int, float]] = {}
+        self.mvars: dict[int, float] = {}
+        self.mdefs: dict[int, str] = {}
+        self.feedrate: dict[int, float] = {}
+        self.plcs: dict[int, plclang.PlcProgram] = {}
+        self._timers: dict[int, tuple[float, float]] = {}   # I5s11/I5s12: (value, set at)
+        self._messages: list[str] = []
+        self._internal = _Port()
         self._lock = threading.RLock()
-        self._t = time.monotonic()
+        self._t0 = time.monotonic()
+        self._t = self._t0            # simulated time (monotonic clock), advanced lazily
         self._server: socket.socket | None = None
         self._conns: set[socket.socket] = set()
         self._threads: list[threading.Thread] = []
         self._running = threading.Event()
-        self.mute = False      # read requests, never answer (an unresponsive card)
+        self.mute = False      # read requests, never answer nor execute (a cut cable)
         self.refuse = False    # close new connections at once
+        self.busy = 0          # answer the next n command lines with NUL (busy, not run)
         self.requests = 0
+        # the last command lines received from a port, in order (for tests and debugging)
+        self.log: collections.deque[str] = collections.deque(maxlen=10000)
 
     # -- life cycle -----------------------------------------------------------------------
     @property
@@ -276,9 +355,11 @@ class PmacEmulator:
         srv.settimeout(0.1)
         self._server = srv
         self._running.set()
-        t = threading.Thread(target=self._accept_loop, name="pmac-emu-accept", daemon=True)
-        t.start()
-        self._threads.append(t)
+        for target, name in ((self._accept_loop, "pmac-emu-accept"),
+                             (self._tick_loop, "pmac-emu-tick")):
+            t = threading.Thread(target=target, name=name, daemon=True)
+            t.start()
+            self._threads.append(t)
         return self
 
     def stop(self) -> None:
@@ -313,6 +394,13 @@ class PmacEmulator:
             return len(self._conns)
 
     # -- fault injection and inspection ---------------------------------------------------
+    @property
+    def now(self) -> float:
+        """The emulator's clock (time.monotonic() of the simulated present), after advancing."""
+        with self._lock:
+            self._advance()
+            return self._t
+
     def motor(self, n: int) -> MotorSim:
         """The simulated motor ``n`` (advanced to now); hold no reference across calls."""
         with self._lock:
@@ -325,6 +413,7 @@ class PmacEmulator:
             m = self.motors[n]
             m.amp_fault_input = bool(active)
             m._check_following_error()
+            self._scan_plcs()
 
     def set_disturbance(self, n: int, counts: float) -> None:
         """Extra following error (counts) while the loop is closed, e.g. a jammed carriage."""
@@ -333,89 +422,315 @@ class PmacEmulator:
             m = self.motors[n]
             m.disturbance = float(counts)
             m._check_following_error()
+            self._scan_plcs()
+
+    def _scan_plcs(self) -> None:
+        """One scan of every enabled PLC now (after an injected fault: on the card the PLCs
+        see it at their next scan, within the emulator's 1 ms step anyway)."""
+        for p in self.plcs.values():
+            if p.enabled and p.ops:
+                p.scan(self, self._plc_command)
+
+    def send_message(self, text: str) -> None:
+        """An unsolicited message line (as from a PLC SEND): sent before the next reply,
+        tagged ``<STX>text<CR>`` while I64=1 (Turbo PMAC Software Reference, I64)."""
+        with self._lock:
+            self._messages.append(text)
 
     # -- simulation -----------------------------------------------------------------------
+    @property
+    def servo_period(self) -> float:
+        return self.globals[10] / 8388608.0 * 1e-3
+
+    def _tick_loop(self) -> None:
+        while self._running.is_set():
+            time.sleep(0.005)
+            with self._lock:
+                self._advance()
+
     def _advance(self) -> None:
         now = time.monotonic()
-        dt_total, self._t = now - self._t, now
+        dt_total = now - self._t
+        if dt_total <= 0:
+            return
+        plcs = [p for p in self.plcs.values() if p.enabled and p.ops]
         busy = [m for m in self.motors.values() if m.closed_loop and
                 (m.mode != "idle" or m.vel != 0.0)]
-        for m in self.motors.values():
-            if m not in busy:
-                m.step(0.0)
-        if not busy or dt_total <= 0:
+        if not busy and not plcs:
+            self._t = now
+            for m in self.motors.values():
+                m.step(0.0, now)
             return
         n = max(1, math.ceil(dt_total / _MAX_STEP))
         dt = dt_total / n
         for _ in range(n):
-            for m in busy:
-                m.step(dt)
+            self._t += dt
+            for m in self.motors.values():
+                m.step(dt, self._t)
+            for p in plcs:
+                if p.enabled:
+                    p.scan(self, self._plc_command)
+        self._t = now
 
-    def execute(self, line: str) -> bytes:
-        """Run one command line; return the reply bytes (lines + ACK, or BELL ERRnnn CR)."""
+    def _plc_command(self, text: str) -> None:
+        """A CMD"..." of a PLC program: an on-line command from the card itself."""
+        try:
+            self._execute(plclang.squeeze(text), [], self._internal)
+        except (_CmdError, plclang.PlcSyntaxError):
+            pass
+
+    # -- variables (the VarStore of the PLC interpreter) ----------------------------------
+    def get(self, kind: str, n: int) -> float:
+        if kind == "P":
+            return self.pvars.get(n, 0.0)
+        if kind == "Q":
+            return self.qvars.get(self._internal.cs, {}).get(n, 0.0)
+        if kind == "M":
+            return self._get_mvar(n)
+        return self._get_ivar(n)
+
+    def set(self, kind: str, n: int, value: float) -> None:
+        if kind == "P":
+            self.pvars[n] = value
+        elif kind == "Q":
+            self.qvars.setdefault(self._internal.cs, {})[n] = value
+        elif kind == "M":
+            self.mvars[n] = value
+        else:
+            self._set_ivar(n, value)
+
+    def _get_mvar(self, n: int) -> float:
+        """An M-variable: the motor status bit it is defined to (Turbo PMAC suggested
+        M-variables: motor xx status words at X:$0000B0 and Y:$0000C0 + (xx-1)*$80, bits as
+        in the ``#n?`` reply), else its stored value."""
+        d = _RE_STATUS_MDEF.fullmatch(self.mdefs.get(n, ""))
+        if d is not None:
+            space, addr, bit = d.group(1), int(d.group(2), 16), int(d.group(3))
+            base = 0xB0 if space == "X" else 0xC0
+            k, off = divmod(addr - base, 0x80)
+            mot = self.motors.get(k + 1)
+            if off == 0 and mot is not None and 0 <= bit < 24:
+                st = mot.status()
+                return float((st.word1 if space == "X" else st.word2) >> bit & 1)
+        return self.mvars.get(n, 0.0)
+
+    def _get_ivar(self, k: int) -> float:
+        if _is_timer(k):
+            value, at = self._timers.get(k, (0.0, self._t))
+            return value - (self._t - at) / self.servo_period
+        mot = self.motors.get(k // 100) if 100 <= k < 3300 else None
+        if mot is not None:
+            return mot.ivars.get(k % 100, 0.0)
+        return self.globals.get(k, 0.0)
+
+    def _set_ivar(self, k: int, v: float) -> None:
+        if _is_timer(k):
+            self._timers[k] = (v, self._t)
+            return
+        mot = self.motors.get(k // 100) if 100 <= k < 3300 else None
+        bits = _MOTOR_BITS.get(k % 100) if mot is not None else _GLOBAL_BITS.get(k)
+        if bits is not None:
+            v = float(int(v) & ((1 << bits) - 1))
+        if mot is not None:
+            mot.ivars[k % 100] = v
+        else:
+            self.globals[k] = v
+
+    def _format_ivar(self, k: int) -> str:
+        value = self._get_ivar(k)
+        is_addr = (k % 100 in _MOTOR_ADDRESS_IVARS if 100 <= k < 3300
+                   else k in _GLOBAL_ADDRESS_IVARS)
+        if is_addr and int(self.globals[9]) & 2:
+            return f"${int(value):X}"
+        if _is_timer(k):
+            value = float(math.floor(value))
+        return _fmt(value)
+
+    # -- command interpreter --------------------------------------------------------------
+    def execute(self, line: str, port: _Port | None = None) -> bytes:
+        """Run one command line; return the reply bytes, framed by I3 and I6."""
         with self._lock:
             self._advance()
+            port = port or self._internal
             out: list[str] = []
+            error = None
             try:
-                self._execute(line.upper().replace(" ", "").replace("\t", ""), out)
+                self._execute(plclang.squeeze(line), out, port)
             except _CmdError as exc:
-                return "".join(s + "\r" for s in out).encode() + \
-                    f"\x07ERR{exc.code:03d}\r".encode()
-            return "".join(s + "\r" for s in out).encode() + b"\x06"
+                error = exc.code
+            except plclang.PlcSyntaxError:
+                error = 3
+            return self._frame(out, error)
 
-    def _execute(self, s: str, out: list[str]) -> None:
-        addressed = 1
+    def _frame(self, out: list[str], error: int | None) -> bytes:
+        """Turbo PMAC Software Reference, I3 (handshake) and I6 (error reporting)."""
+        i3, i6 = int(self.globals[3]), int(self.globals[6])
+        lf = "\n" if i3 in (1, 3) else ""
+        body = "".join(f"{lf}{s}\r" for s in out).encode()
+        if error is not None:
+            return body + (f"\x07ERR{error:03d}\r".encode() if i6 in (1, 3) else b"\x07")
+        return body + {0: b"", 1: b"\n"}.get(i3, b"\x06")
+
+    def _take_messages(self) -> bytes:
+        with self._lock:
+            msgs, self._messages = self._messages, []
+            tag = b"\x02" if int(self.globals[64]) else b""
+        return b"".join(tag + m.encode() + b"\r" for m in msgs)
+
+    def _execute(self, s: str, out: list[str], port: _Port) -> None:
+        if port.open_plc is not None and s not in ("CLOSE",):
+            try:
+                port.open_plc.add_line(s)
+            except plclang.PlcSyntaxError:
+                raise _CmdError(3) from None
+            return
         i, n = 0, len(s)
         while i < n:
-            c = s[i]
+            i = self._one(s, i, out, port)
+
+    def _one(self, s: str, i: int, out: list[str], port: _Port) -> int:
+        c = s[i]
+        if c in "#&":
+            m = _RE_INT.match(s, i + 1)
+            if m is None:
+                out.append(f"{c}{port.motor if c == '#' else port.cs}")
+                return i + 1
+            k = int(m.group(0))
             if c == "#":
-                m = _RE_MOTOR.match(s, i)
-                if not m or not 1 <= int(m.group(1)) <= 32:
+                if not 1 <= k <= 32:
                     raise _CmdError(3)
-                addressed, i = int(m.group(1)), m.end()
-                continue
-            if c == "I":
-                i = self._ivar(s, i, out)
-                continue
-            if s.startswith("VER", i):
-                out.append("1.947    01/07/2013")
-                i += 3
-                continue
-            if s.startswith("TYPE", i):
-                out.append("TURBO2")
-                i += 4
-                continue
-            mot = self.motors.get(addressed)
-            if s.startswith("HMZ", i):
-                i += 3
-                if mot:
-                    mot.home_zero()
-            elif s.startswith("HM", i):
-                i += 2
-                if mot:
-                    mot.home()
-            elif c == "J" and i + 1 < n and s[i + 1] in "/+-=":
-                op, i = s[i + 1], i + 2
-                if op == "=":
-                    m = _RE_NUM.match(s, i)
-                    if m is None:
-                        raise _CmdError(3)
-                    i = m.end()
-                    if mot:
-                        mot.jog(float(m.group(0)))
-                elif mot and op == "/":
-                    mot.enable()
-                elif mot:
-                    mot.jog(math.copysign(1e12, 1.0 if op == "+" else -1.0))
-            elif c == "K":
-                i += 1
-                if mot:
-                    mot.kill()
-            elif c in "PVF?":
-                i += 1
-                out.append(self._query(mot, c))
+                port.motor = k
             else:
+                if not 1 <= k <= 16:
+                    raise _CmdError(3)
+                port.cs = k
+            return m.end()
+        if c == "%":
+            if i + 1 < len(s) and (s[i + 1].isdigit() or s[i + 1] in ".$"):
+                value, end = plclang.parse_constant(s, i + 1)
+                self.feedrate[port.cs] = value
+                return end
+            out.append(_fmt(self.feedrate.get(port.cs, 100.0)))
+            return i + 1
+        for word, reply in (("VERSION", VERSION), ("VER", VERSION), ("DATE", DATE),
+                            ("CID", str(CID)), ("TYPE", "TURBO2")):
+            if s.startswith(word, i):
+                out.append(reply)
+                return i + len(word)
+        if s.startswith("SAVE", i):
+            return i + 4                         # acknowledged; nothing to write to flash
+        if s.startswith("CLOSE", i):
+            if port.open_plc is not None:
+                try:
+                    port.open_plc.check_structure()
+                except plclang.PlcSyntaxError:
+                    port.open_plc = None
+                    raise _CmdError(9) from None
+            port.open_plc = None
+            return i + 5
+        for word in ("OPENPLC", "LISTPLC", "ENABLEPLC", "ENAPLC", "DISABLEPLC", "DISPLC"):
+            if s.startswith(word, i):
+                m = _RE_INT.match(s, i + len(word))
+                if m is None or not 0 <= int(m.group(0)) <= 31:
+                    raise _CmdError(3)
+                return self._plc_command_word(word, int(m.group(0)), s, m.end(), out, port)
+        if c in "PQMI" and i + 1 < len(s) and s[i + 1].isdigit():
+            return self._variable(s, i, out, port)
+        return self._motor_command(s, i, out, port)
+
+    def _plc_command_word(self, word: str, k: int, s: str, i: int, out: list[str],
+                          port: _Port) -> int:
+        if word == "OPENPLC":
+            prog = self.plcs.setdefault(k, plclang.PlcProgram(k))
+            prog.enabled = False               # the card stops a PLC opened for editing
+            if s.startswith("CLEAR", i):
+                prog.clear()
+                i += 5
+            port.open_plc = prog
+        elif word == "LISTPLC":
+            out.extend(self.plcs[k].lines if k in self.plcs else [])
+        elif word in ("ENABLEPLC", "ENAPLC"):
+            if k in self.plcs:
+                self.plcs[k].enabled = True
+        elif k in self.plcs:
+            self.plcs[k].enabled = False
+        return i
+
+    def _variable(self, s: str, i: int, out: list[str], port: _Port) -> int:
+        m = _RE_VAR.match(s, i)
+        kind, first = m.group(1), int(m.group(2))
+        if first > plclang.VAR_MAX:
+            raise _CmdError(3)
+        j = m.end()
+        store = _PortVars(self, port)
+        if s.startswith("..", j):
+            m2 = _RE_INT.match(s, j + 2)
+            if m2 is None or not first <= int(m2.group(0)) <= plclang.VAR_MAX:
                 raise _CmdError(3)
+            for k in range(first, int(m2.group(0)) + 1):
+                out.append(self._format_ivar(k) if kind == "I" else _fmt(store.get(kind, k)))
+            return m2.end()
+        if kind == "M" and s.startswith("->", j):
+            j += 2
+            d = _RE_MDEF.match(s, j)
+            if d is None:
+                out.append(self.mdefs.get(first, "*"))
+                return j
+            self.mdefs[first] = d.group(0)
+            return d.end()
+        if s.startswith("=", j):
+            expr, end = plclang.parse_expression(s, j + 1)
+            store.set(kind, first, expr(store))
+            return end
+        out.append(self._format_ivar(first) if kind == "I" else _fmt(store.get(kind, first)))
+        return j
+
+    def _motor_command(self, s: str, i: int, out: list[str], port: _Port) -> int:
+        mot = self.motors.get(port.motor)
+        c = s[i]
+        if mot is not None and not mot.ivars[0] and c not in "PVF?":
+            mot = None           # Ixx00=0: a deactivated motor takes no motion command
+        if s.startswith("HMZ", i):
+            if mot:
+                mot.home_zero()
+            return i + 3
+        if s.startswith("HM", i):
+            if mot:
+                mot.home()
+            return i + 2
+        if c == "J" and i + 1 < len(s) and s[i + 1] in "/+-=^:":
+            op, i = s[i + 1], i + 2
+            here = (mot.target if mot.mode == "jog" else mot.pos) - mot.ref if mot else 0.0
+            if op in "=^:":
+                if op == "=" and (i >= len(s) or not (s[i].isdigit() or s[i] in "+-.$")):
+                    if mot:
+                        mot.jog(mot.prejog)          # J= alone: back to the pre-jog position
+                    return i
+                value, i = plclang.parse_constant(s, i)
+                if mot:
+                    if op == "=":
+                        goal = value
+                    elif op == "^":
+                        goal = mot.actual - mot.ref + value
+                    else:
+                        base = mot.target if mot.mode == "jog" else mot.pos
+                        goal = base - mot.ref + value
+                    mot.prejog = here
+                    mot.jog(goal)
+            elif mot and op == "/":
+                mot.enable()
+            elif mot:
+                mot.prejog = here
+                mot.jog(math.copysign(1e12, 1.0 if op == "+" else -1.0))
+            return i
+        if c == "K":
+            if mot:
+                mot.kill()
+            return i + 1
+        if c in "PVF?":
+            out.append(self._query(mot, c))
+            return i + 1
+        raise _CmdError(3)
 
     def _query(self, mot: MotorSim | None, c: str) -> str:
         if mot is None:
@@ -423,43 +738,15 @@ class PmacEmulator:
         if c == "P":
             return _fmt(round(mot.actual - mot.ref, 4))
         if c == "V":
-            period = self.globals[10] / 8388608.0 * 1e-3
-            return _fmt(round(mot.vel * period if mot.closed_loop else 0.0, 4))
+            return _fmt(round(mot.vel * self.servo_period if mot.closed_loop else 0.0, 4))
         if c == "F":
             return _fmt(round(mot.following_error, 4))
         return mot.status().hex()
 
-    def _ivar(self, s: str, i: int, out: list[str]) -> int:
-        m = _RE_IVAR.match(s, i)
-        if m is None:
-            raise _CmdError(3)
-        first = int(m.group(1))
-        last = int(m.group(2)) if m.group(2) else first
-        if not 0 <= first <= last <= 8191:
-            raise _CmdError(3)
-        if m.group(3) is not None:
-            self._set_ivar(first, float(m.group(3)))
-        else:
-            out.extend(_fmt(self._get_ivar(k)) for k in range(first, last + 1))
-        return m.end()
-
-    def _get_ivar(self, k: int) -> float:
-        mot = self.motors.get(k // 100) if 100 <= k < 3300 else None
-        if mot is not None:
-            return mot.ivars.get(k % 100, 0.0)
-        return self.globals.get(k, 0.0)
-
-    def _set_ivar(self, k: int, v: float) -> None:
-        mot = self.motors.get(k // 100) if 100 <= k < 3300 else None
-        if mot is not None:
-            mot.ivars[k % 100] = v
-        else:
-            self.globals[k] = v
-
     # -- serial (RS-232 on a pseudo-terminal) -----------------------------------------------
     def serve_pty(self) -> str:
-        """Also answer the serial protocol (command + CR in; lines + ACK, or BELL ERRnnn CR
-        out, as with I3=2, I6=1) on a new pseudo-terminal; returns its path."""
+        """Also answer the serial protocol (command + CR in; the reply framed by I3/I6 out)
+        on a new pseudo-terminal; returns its path."""
         import os
         import pty
         import tty
@@ -477,6 +764,7 @@ class PmacEmulator:
         import os
         import select
         line = b""
+        port = _Port()
         try:
             while self._running.is_set():
                 if not select.select([master], [], [], 0.1)[0]:
@@ -489,11 +777,7 @@ class PmacEmulator:
                     if self.mute:
                         line = b""
                         continue
-                    try:
-                        text = line.decode("ascii")
-                        reply = self.execute(text) if text.isprintable() else b"\x07ERR004\r"
-                    except UnicodeDecodeError:
-                        reply = b"\x07ERR004\r"
+                    reply = self._run_line(line, port)
                     line = b""
                     os.write(master, reply)
         except OSError:
@@ -501,6 +785,21 @@ class PmacEmulator:
         finally:
             os.close(master)
             os.close(slave)
+
+    def _run_line(self, data: bytes, port: _Port) -> bytes:
+        """One command line from a port: ERR004 for non-ASCII, NUL while busy."""
+        if self.busy > 0:
+            self.busy -= 1
+            return b"\x00"
+        try:
+            text = data.decode("ascii")
+        except UnicodeDecodeError:
+            return self._frame([], 4)
+        if any(not 0x20 <= ord(ch) < 0x7F for ch in text):
+            return self._frame([], 4)
+        with self._lock:
+            self.log.append(text)
+        return self.execute(text, port)
 
     # -- network --------------------------------------------------------------------------
     def _accept_loop(self) -> None:
@@ -524,7 +823,7 @@ class PmacEmulator:
             self._threads = [x for x in self._threads if x.is_alive()] + [t]
 
     def _serve(self, conn: socket.socket) -> None:
-        pending = b""
+        port = _Port()
         try:
             while self._running.is_set():
                 raw = _recv_exact(conn, proto.HEADER_SIZE)
@@ -540,25 +839,27 @@ class PmacEmulator:
                 if self.mute:
                     continue
                 if h.request == proto.Request.GETRESPONSE and h.request_type == proto.VR_DOWNLOAD:
-                    try:
-                        text = data.decode("ascii")
-                    except UnicodeDecodeError:
-                        reply = b"\x07ERR004\r"
-                    else:
-                        if any(not 0x20 <= ord(ch) < 0x7F for ch in text):
-                            reply = b"\x07ERR004\r"
-                        else:
-                            reply = self.execute(text)
-                    pending = reply[proto.REPLY_CHUNK:]
+                    reply = self._run_line(data, port)
+                    messages = self._take_messages()
+                    if messages and int(self.globals[64]):
+                        # Ethernet protocol: after <STX> only the data up to the next <CR>
+                        # is returned; the rest waits for VR_PMAC_GETBUFFER.
+                        port.pending = reply
+                        conn.sendall(messages)
+                        continue
+                    reply = messages + reply
+                    port.pending = reply[proto.REPLY_CHUNK:]
                     conn.sendall(reply[:proto.REPLY_CHUNK])
                 elif h.request == proto.Request.GETBUFFER:
-                    chunk, pending = pending[:proto.REPLY_CHUNK], pending[proto.REPLY_CHUNK:]
+                    chunk, port.pending = (port.pending[:proto.REPLY_CHUNK],
+                                           port.pending[proto.REPLY_CHUNK:])
                     conn.sendall(chunk or b"\x06")
                 elif h.request == proto.Request.FLUSH:
-                    pending = b""
-                    conn.sendall(proto.FLUSH_REPLY)
+                    port.pending = b""
+                    # one byte: the <CTRL-X> echo with I63=1 (Software Reference, I63)
+                    conn.sendall(b"\x18" if int(self.globals[63]) else proto.FLUSH_REPLY)
                 elif h.request == proto.Request.READREADY:
-                    conn.sendall(bytes([1 if pending else 0, 0]))
+                    conn.sendall(bytes([1 if port.pending else 0, 0]))
                 # other requests: not emulated, no answer (the client times out)
         except OSError:
             return
@@ -566,6 +867,29 @@ class PmacEmulator:
             with self._lock:
                 self._conns.discard(conn)
             conn.close()
+
+
+class _PortVars:
+    """The variables as seen from one port (Q-variables of its addressed coordinate system)."""
+
+    def __init__(self, emu: PmacEmulator, port: _Port) -> None:
+        self.emu, self.port = emu, port
+
+    def get(self, kind: str, n: int) -> float:
+        if kind == "Q":
+            return self.emu.qvars.get(self.port.cs, {}).get(n, 0.0)
+        return self.emu.get(kind, n)
+
+    def set(self, kind: str, n: int, value: float) -> None:
+        if kind == "Q":
+            self.emu.qvars.setdefault(self.port.cs, {})[n] = value
+        else:
+            self.emu.set(kind, n, value)
+
+
+def _is_timer(k: int) -> bool:
+    """Isx11, Isx12 (s = 1..16): coordinate-system countdown timers, in servo cycles."""
+    return 5100 <= k <= 6699 and k % 100 in (11, 12)
 
 
 def _recv_exact(conn: socket.socket, n: int) -> bytes | None:

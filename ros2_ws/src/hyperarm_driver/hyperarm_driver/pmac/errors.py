@@ -9,12 +9,13 @@ from __future__ import annotations
 
 __all__ = [
     "PmacError", "PmacProtocolError", "PmacLinkError", "PmacTimeoutError",
-    "PmacCommandError", "PMAC_ERROR_TEXTS", "RailError", "RailConfigError",
+    "PmacCommandError", "PmacBusyError", "PMAC_ERROR_TEXTS", "RailError", "RailConfigError",
     "RailCommandError",
 ]
 
 # Turbo PMAC on-line command error codes (reported as <BELL>ERRnnn<CR> with I6=1 or 3).
 PMAC_ERROR_TEXTS: dict[int, str] = {
+    0: "error reported without a number (the card is set to I6=0 or 2; set I6=1)",
     1: "command not allowed during program execution",
     2: "password error",
     3: "data error or unrecognized command",
@@ -52,6 +53,10 @@ class PmacLinkError(PmacError):
 
 class PmacTimeoutError(PmacLinkError):
     """The card did not answer within the timeout (the link is then treated as lost)."""
+
+
+class PmacBusyError(PmacTimeoutError):
+    """The card answered NUL (busy, command not taken) until the reply timeout ran out."""
 
 
 class PmacCommandError(PmacError):

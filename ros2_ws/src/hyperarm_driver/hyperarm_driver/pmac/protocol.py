@@ -9,11 +9,26 @@ Every request is an 8-byte header followed by ``wLength`` data bytes::
     wLength     (u16, big-endian)  number of data bytes that follow
     bData       ASCII command text (no terminator)
 
-A ``GETRESPONSE`` reply is at most 1400 bytes of ASCII: zero or more response lines each
-ended by CR (0x0D), the whole reply ended by ACK (0x06). If the card reports an error
-(I6=1 or 3) the reply ends instead with BELL (0x07) ``ERRnnn`` CR; lines produced before the
-error precede it. A longer reply is fetched in further 1400-byte pieces with ``GETBUFFER``.
-``FLUSH`` empties the card's buffers; the card answers with the single byte ``@`` (0x40).
+A ``GETRESPONSE`` reply is at most 1400 bytes of ASCII. With I3=2 (Turbo PMAC Software
+Reference, I3) it is zero or more response lines each ended by CR (0x0D), the whole reply
+ended by ACK (0x06); I3=3 also puts LF before each line. If the card reports an error
+(I6=1 or 3, Software Reference I6) the reply ends instead with BELL (0x07) ``ERRnnn`` CR;
+lines produced before the error precede it; with I6=0 or 2 the BELL comes alone. Other
+forms a real card sends, all accepted here:
+
+- ``<STX>text<CR>``: a line the card sends on its own (a PLC's SEND/CMD output) while I64=1
+  (Software Reference, I64: "preceded by a <CONTROL-B> (start-transmission) character");
+  the Ethernet firmware returns only up to that CR and keeps the rest for GETBUFFER
+  (User Manual, VR_PMAC_GETBUFFER: "If a <BEL> or <STX> character is detected, only the
+  data up to the next <CR> is returned"). :func:`split_messages` takes such lines out.
+- a lone NUL (0x00): the card is busy and did not take the command (public drivers such as
+  dls-pmaclib read it as "PMAC busy"; SAVE answers it while writing flash).
+- an LF-terminated reply: the card is set to I3=1; refused with a clear message.
+
+A longer reply is fetched in further 1400-byte pieces with ``GETBUFFER``. ``FLUSH`` sends
+the card a <CTRL-X>; "one byte is returned upon successful completion" (UMAC Turbo CPU
+manual, Ethernet protocol, VR_PMAC_FLUSH): the <CTRL-X> echo (0x18) with I63=1, otherwise
+another byte (``@`` has been seen); any single byte is accepted as the acknowledgement.
 """
 from __future__ import annotations
 
@@ -29,7 +44,8 @@ __all__ = [
     "REPLY_CHUNK", "MAX_COMMAND", "ACK", "BELL", "CR", "LF", "FLUSH_REPLY", "Header",
     "encode_request", "decode_header", "getresponse_packet", "flush_packet",
     "getbuffer_packet", "readready_packet", "check_command", "reply_complete",
-    "parse_reply", "Reply", "parse_number",
+    "parse_reply", "Reply", "parse_number", "STX", "NUL", "split_messages", "is_busy",
+    "format_constant",
 ]
 
 VR_DOWNLOAD = 0x40
@@ -67,6 +83,8 @@ BELL = 0x07
 CR = 0x0D
 LF = 0x0A
 FLUSH_REPLY = b"@"
+STX = 0x02
+NUL = 0x00
 
 _ERR = re.compile(rb"\x07ERR(\d{3})\r")
 
@@ -139,12 +157,40 @@ def readready_packet() -> bytes:
     return encode_request(VR_UPLOAD, Request.READREADY, length=2)
 
 
+def split_messages(buf: bytes | bytearray) -> tuple[list[str], bytes]:
+    """(the ``<STX>text<CR>`` lines at line starts in ``buf``, the rest of ``buf``).
+
+    An STX line not yet ended by CR stays in the rest (more bytes are on their way).
+    """
+    data, msgs, out, i = bytes(buf), [], bytearray(), 0
+    while i < len(data):
+        if data[i] == STX and (i == 0 or data[i - 1] in (CR, LF)):
+            end = data.find(b"\r", i)
+            if end < 0:
+                out += data[i:]
+                break
+            msgs.append(data[i + 1:end].decode("ascii", errors="replace"))
+            i = end + 1
+            continue
+        out.append(data[i])
+        i += 1
+    return msgs, bytes(out)
+
+
+def is_busy(buf: bytes | bytearray) -> bool:
+    """A NUL reply: the card was busy and did not take the command."""
+    return bool(buf) and all(b == NUL for b in buf)
+
+
 def reply_complete(buf: bytes | bytearray) -> bool:
-    """True once ``buf`` holds a whole reply (ends with ACK, or has BELL ERRnnn CR)."""
+    """True once ``buf`` (without STX lines) holds a whole reply: ends with ACK, has BELL
+    ERRnnn CR, is a lone BELL (I6=0/2), is NUL (busy), or ends with LF (I3=1 framing)."""
     if not buf:
         return False
-    if buf[-1] == ACK:
+    if buf[-1] in (ACK, BELL) or is_busy(buf):
         return True
+    if buf[-1] == LF:
+        return bytes(buf) == b"\n" or bytes(buf).endswith(b"\r\n")
     return buf[-1] == CR and BELL in buf and _ERR.search(bytes(buf)) is not None
 
 
@@ -174,12 +220,26 @@ def parse_reply(buf: bytes, command: str = "") -> Reply:
         if m.end() != len(buf):
             raise PmacProtocolError(f"data after the error report: {buf!r}")
         raise PmacCommandError(int(m.group(1)), command, _lines(buf[:m.start()]))
+    if buf and buf[-1] == BELL:      # I6=0 or 2: an error without its number
+        raise PmacCommandError(0, command, _lines(buf[:-1]))
+    if buf and buf[-1] == LF:
+        raise PmacProtocolError(f"reply ended by LF, not ACK: the card is set to I3=1 (or 0); "
+                                f"the driver needs I3=2: {buf[-40:]!r}")
     if not buf or buf[-1] != ACK:
         raise PmacProtocolError(f"reply not terminated by ACK: {buf[-40:]!r}")
     body = buf[:-1]
     if any(b < 0x20 and b not in (CR, LF) for b in body):
         raise PmacProtocolError(f"control character in reply: {body!r}")
     return Reply(_lines(body))
+
+
+def format_constant(x: float, places: int = 9) -> str:
+    """``x`` as a plain decimal for a command line: the card's ``{constant}`` is decimal
+    (or ``$`` hex) and takes no exponent, so ``%g``'s ``2e-05`` would be refused (ERR003)."""
+    if not isinstance(x, (int, float)) or x != x or x in (float("inf"), float("-inf")):
+        raise PmacProtocolError(f"not a finite number: {x!r}")
+    text = f"{float(x):.{places}f}".rstrip("0").rstrip(".")
+    return "0" if text in ("-0", "") else text
 
 
 def parse_number(lines: list[str] | tuple[str, ...], what: str) -> float:

@@ -1,0 +1,150 @@
+"""E2E: every node of the suite through ``--help``, SIGINT, a double SIGINT and SIGTERM.
+
+Each installed executable must print its usage and parameters for ``--help`` / ``-h`` and
+exit 0 without starting (no port opened, no ROS node created). Started for real (the
+drivers on their emulators), every node must exit within 2 s of one SIGINT, of two SIGINTs
+50 ms apart, or of SIGTERM, with exit code 0, no traceback, no segfault and none of rclpy's
+shutdown-race messages, and it must still apply its shutdown policy: the Dynamixel driver
+with ``shutdown_torque:=release`` leaves every servo torque-off on the emulator.
+"""
+from __future__ import annotations
+
+import re
+import signal
+import subprocess
+import time
+
+import pytest
+
+from hyperarm_driver.dynamixel.emulator import EmulatorControl
+
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]
+
+#: (package, executable, ROS node name) of every node of the suite.
+NODES = [
+    ("hyperarm_driver", "mock_driver", "mock_driver"),
+    ("hyperarm_driver", "dynamixel_driver", "dynamixel_driver"),
+    ("hyperarm_driver", "pmac_rail_driver", "pmac_rail_driver"),
+    ("hyperarm_ik", "fk_node", "fk_node"),
+    ("hyperarm_ik", "ik_service", "ik_service"),
+    ("hyperarm_tasks", "task_node", "task_node"),
+    ("hyperarm_tasks", "task_recorder", "task_recorder"),
+]
+
+BAD_OUTPUT = ("Traceback", "Segmentation fault", "Failed to publish log message",
+              "exception never retrieved", "cannot use Destroyable", "core dumped")
+EXIT_WITHIN = 2.0  # s, from the (last) signal to the process' exit
+
+
+@pytest.mark.parametrize("flag", ["--help", "-h"])
+def test_help_of_every_node(executable, flag, tmp_path):
+    for package, name, _node in NODES:
+        # A port that does not exist: --help must not try to open it (or loop retrying).
+        t0 = time.monotonic()
+        out = subprocess.run([executable(package, name), flag, "--ros-args", "-p",
+                              "port:=/dev/does-not-exist"], capture_output=True, text=True,
+                             timeout=30.0)
+        took = time.monotonic() - t0
+        text = out.stdout + out.stderr
+        assert out.returncode == 0, f"{name} {flag}: exit {out.returncode}\n{text}"
+        assert text.startswith(f"usage: ros2 run <package> {name}"), f"{name}: {text[:300]}"
+        assert "parameters (read-only" in text, text
+        assert not any(bad in text for bad in BAD_OUTPUT), text
+        assert took < 15.0, f"{name} {flag} took {took:.1f} s"
+
+
+def test_help_lists_each_nodes_parameters(executable):
+    expect = {"mock_driver": ["variant", "rate", "workcell_file", "sim_speed"],
+              "dynamixel_driver": ["port", "baud", "shutdown_torque"],
+              "pmac_rail_driver": ["host", "port", "require_homing"],
+              "fk_node": ["variant", "description_file"],
+              "ik_service": ["default_solver", "max_timeout"],
+              "task_node": ["command_rate"]}
+    for package, name, _node in NODES:
+        text = subprocess.run([executable(package, name), "--help"], capture_output=True,
+                              text=True, timeout=30.0).stdout
+        for param in expect[name]:
+            assert re.search(rf"^  {param} \(", text, re.M), f"{name}: {param} missing\n{text}"
+
+
+def _start_all(launch, tmp_path, wait_for):
+    """The emulators, then every node; returns ({exe: Launched}, emulator control)."""
+    link, ctl = str(tmp_path / "ttyDXL"), str(tmp_path / "dxl.ctl")
+    launch("hyperarm_driver", "dxl_emulator", "--link", link, "--control", ctl)
+    pmac = launch("hyperarm_driver", "pmac_emulator", "--port", "0")
+    wait_for(lambda: (tmp_path / "dxl.ctl").exists(), 20.0, what="dxl emulator socket")
+    port = wait_for(lambda: re.search(r"127\.0\.0\.1:(\d+)", pmac.output()), 20.0,
+                    what="pmac emulator port").group(1)
+    procs = {
+        # The mock in a namespace of its own: it would otherwise serve the same services
+        # as the Dynamixel driver.
+        "mock_driver": launch("hyperarm_driver", "mock_driver", namespace="/mock"),
+        "dynamixel_driver": launch("hyperarm_driver", "dynamixel_driver", params={
+            "port": link, "torque_on_start": True, "shutdown_torque": "release"}),
+        "pmac_rail_driver": launch("hyperarm_driver", "pmac_rail_driver",
+                                   params={"port": int(port)}),
+        "fk_node": launch("hyperarm_ik", "fk_node"),
+        "ik_service": launch("hyperarm_ik", "ik_service"),
+        "task_node": launch("hyperarm_tasks", "task_node"),
+    }
+    return procs, EmulatorControl(ctl)
+
+
+def _wait_ready(rclpy_context, wait_for, procs) -> None:
+    from rclpy.node import Node
+
+    probe = Node("lifecycle_probe", context=rclpy_context)
+    try:
+        want = {node for _p, _e, node in NODES}
+
+        def up():
+            for name, item in procs.items():
+                assert item.proc.poll() is None, f"{name} died:\n{item.output()[-3000:]}"
+            return want <= {n for n, _ns in probe.get_node_names_and_namespaces()}
+
+        wait_for(up, 60.0, period=0.1, what="every node in the ROS graph")
+    finally:
+        probe.destroy_node()
+
+
+@pytest.mark.parametrize("signals", [(signal.SIGINT,), (signal.SIGINT, signal.SIGINT),
+                                     (signal.SIGTERM,)], ids=["sigint", "double-sigint",
+                                                              "sigterm"])
+def test_every_node_exits_cleanly_on_signals(launch, tmp_path, wait_for, rclpy_context,
+                                             signals):
+    procs, control = _start_all(launch, tmp_path, wait_for)
+    try:
+        _wait_ready(rclpy_context, wait_for, procs)
+        wait_for(lambda: control("state")["servos"]["3"]["torque_enable"] == 1, 20.0,
+                 what="Dynamixel torque on")
+        time.sleep(0.5)  # let every node run its loops for a while
+        for i, sig in enumerate(signals):
+            if i:
+                time.sleep(0.05)
+            for item in procs.values():
+                item.proc.send_signal(sig)
+        sent = time.monotonic()
+        problems = []
+        for name, item in procs.items():
+            try:
+                code = item.proc.wait(timeout=max(0.1, sent + EXIT_WITHIN - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                problems.append(f"{name}: still running {EXIT_WITHIN} s after the signal")
+                continue
+            out = item.output()
+            if code != 0:
+                problems.append(f"{name}: exit code {code}")
+            for bad in BAD_OUTPUT:
+                if bad in out:
+                    problems.append(f"{name}: printed {bad!r}")
+            if problems and problems[-1].startswith(name):
+                problems.append(out[-2500:])
+        servos = control("state")["servos"]
+        off = [sid for sid, st in servos.items() if st["torque_enable"] != 0]
+        if off:
+            problems.append(f"dynamixel_driver: servos {off} still torque-on after shutdown "
+                            f"(release policy)\n{procs['dynamixel_driver'].output()[-2000:]}")
+        assert not problems, "\n".join(problems)
+    finally:
+        control.close()
+
