@@ -59,7 +59,8 @@ def test_help_lists_each_nodes_parameters(executable):
               "pmac_rail_driver": ["host", "port", "require_homing"],
               "fk_node": ["variant", "description_file"],
               "ik_service": ["default_solver", "max_timeout"],
-              "task_node": ["command_rate"]}
+              "task_node": ["command_rate", "tasks_dir", "detection_max_age"],
+              "task_recorder": ["output"]}
     for package, name, _node in NODES:
         text = subprocess.run([executable(package, name), "--help"], capture_output=True,
                               text=True, timeout=30.0).stdout
@@ -86,6 +87,8 @@ def _start_all(launch, tmp_path, wait_for):
         "fk_node": launch("hyperarm_ik", "fk_node"),
         "ik_service": launch("hyperarm_ik", "ik_service"),
         "task_node": launch("hyperarm_tasks", "task_node"),
+        "task_recorder": launch("hyperarm_tasks", "task_recorder",
+                                params={"output": str(tmp_path / "rec.mcap")}),
     }
     return procs, EmulatorControl(ctl)
 
