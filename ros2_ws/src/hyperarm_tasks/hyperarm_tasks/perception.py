@@ -100,11 +100,13 @@ class DetectionBuffer:
                 self._seen.pop(name, None)
 
     def estimate(self, name: str, now: float, n: int, max_age: float,
-                 outlier: float = 0.01) -> Estimate | None:
-        """Average of the newest ``n`` sightings at most ``max_age`` s old (None if fewer)."""
+                 outlier: float = 0.01, since: float | None = None) -> Estimate | None:
+        """Average of the newest ``n`` sightings at most ``max_age`` s old and, with
+        ``since``, taken after that time (None if fewer)."""
         with self._lock:
             q = list(self._seen.get(name, ()))
-        fresh = [s for s in q if now - s.stamp <= max_age][-n:]
+        fresh = [s for s in q if now - s.stamp <= max_age
+                 and (since is None or s.stamp > since)][-n:]
         if len(fresh) < n:
             return None
         xyz = np.array([s.pose[:3, 3] for s in fresh])

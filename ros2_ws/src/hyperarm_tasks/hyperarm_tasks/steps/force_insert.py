@@ -118,7 +118,8 @@ def _check_on_axis(step: ForceInsert, runner) -> None:
     """The camera: the block's hole must be on the peg's axis (not down beside the peg)."""
     if step.target.relative_to not in runner.task.objects or "block" not in runner.task.objects:
         return
-    block = runner.detect("block").xyz
+    # images taken now that the block is down (it moved along the dither before)
+    block = runner.detect("block", since=runner.robot.now()).xyz
     peg = runner.object_pose(step.target.relative_to)[:3, 3]
     off = float(np.hypot(*(block[:2] - peg[:2])))
     if off > step.align_tolerance:
