@@ -128,7 +128,9 @@ if [ -n "$record" ]; then
   start task_recorder "$(exe hyperarm_tasks task_recorder)" --ros-args -p "output:=$record"
 fi
 
-echo "run_task.sh: ${tasks[*]} on the ${hardware:+hardware}${hardware:-mock} ($variant), logs in $logs"
+where="the mock"
+[ -z "$hardware" ] || where="the hardware (drivers with $hardware)"
+echo "run_task.sh: ${tasks[*]} on $where ($variant), logs in $logs"
 # run_task in the background so that SIGTERM/SIGINT to this script are handled at once:
 # they are forwarded to run_task, which cancels the task before everything is stopped.
 client=""

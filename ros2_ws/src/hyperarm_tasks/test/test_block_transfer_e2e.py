@@ -188,3 +188,23 @@ def test_second_goal_is_rejected_with_a_reason(launch, ros_domain, executable, w
     first.send_signal(signal.SIGINT)
     rest, _ = first.communicate(timeout=30)
     assert "cancelled during above_source" in rest
+
+
+def test_hardware_mode_runs_on_the_dynamixel_driver(launch, executable, ros_domain, tmp_path,
+                                                    wait_for):
+    """--hardware PARAMS: the real Dynamixel driver (on its bus emulator) instead of the mock."""
+    link = tmp_path / "ttyDXL"
+    launch("hyperarm_driver", "dxl_emulator", "--link", str(link))
+    wait_for(link.exists, 20.0, what="the emulator's pty")
+    params = tmp_path / "hw.yaml"
+    params.write_text(f"/**:\n  ros__parameters:\n    port: {link}\n    torque_on_start: true\n")
+    logs = tmp_path / "logs"
+    done = _run(_script(executable), ["--hardware", str(params), "--logs", str(logs),
+                                      "rest", "ready"], ros_domain, 120)
+    out = done.stdout + done.stderr
+    assert done.returncode == 0, out
+    assert f"run_task.sh: rest ready on the hardware (drivers with {params}) (arm)" in out
+    assert out.count("run_task: succeeded") == 2
+    assert [line.split()[0] for line in (logs / "pids").read_text().splitlines()] == \
+        ["dynamixel_driver", "task_node"]
+    assert _alive(logs) == []
