@@ -34,6 +34,8 @@ class SimRobot:
         self.commands: list[tuple[float, dict, dict | None]] = []
         self.camera_on = True
         self.held = 0
+        self.given: dict[str, np.ndarray] = {}    # object poses "from the goal"
+        self.at_time: list[tuple[float, object]] = []   # (sim time, fn(sim)) to inject events
 
     def now(self) -> float:
         return self.sim.time
@@ -41,6 +43,8 @@ class SimRobot:
     def sleep(self, seconds: float) -> None:
         for _ in range(max(1, int(round(seconds / self.dt)))):
             self.sim.step(self.dt)
+            while self.at_time and self.sim.time >= self.at_time[0][0]:
+                self.at_time.pop(0)[1](self.sim)
             for frame in self.camera.step(self.sim.time, self.sim.truth):
                 if self.camera_on:
                     self.detections.add(frame.stamp, frame.names, frame.detected)
@@ -81,7 +85,7 @@ class SimRobot:
         return f"torque off on {', '.join(off)}" if off else None
 
     def given_object(self, name: str):
-        return None
+        return self.given.get(name)
 
     def wrench(self):
         return None

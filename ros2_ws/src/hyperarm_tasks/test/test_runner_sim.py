@@ -119,3 +119,30 @@ def test_ready_and_rest(desc, kin):
     assert sim.position[1] == pytest.approx(np.pi / 2, abs=0.02)
     result, sim, _ = run(desc, kin, cell(1), task="ready")
     assert result.success, result.message
+
+
+def test_grasp_missed_is_retried_then_reported(desc, kin):
+    sim = JointSim(desc, cell(8))
+    robot = SimRobot(sim)
+    wrong = np.eye(4)
+    wrong[:3, 3] = (0.35, 0.16, -0.185)          # 4 cm beside the block: nothing to grasp
+    robot.given["block"] = wrong
+    result = Runner(robot, kin, load_task("block_transfer", desc)).run()
+    assert not result.success and result.failure_kind == "grasp"
+    assert "step 'close' (gripper) failed: grasp missed" in result.message
+    assert result.step_names.count("close") == 2             # re-detect and re-grasp once
+    assert sim.world.on_peg("source")
+
+
+def test_grasp_lost_while_carrying(desc, kin):
+    sim = JointSim(desc, cell(9))
+    robot = SimRobot(sim)
+    # the gripper servo overloads during the lift (about 14 s in): it drops its torque
+    robot.at_time.append((14.5, lambda s: s.inject_error("gripper", "overload")))
+    result = Runner(robot, kin, load_task("block_transfer", desc)).run()
+    assert not result.success
+    assert any("grasp lost" in m for _lvl, m in robot.logs), robot.logs
+    # the retry (re-detect and re-grasp) cannot open a gripper in fault: the driver's reason
+    assert result.failure_kind == "driver"
+    assert result.message == ("step 'open' (gripper) failed: driver refused: hardware error "
+                              "gripper: overload")
