@@ -195,16 +195,17 @@ class Runner:
 
     # --- objects and poses -----------------------------------------------------------------
     def detect(self, name: str, timeout: float | None = None,
-               since: float | None = None) -> Estimate:
+               since: float | None = None, frames: int | None = None) -> Estimate:
         """Averaged fresh sightings of ``name`` (taken after ``since``, if given: the object
         has moved), waited for up to ``timeout`` s."""
         p = self.params
         timeout = p.detection_timeout if timeout is None else timeout
         t0 = self.robot.now()
         while True:
-            est = self.robot.detections.estimate(name, self.robot.now(), p.detection_frames,
-                                                 p.detection_max_age, p.detection_outlier,
-                                                 since)
+            n = frames or p.detection_frames
+            est = self.robot.detections.estimate(name, self.robot.now(), n,
+                                                 max(p.detection_max_age, 0.15 * n),
+                                                 p.detection_outlier, since)
             if est is not None:
                 return est
             if self.robot.now() - t0 > timeout:

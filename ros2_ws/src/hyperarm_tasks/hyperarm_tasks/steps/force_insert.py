@@ -57,7 +57,7 @@ class ForceInsert(Step):
     pitch: float = 0.002            # m of radius per turn
     dither_speed: float = 0.04      # m/s along the pattern
     contact_threshold: float = 0.0015  # m, measured above commanded = stalled on the top
-    align_tolerance: float = 0.006  # m, camera: block to peg axis when down
+    align_tolerance: float = 0.012  # m, camera: block to peg axis when down (beside: > 2 cm)
 
 
 def build(raw: dict, ctx: BuildContext, index: int) -> ForceInsert:
@@ -82,7 +82,7 @@ def _build(raw: dict, ctx: BuildContext, index: int, d: dict) -> ForceInsert:
         pitch=ctx.si(d, "pitch", "length", 0.002, positive=True, path=("dither",)),
         dither_speed=ctx.si(d, "speed", "speed", 0.04, positive=True, path=("dither",)),
         contact_threshold=ctx.si(raw, "contact_threshold", "length", 0.0015, positive=True),
-        align_tolerance=ctx.si(raw, "align_tolerance", "length", 0.006, positive=True))
+        align_tolerance=ctx.si(raw, "align_tolerance", "length", 0.012, positive=True))
 
 
 class Dither:
@@ -118,9 +118,13 @@ def _check_on_axis(step: ForceInsert, runner) -> None:
     """The camera: the block's hole must be on the peg's axis (not down beside the peg)."""
     if step.target.relative_to not in runner.task.objects or "block" not in runner.task.objects:
         return
-    # images taken now that the block is down (it moved along the dither before)
-    block = runner.detect("block", since=runner.robot.now()).xyz
-    peg = runner.object_pose(step.target.relative_to)[:3, 3]
+    # images taken now that the block is down (it moved along the dither before), more of
+    # them than usual: block and peg are each seen with ~2 mm of noise per image
+    frames = 2 * runner.params.detection_frames
+    block = runner.detect("block", since=runner.robot.now(), frames=frames).xyz
+    given = runner.robot.given_object(step.target.relative_to)
+    peg = (given[:3, 3] if given is not None else
+           runner.detect(step.target.relative_to, frames=frames).xyz)
     off = float(np.hypot(*(block[:2] - peg[:2])))
     if off > step.align_tolerance:
         raise StepFailed("insertion", f"the block went down {off * 1000:.0f} mm off the axis "
