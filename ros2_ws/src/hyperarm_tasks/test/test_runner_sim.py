@@ -146,3 +146,17 @@ def test_grasp_lost_while_carrying(desc, kin):
     assert result.failure_kind == "driver"
     assert result.message == ("step 'open' (gripper) failed: driver refused: hardware error "
                               "gripper: overload")
+
+
+def test_torque_off_and_joint_fault_fail_with_the_drivers_reason(desc, kin):
+    sim = JointSim(desc, cell(1))
+    sim.set_torque(False)
+    robot = SimRobot(sim)
+    result = Runner(robot, kin, load_task("rest", desc)).run()
+    assert not result.success and result.failure_kind == "driver"
+    assert "driver refused: torque off on gripper" in result.message
+    sim = JointSim(desc, cell(1))
+    sim.inject_error("joint5", "overload")
+    result = Runner(SimRobot(sim), kin, load_task("ready", desc)).run()
+    assert not result.success and result.failure_kind == "driver"
+    assert "hardware error joint5: overload" in result.message
