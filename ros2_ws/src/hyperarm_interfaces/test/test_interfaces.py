@@ -43,8 +43,11 @@ def test_run_task_and_reboot():
     from hyperarm_interfaces.srv import Reboot
 
     assert set(_fields(RunTask.Goal)) == {"task", "object_names", "object_poses"}
-    assert set(_fields(RunTask.Feedback)) == {"stage", "stage_index", "stage_count", "progress"}
-    assert set(_fields(RunTask.Result)) == {"success", "message", "stage_names",
-                                            "stage_durations", "total_time"}
+    assert set(_fields(RunTask.Feedback)) == {"stage", "step_type", "phase", "stage_index",
+                                              "stage_count", "progress", "step_progress",
+                                              "waypoint", "force", "depth"}
+    assert set(_fields(RunTask.Result)) == {"success", "message", "failure_kind", "stage_names",
+                                            "stage_durations", "total_time", "metric_names",
+                                            "metric_values"}
     assert _fields(Reboot.Request) == {"joints": "sequence<string>"}
     assert set(_fields(Reboot.Response)) == {"success", "rebooted", "message"}
