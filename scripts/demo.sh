@@ -24,8 +24,11 @@ cleanup() {
     fi
     wait "$pid" 2>/dev/null || true
   done
+  # the logs only matter when something failed; keep them then (or with KEEP_LOGS=1)
+  if [ "$status" = 0 ] && [ "${KEEP_LOGS:-0}" != 1 ]; then rm -rf "$LOGS"; else
+    echo "demo: logs kept in $LOGS" >&2; fi
 }
-trap cleanup EXIT
+trap 'status=$?; cleanup' EXIT
 
 lib() { echo "$ROOT/ros2_ws/install/$1/lib/$1/$2"; }
 
@@ -52,7 +55,8 @@ while not got and time.monotonic() < deadline:
     rclpy.spin_once(node, timeout_sec=0.1)
 if got:
     p = got[-1].pose.position
-    print(f"   tool0 in {got[-1].header.frame_id}: x={p.x:.4f} y={p.y:.4f} z={p.z:.4f} m")
+    x, y, z = (round(v, 4) + 0.0 for v in (p.x, p.y, p.z))  # + 0.0: no "-0.0000"
+    print(f"   tool0 in {got[-1].header.frame_id}: x={x:.4f} y={y:.4f} z={z:.4f} m")
 else:
     print("   no tool_pose received")
 node.destroy_node()
