@@ -304,7 +304,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--yes", action="store_true", help="do not ask")
     sp = bus("calibrate", cmd_calibrate, "zero-offset calibration: with the arm held in the "
              "calibration pose, record the present ticks and write zero_offset into a copy of "
-             "the description (docs/calibration.md).")
+             "the description (docs/user-guide.md).")
     sp.add_argument("--output", required=True, help="the calibrated copy to write")
     sp.add_argument("--pose", nargs="*", default=[], metavar="JOINT=RAD",
                     help="the calibration pose (default all joints 0)")

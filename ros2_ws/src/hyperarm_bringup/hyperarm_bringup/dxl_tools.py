@@ -10,7 +10,7 @@ import copy
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import yaml
 
@@ -79,18 +79,30 @@ class Bus:
         if error:
             raise BusToolError(f"{what}: servo status error {self.packet.getRxPacketError(error)}")
 
-    def ping_all(self) -> dict[int, tuple[int, int]]:
-        """id -> (model number, firmware) of every servo answering a broadcast ping."""
-        found, result = self.packet.broadcastPing(self.port)
-        if result not in (self._sdk.COMM_SUCCESS, self._sdk.COMM_RX_TIMEOUT):
-            return {}  # garbled replies at a wrong baud rate: nobody here at this rate
-        return {i: (v[0], v[1]) for i, v in found.items()}
+    def ping_all(self, tries: int = 2) -> dict[int, tuple[int, int]]:
+        """id -> (model number, firmware) of every servo answering a broadcast ping, over
+        ``tries`` pings (a reply lost to noise or a busy host does not hide a servo)."""
+        out: dict[int, tuple[int, int]] = {}
+        for _ in range(tries):
+            found, result = self.packet.broadcastPing(self.port)
+            if result in (self._sdk.COMM_SUCCESS, self._sdk.COMM_RX_TIMEOUT):
+                out.update({i: (v[0], v[1]) for i, v in found.items()})
+            # else: garbled replies at a wrong baud rate: nobody here at this rate
+        return out
+
+    def _retry(self, call: Callable[[], tuple], tries: int = 3) -> tuple:
+        """An SDK transfer, repeated up to ``tries`` times while no valid reply came."""
+        for _ in range(tries - 1):
+            out = call()
+            if out[-2] == self._sdk.COMM_SUCCESS:
+                return out
+        return call()
 
     def read(self, dxl_id: int, register: str) -> int:
         reg = REGISTERS[register]
         reader = {1: self.packet.read1ByteTxRx, 2: self.packet.read2ByteTxRx,
                   4: self.packet.read4ByteTxRx}[reg.size]
-        value, result, error = reader(self.port, dxl_id, reg.address)
+        value, result, error = self._retry(lambda: reader(self.port, dxl_id, reg.address))
         self._check(result, error, f"read {register} of ID {dxl_id}")
         if reg.signed and value >= 1 << (8 * reg.size - 1):
             value -= 1 << (8 * reg.size)
@@ -132,7 +144,10 @@ def set_id(port: str, baud: int, old: int, new: int) -> None:
         if new in present:
             raise BusToolError(f"ID {new} is already taken on this bus")
         _torque_off_or_refuse(bus, old)
-        bus.write1(old, "id", new)
+        try:
+            bus.write1(old, "id", new)
+        except BusToolError:
+            pass  # the status reply may be lost while the ID changes: the ping below decides
         if new not in bus.ping_all():
             raise BusToolError(f"ID {old} was written but no servo answers as ID {new}")
 
@@ -147,7 +162,10 @@ def set_baud(port: str, baud: int, dxl_id: int, new_baud: int) -> None:
         if dxl_id not in bus.ping_all():
             raise BusToolError(f"no servo with ID {dxl_id} answers at {baud} baud on {port}")
         _torque_off_or_refuse(bus, dxl_id)
-        bus.write1(dxl_id, "baud_rate", index)
+        try:
+            bus.write1(dxl_id, "baud_rate", index)
+        except BusToolError:
+            pass  # the reply may come at the new rate: the ping below decides
     with Bus(port, new_baud) as bus:
         if dxl_id not in bus.ping_all():
             raise BusToolError(f"ID {dxl_id} does not answer at {new_baud} baud after the change")
