@@ -22,8 +22,8 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "fk_node = hyperarm_ik.fk_node:main",
-            "ik_service = hyperarm_ik.ik_service_node:main",
+            "fk_node = hyperarm_ik.entry:fk_node",
+            "ik_service = hyperarm_ik.entry:ik_service",
             "ik_benchmark = hyperarm_ik.benchmark.ik_benchmark:main",
         ],
     },

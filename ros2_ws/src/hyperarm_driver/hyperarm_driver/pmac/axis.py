@@ -335,7 +335,11 @@ class RailAxis:
         # that formatting can never push the target past them.
         counts = min(max(math.floor(c.to_counts(x) * 10 + 0.5) / 10, math.ceil(lo * 10) / 10),
                      math.floor(hi * 10) / 10)
-        lines = self.port.command(f"#{self.motor}?#{self.motor}J={counts:.1f}")
+        line = f"#{self.motor}?#{self.motor}J={counts:.1f}"
+        if self.watchdog is not None:             # streamed setpoints feed the watchdog too
+            hb = f"P{self.watchdog.heartbeat}"
+            line = f"{hb}={hb}+1 {line}"
+        lines = self.port.command(line)
         if len(lines) != 1:
             raise PmacProtocolError(f"jog: expected the status line, got {lines!r}")
         return counts, MotorStatus.from_hex(lines[0])
@@ -351,7 +355,10 @@ class RailAxis:
         if self.watchdog is None:
             self.port.command(f"#{m}J/")
         else:
-            self.port.command(f"I{m * 100}=1 P{self.watchdog.armed}=1 #{m}J/")
+            # the heartbeat in the same line: the PLC re-arms its timer in the very scan in
+            # which it first sees the armed flag, so arming never trips on an old timer
+            hb = f"P{self.watchdog.heartbeat}"
+            self.port.command(f"{hb}={hb}+1 I{m * 100}=1 P{self.watchdog.armed}=1 #{m}J/")
 
     def kill(self) -> None:
         """``#nK``: open the loop and disable the amplifier (and disarm the watchdog)."""
