@@ -8,6 +8,7 @@ from sensor_msgs.msg import JointState
 
 from hyperarm_description import contract
 from hyperarm_description.joints import JointStateCache, JointStateError
+from hyperarm_description.log_throttle import ReasonThrottle
 from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import declare_robot_description, run_node
 
@@ -25,6 +26,7 @@ class FkNode(Node):
         variant = desc.variant
         self._kin = Kinematics(desc)
         self._cache = JointStateCache()
+        self._throttle = ReasonThrottle(5.0)  # per reason: a new kind of error is never hidden
         self._pub = self.create_publisher(PoseStamped, contract.TOOL_POSE,
                                           qos_for(contract.TOOL_POSE))
         self.create_subscription(JointState, contract.JOINT_STATES, self._on_joint_states,
@@ -37,12 +39,14 @@ class FkNode(Node):
             self._cache.update(msg.name, msg.position, msg.velocity, msg.effort)
             q = self._cache.positions(self._kin.joint_names)
         except JointStateError as exc:
-            self.get_logger().warn(f"joint_states: {exc}", throttle_duration_sec=5.0)
+            if (text := self._throttle.message(f"joint_states: {exc}")):
+                self.get_logger().warn(text)
             return
         try:
             pose = matrix_to_pose(self._kin.forward(np.asarray(q)))
         except IKError as exc:
-            self.get_logger().warn(f"joint_states: {exc}", throttle_duration_sec=5.0)
+            if (text := self._throttle.message(f"forward kinematics: {exc}")):
+                self.get_logger().error(text)
             return
         out = PoseStamped()
         out.header.stamp = msg.header.stamp

@@ -93,6 +93,7 @@ class IkServiceNode(Node):
         self._stats = {"requests": 0, "solved": 0, "refused": 0, "last_time": 0.0,
                        "last_message": "", "busy": 0, "peak_busy": 0}
         self._stats_lock = threading.Lock()
+        self._throttle = ReasonThrottle(2.0)  # per reason: a new kind of error is never hidden
         self.create_subscription(JointState, contract.JOINT_STATES, self._on_joint_states,
                                  qos_for(contract.JOINT_STATES))
         self.create_service(SolveIK, contract.SOLVE_IK, self._on_solve,
@@ -110,7 +111,8 @@ class IkServiceNode(Node):
         try:
             self._pool.update_joint_states(msg.name, msg.position, msg.velocity, msg.effort)
         except JointStateError as exc:
-            self.get_logger().warn(f"joint_states: {exc}", throttle_duration_sec=5.0)
+            if (text := self._throttle.message(f"joint_states: {exc}")):
+                self.get_logger().warn(text)
 
     def _count(self, **add) -> None:
         with self._stats_lock:
@@ -137,7 +139,8 @@ class IkServiceNode(Node):
             self._count(refused=1)
             response.success = False
             response.message = f"request refused: {exc}"
-            self.get_logger().warn(response.message, throttle_duration_sec=2.0)
+            if (text := self._throttle.message(response.message)):
+                self.get_logger().warn(text)
             return response
         except Exception as exc:  # a bug must not take the service down
             self._count(refused=1)
@@ -159,7 +162,8 @@ class IkServiceNode(Node):
             self._stats["last_time"] = result.solve_time
             self._stats["last_message"] = response.message
         if not result.success:
-            self.get_logger().info(response.message, throttle_duration_sec=2.0)
+            if (text := self._throttle.message(response.message)):
+                self.get_logger().info(text)
         return response
 
     def _publish_diagnostics(self) -> None:
