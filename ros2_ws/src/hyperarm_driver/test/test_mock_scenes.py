@@ -54,16 +54,15 @@ def test_no_block_cell_runs_and_grasps_nothing():
 
 
 def _sweep(limit):
-    """joint1 commanded from 0.8 to -0.8 rad through the pole (arm stretched along x)."""
+    """joint1 commanded from 0 to 1.6 rad, the arm stretched, through the pole (at 45°)."""
     cfg = load_mock_config(CELLS / "workcell_pole.yaml")
     cfg = dataclasses.replace(cfg, imperfections=dataclasses.replace(
         cfg.imperfections, repeatability=0.0, seed=2))
     sim = JointSim(load_description(), cfg)
-    sim.command(["joint1"], [0.8])
-    for _ in range(100):
+    for _ in range(20):
         sim.step(DT)
     assert not sim.link_contacts
-    sim.command(["joint1"], [-0.8], [limit] if limit else [])
+    sim.command(["joint1"], [1.6], [limit] if limit else [])
     for _ in range(150):
         sim.step(DT)
     return sim
@@ -73,14 +72,13 @@ def _sweep(limit):
 def test_position_arm_stops_against_a_pole_with_efforts():
     sim = _sweep(None)
     pole = sim.cfg.world.poles[0]
-    assert sim.position[0] > 0.05                          # stopped before the pole's axis
+    assert sim.position[0] < 1.0                           # stopped far short of 1.6 rad
     (link, name, _, force), = sim.link_contacts
-    assert name == pole.name and link == "link3"
+    assert name == pole.name and link == "link4"
     assert np.linalg.norm(force) > 5.0                     # N: pushing hard
     assert abs(sim.effort[0]) > 0.5 * sim.stall[0]         # joint1 pushes back
     # the capsule is at most 2 mm into the pole
     cap = sim.desc.capsule(link)
-    a, b = (sim.data.oMf[sim.model.getFrameId(cap.frame)].act(p) for p in cap.endpoints())
     sim._tool_at(sim.position[:9])
     a, b = (sim.data.oMf[sim.model.getFrameId(cap.frame)].act(p) for p in cap.endpoints())
     d = np.cross(b - a, np.r_[pole.xy, 0.0] - a)[2] / np.linalg.norm((b - a)[:2])
@@ -93,11 +91,11 @@ def test_soft_arm_conforms_to_a_pole():
     with a small force (Fig. 4 of the paper), instead of pushing through or hard."""
     soft = _sweep(0.3)
     hard = _sweep(None)
-    assert soft.position[0] > 0.05 and soft.link_contacts
+    assert soft.position[0] < 1.0 and soft.link_contacts
     assert abs(soft.effort[0]) == pytest.approx(soft.limit[0], rel=1e-6)
     f_soft = np.linalg.norm(soft.link_contacts[0][3])
     f_hard = np.linalg.norm(hard.link_contacts[0][3])
-    assert 0.0 < f_soft < 0.2 * f_hard
+    assert 0.0 < f_soft < 0.5 * f_hard       # the rest is held by the other joints' springs
 
 
 @pytest.mark.core
@@ -146,14 +144,12 @@ def test_link_contacts_on_debug_topic_and_in_diagnostics(rclpy_context, executor
                                  qos_for(contract.JOINT_COMMAND))
     executor.add_node(probe)
     wait_for(lambda: pub.get_subscription_count() > 0, 10.0, what="joint_command subscriber")
-    pub.publish(JointState(name=["joint1"], position=[0.8]))
-    wait_for(lambda: contacts and not contacts[-1].status, 10.0,
-             what="the link leaving the pole (an empty contacts message)")
-    pub.publish(JointState(name=["joint1"], position=[-0.8]))
+    pub.publish(JointState(name=["joint1"], position=[1.6]))
     wait_for(lambda: contacts and contacts[-1].status, 10.0, what="a link on the pole")
     st = contacts[-1].status[0]
     values = {kv.key: kv.value for kv in st.values}
-    assert values["link"] == "link3" and values["pole"] == "pole1"
-    wait_for(lambda: any(s.name.endswith("work_cell") and "link3:pole1" in
+    assert values["link"] == "link4" and values["pole"] == "pole1"
+    wait_for(lambda: any(s.name.endswith("work_cell") and "link4:pole1" in
                          {kv.key: kv.value for kv in s.values}.get("link_contacts", "")
+                         
                          for s in diags), 10.0, what="link contacts in diagnostics")

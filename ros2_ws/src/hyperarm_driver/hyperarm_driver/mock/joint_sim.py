@@ -529,15 +529,18 @@ class JointSim:
             self.tool_wrench = np.zeros(6)
             return
         dirs, points, owner, f, block = rows
-        tool = self._tool
-        force = np.zeros(3)
-        torque = np.zeros(3)
-        for r, fr in enumerate(f):
+        tx, ty, tz = (float(v) for v in self._tool[:3, 3])
+        fx = fy = fz = mx = my = mz = 0.0
+        for r, fr in enumerate(f.tolist()):     # a few rows: plain floats beat numpy here
             if not block[r]:
                 continue                  # a link on a pole: not on the block
-            fv = dirs[r] * fr
-            force += fv
-            torque += np.cross(points[owner[r]] - tool[:3, 3], fv)
+            d, p = dirs[r], points[owner[r]]
+            ax, ay, az = fr * float(d[0]), fr * float(d[1]), fr * float(d[2])
+            rx, ry, rz = float(p[0]) - tx, float(p[1]) - ty, float(p[2]) - tz
+            fx += ax; fy += ay; fz += az
+            mx += ry * az - rz * ay; my += rz * ax - rx * az; mz += rx * ay - ry * ax
+        force, torque = np.array([fx, fy, fz]), np.array([mx, my, mz])
+        tool = self._tool
         rot = tool[:3, :3]
         self.tool_wrench = np.r_[rot.T @ force, rot.T @ torque]
 
@@ -699,7 +702,8 @@ class JointSim:
         contacts, jr, p0, f, owner, tangential, points, q_used = solved
         dq = kinv * (jr.T @ f)
         lo, hi = self.lower[:nk], self.upper[:nk]
-        stopped = ((q + dq < lo) & (dq < 0.0)) | ((q + dq > hi) & (dq > 0.0))
+        qd = q + dq
+        stopped = ((qd < lo) & (dq < 0.0)) | ((qd > hi) & (dq > 0.0))
         if stopped.any():   # joints pushed onto their mechanical stops are rigid there
             kinv = np.where(stopped, 0.0, kinv)
             f = self._solve_contacts(jr, p0, owner, tangential, kinv, v)
@@ -719,12 +723,16 @@ class JointSim:
                     del self._anchors[kind]
         if v is None:
             self._warm = dq
-        block = np.array([not contacts[o].kind.startswith("pole:") for o in owner])
-        dirs = np.asarray(self._row_dirs)
-        self.contact_force = dirs[block].T @ f[block] if block.any() else np.zeros(3)
-        self._link_rows = [(c, int(np.flatnonzero(owner == ci)[0]))
-                           for ci, c in enumerate(contacts) if c.kind.startswith("pole:")]
-        self._set_link_contacts(f)
+        if self._poles:
+            block = np.array([not contacts[o].kind.startswith("pole:") for o in owner])
+            dirs = np.asarray(self._row_dirs)
+            self.contact_force = dirs[block].T @ f[block] if block.any() else np.zeros(3)
+            self._link_rows = [(c, int(np.flatnonzero(owner == ci)[0]))
+                               for ci, c in enumerate(contacts) if c.kind.startswith("pole:")]
+            self._set_link_contacts(f)
+        else:
+            block = np.ones(len(f), dtype=bool)
+            self.contact_force = np.asarray(self._row_dirs).T @ f
         if v is None and self._poles:
             self._pole_normals = {c.kind: c.normal for ci, c in enumerate(contacts)
                                   if c.kind.startswith("pole:")
