@@ -62,6 +62,8 @@ QOS = {
     EE_WRENCH_BASE: {"reliability": "reliable", "durability": "volatile", "depth": 10},
     DETECTIONS: {"reliability": "reliable", "durability": "volatile", "depth": 5},
     DETECTIONS_TRUTH: {"reliability": "reliable", "durability": "volatile", "depth": 5},
+    TOOL_WRENCH_TRUTH: {"reliability": "reliable", "durability": "volatile", "depth": 10},
+    CONTACTS_TRUTH: {"reliability": "reliable", "durability": "volatile", "depth": 5},
     DIAGNOSTICS: {"reliability": "reliable", "durability": "volatile", "depth": 10},
 }
 
