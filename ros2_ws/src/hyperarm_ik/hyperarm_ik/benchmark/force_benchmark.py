@@ -108,6 +108,7 @@ class _Ros:
     def close(self) -> None:
         import rclpy
         self.stop.set()
+        self.probe.close()
         self.thread.join(2.0)
         self.probe.node.destroy_node()
         self.ex.shutdown(timeout_sec=1.0)

@@ -43,7 +43,7 @@ class ForceProbe:
         self.block_state = ""
         self.last_published = 0.0
         self._js = JointState
-        n.create_subscription(JointState, contract.JOINT_COMMAND, self._rec(self.commands),
+        n.create_subscription(JointState, contract.JOINT_COMMAND, self._on_command,
                               qos_for(contract.JOINT_COMMAND))
         n.create_subscription(WrenchStamped, contract.EE_WRENCH, self._rec(self.wrench),
                               qos_for(contract.EE_WRENCH))
@@ -68,7 +68,11 @@ class ForceProbe:
             n.create_service(Trigger, contract.HOLD, self._on_hold)
             self.driving = False
             self.q = np.zeros(len(self.names))
-            n.create_timer(0.01, self._drive)
+            # its own thread, not the executor's: recording 100 Hz commands must not delay
+            # the states (the node would rightly call them stale)
+            self._stop_drive = threading.Event()
+            threading.Thread(target=self._drive_loop, name="probe-driver",
+                             daemon=True).start()
         else:
             n.create_subscription(JointState, contract.JOINT_STATES, self._rec(self.states),
                                   qos_for(contract.JOINT_STATES))
@@ -80,6 +84,16 @@ class ForceProbe:
             with self.lock:
                 store.append((time.monotonic(), msg))
         return cb
+
+    def _on_command(self, msg) -> None:
+        """Only the force node's commands (exactly the arm joints): the probe's own gripper
+        and arm moves, or a stray process on the domain, are not recorded."""
+        if list(msg.name) == list(contract.ARM_JOINTS) and not self._own(msg):
+            with self.lock:
+                self.commands.append((time.monotonic(), msg))
+
+    def _own(self, msg) -> bool:
+        return msg.header.frame_id == "force_probe"
 
     def _on_diag(self, msg) -> None:
         now = time.monotonic()
@@ -94,9 +108,21 @@ class ForceProbe:
                         (now, np.array([float(v) for v in values["contact_force_N"].split()])))
                     self.block_state = values.get("block_state", "")
 
-    def _drive(self) -> None:
-        if self.driving:
-            self.publish_state(self.q)
+    def _drive_loop(self) -> None:
+        next_t = time.monotonic()
+        while not self._stop_drive.is_set():
+            if self.driving:
+                try:
+                    self.publish_state(self.q)
+                except Exception:   # noqa: BLE001 - the context is gone: the test ended
+                    return
+            next_t += 0.01
+            self._stop_drive.wait(max(next_t - time.monotonic(), 0.0))
+
+    def close(self) -> None:
+        """Stop the driver thread (if any)."""
+        if hasattr(self, "_stop_drive"):
+            self._stop_drive.set()
 
     def _on_hold(self, req, res):
         self.hold_calls.append(time.monotonic())
@@ -155,6 +181,7 @@ class ForceProbe:
 
     def command(self, names, positions, efforts=()) -> None:
         msg = self._js()
+        msg.header.frame_id = "force_probe"      # tells the probe's own commands apart
         msg.name = list(names)
         msg.position = [float(v) for v in positions]
         msg.effort = [float(v) for v in efforts]
