@@ -2,12 +2,14 @@
 SHELL := /bin/bash
 .DEFAULT_GOAL := help
 
-.PHONY: help setup build demo test test-core lock clean
+.PHONY: help setup build demo test test-core check-robot-route lock clean
 
 help:
 	@echo "make demo   - set up (idempotent) and run the demo on the mock driver"
 	@echo "make test   - set up (idempotent) and run the whole test suite"
 	@echo "make setup  - only the set-up (venv or /opt/ros/jazzy, colcon build)"
+	@echo "make test-core - only the ROS-free core tests"
+	@echo "make check-robot-route - robot pip plan vs apt numpy 1.26, core tests under it"
 	@echo "make clean  - remove build products (keeps .venv)"
 
 setup:
@@ -20,6 +22,16 @@ demo: setup
 
 test: setup
 	@bash scripts/test.sh $(ARGS)
+
+# Only the ROS-free core tier (no rclpy), quick.
+test-core: setup
+	@bash scripts/test.sh -m core $(ARGS)
+
+# The robot route's pip plan against Ubuntu 24.04's numpy 1.26, and the core tests under it
+# (docs/robot-install.md).
+check-robot-route:
+	@python3 scripts/robot_route/check_plan.py --venv .stamps/apt-venv
+	@bash scripts/robot_route/core_tests.sh
 
 # Regenerate requirements.lock from a fresh venv (maintainers only).
 lock:

@@ -11,7 +11,15 @@ else
 fi
 export PATH="$_hyperarm_venv/bin:$PATH"
 export VIRTUAL_ENV="$_hyperarm_venv"
+if [ ! -f "$_hyperarm_root/ros2_ws/install/local_setup.bash" ]; then
+  echo "hyperarm: the workspace is not built yet: run 'make setup' in $_hyperarm_root first," \
+       "then 'source scripts/env.sh' again." >&2
+  unset _hyperarm_root _hyperarm_venv
+  return 1 2>/dev/null || exit 1
+fi
 # shellcheck disable=SC1091
 source "$_hyperarm_root/ros2_ws/install/local_setup.bash"
+# the `hyperarm` command-line tool (hyperarm_bringup) on PATH
+export PATH="$_hyperarm_root/ros2_ws/install/hyperarm_bringup/lib/hyperarm_bringup:$PATH"
 export RMW_IMPLEMENTATION="${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"
 unset _hyperarm_root _hyperarm_venv

@@ -27,16 +27,44 @@ pick_python() {
 }
 
 if [ -f /opt/ros/jazzy/setup.bash ]; then
-  # The robot: ROS from apt. The venv only adds the non-ROS Python packages.
+  # The robot: ROS, pinocchio, the Dynamixel SDK, numpy, PyYAML, pytest, hypothesis from apt
+  # (rosdep keys in each package.xml). The venv (--system-site-packages) only adds what apt
+  # lacks (requirements-robot.txt), with the system numpy pinned: PyPI's `pin` needs numpy 2,
+  # and ROS Jazzy's apt extensions do not load under numpy 2. See docs/robot-install.md.
   log "using /opt/ros/jazzy"
   set +u; source /opt/ros/jazzy/setup.bash; set -u
+  if command -v rosdep >/dev/null 2>&1; then
+    if ! rosdep check --from-paths "$WS/src" --ignore-src -q >/dev/null 2>&1; then
+      if [ "$(id -u)" = 0 ] || [ "${HYPERARM_ROSDEP_INSTALL:-0}" = 1 ]; then
+        log "rosdep install (apt packages named in the package.xml files)"
+        rosdep install --from-paths "$WS/src" --ignore-src -y -r
+      else
+        echo "[setup] apt dependencies are missing; install them with" >&2
+        echo "  rosdep install --from-paths ros2_ws/src --ignore-src -y" >&2
+        echo "(once: sudo rosdep init; rosdep update). Missing:" >&2
+        rosdep check --from-paths "$WS/src" --ignore-src >&2 || true
+        exit 1
+      fi
+    fi
+  else
+    log "rosdep not found (apt install python3-rosdep): not checking apt dependencies"
+  fi
   if [ ! -x "$VENV/bin/python" ]; then
     python3 -m venv --system-site-packages "$VENV"
   fi
-  want="$(hash_of "$ROOT/requirements-python.txt")-apt"
+  want="$(hash_of "$ROOT/requirements-robot.txt")-apt"
   if ! stamp_ok python "$want"; then
-    "$VENV/bin/pip" install -q -r "$ROOT/requirements-python.txt" 2>&1 \
+    # Never replace apt's numpy: pin the version the system has.
+    np="$("$VENV/bin/python" -c 'import numpy; print(numpy.__version__)')"
+    echo "numpy==$np" > "$STAMPS/robot-constraints.txt"
+    "$VENV/bin/pip" install -q -c "$STAMPS/robot-constraints.txt" \
+        -r "$ROOT/requirements-robot.txt" 2>&1 \
       | { grep -v "is ignored: it is neither a file nor a directory" || true; }
+    "$VENV/bin/python" - "$np" <<'PY'
+import sys, numpy, pinocchio
+assert numpy.__version__ == sys.argv[1], f"numpy changed: {numpy.__version__}"
+assert pinocchio.__file__.startswith("/opt/ros/"), f"a second pinocchio: {pinocchio.__file__}"
+PY
     echo "$want" > "$STAMPS/python"
   fi
   PREFIX=""

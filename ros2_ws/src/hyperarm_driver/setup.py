@@ -22,9 +22,9 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "mock_driver = hyperarm_driver.mock_driver_node:main",
-            "dynamixel_driver = hyperarm_driver.dynamixel_driver_node:main",
-            "pmac_rail_driver = hyperarm_driver.pmac_rail_driver_node:main",
+            "mock_driver = hyperarm_driver.entry:mock_driver",
+            "dynamixel_driver = hyperarm_driver.entry:dynamixel_driver",
+            "pmac_rail_driver = hyperarm_driver.entry:pmac_rail_driver",
             "dxl_emulator = hyperarm_driver.dynamixel.emulator:main",
             "pmac_emulator = hyperarm_driver.pmac.emulator:main",
             "dxl_benchmark = hyperarm_driver.benchmarks.dxl_benchmark:main",

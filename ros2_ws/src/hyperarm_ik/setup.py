@@ -22,9 +22,12 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "fk_node = hyperarm_ik.fk_node:main",
-            "ik_service = hyperarm_ik.ik_service_node:main",
+            "fk_node = hyperarm_ik.entry:fk_node",
+            "ik_service = hyperarm_ik.entry:ik_service",
             "ik_benchmark = hyperarm_ik.benchmark.ik_benchmark:main",
+            "hybrid_force = hyperarm_ik.entry:hybrid_force",
+            "hybrid_force_calibrate = hyperarm_ik.entry:hybrid_force_calibrate",
+            "force_benchmark = hyperarm_ik.benchmark.force_benchmark:main",
         ],
     },
 )

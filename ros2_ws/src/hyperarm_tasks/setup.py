@@ -25,7 +25,7 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "task_node = hyperarm_tasks.task_node:main",
+            "task_node = hyperarm_tasks.entry:task_node",
             "run_task = hyperarm_tasks.run_task:main",
             "task_recorder = hyperarm_tasks.recorder_node:main",
             "plot_task = hyperarm_tasks.plots:main",

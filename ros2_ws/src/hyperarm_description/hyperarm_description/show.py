@@ -39,6 +39,7 @@ def main(argv: list[str] | None = None) -> int:
     t = desc.dh_forward(q)
     np.set_printoptions(precision=4, suppress=True)
     print(f"tool0 in {desc.base_frame} at q = {q.tolist()}:")
+    t = np.round(t, 4) + 0.0  # + 0.0 turns the -0. of a tiny negative into 0.
     print(f"  position (m): {t[:3, 3]}")
     print(f"  rotation:\n{t[:3, :3]}")
     return 0

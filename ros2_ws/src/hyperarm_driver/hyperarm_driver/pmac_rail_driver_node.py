@@ -8,8 +8,6 @@ reports on ``/diagnostics``. Parameters and behaviour: docs/pmac.md.
 """
 from __future__ import annotations
 
-import re
-
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -23,7 +21,8 @@ from hyperarm_description.ros_main import run_node
 from .common import NonEmpty, ParamSpec, Range, declare_parameters, diagnostic_status
 from .pmac.axis import RailAxis, RailConfig
 from .pmac.client import PmacClient
-from .pmac.driver import ReasonThrottle, RailDriver
+from .log_throttle import ReasonThrottle
+from .pmac.driver import RailDriver, check_command, reason_key
 from .pmac.errors import PmacError, RailError
 from .pmac.watchdog import WatchdogConfig
 
@@ -44,15 +43,18 @@ PARAMETERS: ParamSpec = {
                      "timeout + 1/rate)", Range(0.005, 0.4)),
     "reconnect_period": (1.0, "delay between reconnection attempts, s", Range(0.05, 60.0)),
     "require_homing": (True, "refuse setpoints until the card reports home complete", None),
-    "configure_card": (True, "on every (re)connect set I3=2 I6=1, write jog speed/acceleration "
-                             "(Ixx22, Ixx19, Ixx20, Ixx21) and soft limits (Ixx13, Ixx14) and "
-                             "download the safety PLC; false: only check I3/I6", None),
+    "configure_card": (True, "on every (re)connect set I3=2 I6=1 I64=1, write jog "
+                             "speed/acceleration (Ixx22, Ixx19, Ixx20, Ixx21) and soft limits "
+                             "(Ixx13, Ixx14) and download the safety PLC; false: only check "
+                             "I3/I6/I64", None),
     "watchdog_timeout": (0.1, "on-card watchdog: the safety PLC stops the rail when the "
                               "driver's heartbeat stops for this long, s; 0 = no safety PLC "
                               "(needs configure_card)", Range(0.0, 10.0)),
     "watchdog_plc": (10, "PLC program number of the safety PLC", Range(1, 31)),
     "watchdog_pvar": (8001, "first of the three P-variables of the safety PLC (heartbeat, "
                             "seen, armed)", Range(0, 8189)),
+    "watchdog_mvar": (8140, "first of the two M-variables of the safety PLC (status bits)",
+                      Range(0, 8190)),
     "log_period": (10.0, "the same problem (unreachable card, rejected setpoint reason) is "
                          "logged at most once per this period, s", Range(0.1, 3600.0)),
     "diagnostics_period": (0.5, "/diagnostics period, s", Range(0.1, 10.0)),
@@ -89,7 +91,8 @@ class PmacRailDriver(Node):
                                      "downloads the safety PLC); set watchdog_timeout:=0.0")
                 pv = int(p["watchdog_pvar"])
                 watchdog = WatchdogConfig(plc=int(p["watchdog_plc"]), heartbeat=pv, seen=pv + 1,
-                                          armed=pv + 2, timeout=float(p["watchdog_timeout"]))
+                                          armed=pv + 2, mvar=int(p["watchdog_mvar"]),
+                                          timeout=float(p["watchdog_timeout"]))
             self._driver = RailDriver(RailAxis(client, config, watchdog=watchdog),
                                       rate=float(p["rate"]),
                                       reconnect_period=float(p["reconnect_period"]),
@@ -136,14 +139,13 @@ class PmacRailDriver(Node):
         if self._joint not in names:
             return                     # other drivers' joints
         try:
-            if names.count(self._joint) > 1:
-                self._driver.reject(f"{self._joint!r} named twice in one joint_command")
-            if len(msg.position) != len(names):
-                self._driver.reject(f"{len(msg.position)} positions for {len(names)} names")
+            problem = check_command(names, msg.position, msg.effort, self._joint)
+            if problem:
+                self._driver.reject(problem)
             self._driver.set_target(msg.position[names.index(self._joint)])
         except RailError as exc:
             # throttled per reason (numbers aside), so that one problem never hides another
-            if self._rejections.allow(re.sub(r"[-+]?[\d.]+(e[-+]?\d+)?", "#", str(exc))):
+            if self._rejections.allow(reason_key(str(exc))):
                 self.get_logger().error(f"rail setpoint rejected, nothing sent: {exc}")
 
     def _publish_state(self) -> None:

@@ -299,3 +299,21 @@ def test_ftdi_latency_timer_is_read_through_symlinks(tmp_path):
     (tmp_path / "dynamixel").symlink_to(dev)
     assert ftdi_latency_timer(str(tmp_path / "dynamixel"), str(sysfs)) == 16
     assert ftdi_latency_timer("/dev/pts/0", str(sysfs)) is None
+
+
+def test_emulator_lockstep_moves_the_servos_per_goal_sync_write():
+    bus = EmulatedBus([EmulatedServo(1, model_by_name("XM430-W350"))])
+    s = bus.servos[1]
+    bus.feed(p2.build_packet(1, p2.INST_WRITE, bytes([64, 0, 1])), now=0.0)   # torque on
+    bus.set_lockstep(0.01)
+    goal = p2.build_packet(p2.BROADCAST_ID, p2.INST_SYNC_WRITE, bytes([116, 0, 4, 0, 1])
+                           + (3000).to_bytes(4, "little"))
+    bus.feed(goal, now=0.0)
+    after_one = s.pos
+    bus.advance(100.0)                        # the wall clock does not move them
+    assert s.pos == after_one and 2048 < after_one < 3000
+    for _ in range(200):                      # 2 s of servo time: at the goal
+        bus.feed(goal, now=0.0)
+    assert round(s.pos) == 3000
+    with pytest.raises(ValueError):
+        bus.set_lockstep(0.0)

@@ -150,7 +150,7 @@ def test_jog_formats_counts_within_limits(config: RailConfig) -> None:
 def test_configure_writes_ivariables(config: RailConfig) -> None:
     port = RecordingPort({"I10": ["3713991"]})
     RailAxis(port, config).configure()
-    assert port.sent[:2] == ["I3=2 I6=1", "I10"]   # communication set-up first
+    assert port.sent[:2] == ["I3=2 I6=1 I64=1", "I10"]   # communication set-up first
     sent = dict(kv.split("=") for kv in port.sent[2].split())
     # 0.5 m/s * 200000 counts/m = 100 counts/ms; 1 m/s^2 -> 0.2 counts/ms^2
     assert float(sent["I122"]) == pytest.approx(100.0)
@@ -322,3 +322,25 @@ def test_watchdog_program_uses_only_the_emulated_subset(config: RailConfig) -> N
     assert emu.plcs[10].enabled and len(emu.plcs[10].lines) > 5
     with pytest.raises(RailConfigError):
         WatchdogConfig(heartbeat=8001, seen=8001)
+
+
+def test_emulator_status_m_variables_match_the_status_word() -> None:
+    # M-variables on the motor status words (Turbo PMAC suggested definitions) read the bits
+    # that #n? reports, for motor 2 too ($80 further)
+    emu = PmacEmulator(motors=2)
+    bits = [("X", 19), ("X", 18), ("X", 13), ("Y", 2), ("Y", 3), ("Y", 10), ("Y", 0)]
+    for motor in (1, 2):
+        base = (motor - 1) * 0x80
+        for k, (space, bit) in enumerate(bits):
+            addr = (0xB0 if space == "X" else 0xC0) + base
+            emu.execute(f"M{10 + k}->{space}:${addr:06X},{bit},1")
+        for setup in ("", "#{m}J/", "#{m}HMZ", "#{m}K"):
+            emu.execute(setup.format(m=motor))
+            st = MotorStatus.from_hex(emu.execute(f"#{motor}?")[:12].decode())
+            got = emu.execute(f"M10..{10 + len(bits) - 1}").split(b"\r")[:-1]
+            want = [(st.word1 if s == "X" else st.word2) >> b & 1 for s, b in bits]
+            assert [int(g) for g in got] == want, (motor, setup)
+        emu.execute(f"#{motor}J/")
+        emu.set_amp_fault(motor, True)                    # kills the enabled motor
+        assert emu.execute("M14 M10") == b"1\r0\r\x06"   # amplifier fault, not enabled
+        emu.set_amp_fault(motor, False)

@@ -59,9 +59,10 @@ class Probe:
         wait_for(fut.done, 5.0, what=f"answer of {cli.srv_name}")
         return fut.result()
 
-    def command(self, names, positions) -> None:
+    def command(self, names, positions, efforts=()) -> None:
         from sensor_msgs.msg import JointState
-        self.pub.publish(JointState(name=list(names), position=[float(p) for p in positions]))
+        self.pub.publish(JointState(name=list(names), position=[float(p) for p in positions],
+                                    effort=[float(e) for e in efforts]))
 
     def rail(self) -> float | None:
         for m in reversed(self.states):
@@ -121,15 +122,23 @@ def test_node_homing_setpoints_and_services(rclpy_context, executor, emu, wait_f
     probe.command(["joint1"], [0.5])           # no rail: ignored
     # out of range / non-finite / malformed: rejected, nothing sent
     requests = emu.requests
-    for i, (names, pos) in enumerate(((["rail"], [1.7]), (["rail"], [math.nan]),
-                                      (["rail"], [-math.inf]), (["rail", "rail"], [0.1, 0.1]),
-                                      (["joint1", "rail"], [0.1]))):
-        probe.command(names, pos)    # (one at a time: joint_command keeps only the newest)
+    for i, (names, pos, eff) in enumerate((
+            (["rail"], [1.7], []), (["rail"], [math.nan], []), (["rail"], [-math.inf], []),
+            (["rail", "rail"], [0.1, 0.1], []), (["joint1", "rail"], [0.1], []),
+            (["joint1", "rail"], [math.nan, 0.1], []),       # NaN for another joint: whole
+            (["joint1", "rail"], [0.2, 0.1], [0.0, math.inf]),
+            (["rail"], [0.1], [2.0]),                        # the rail takes no effort
+            (["joint1", "rail"], [0.2, 0.1], [1.0]))):       # effort length mismatch
+        probe.command(names, pos, eff)   # (one at a time: joint_command keeps the newest)
         wait_for(lambda: int(probe.diag()["rejected_setpoints"]) == 3 + i, 2.0,
                  what=f"rejection of {names} {pos}")
     time.sleep(0.1)
     assert emu.motor(1).mode == "idle" and emu.motor(1).target == pytest.approx(0.04 * CPM)
     assert emu.requests > requests               # (polling went on meanwhile)
+
+    # effort 0 for the rail (and any effort for another joint) is no limit: accepted
+    probe.command(["joint1", "rail"], [0.3, 0.05], [1.0, 0.0])
+    wait_for(lambda: abs(probe.rail() - 0.05) < 1e-6, 3.0, what="rail at 0.05 m")
 
     # hold during a move stops short of the target
     probe.command(["rail"], [-0.15])
@@ -218,12 +227,21 @@ def test_installed_emulator_and_driver(launch, rclpy_context, executor, wait_for
     emu = launch("hyperarm_driver", "pmac_emulator", "--port", "0", "--start-position", "2000")
     port = wait_for(lambda: re.search(r"127\.0\.0\.1:(\d+)", emu.output()), 10.0,
                     what="emulator port").group(1)
-    drv = launch("hyperarm_driver", "pmac_rail_driver", params={"port": int(port)})
+    drv = launch("hyperarm_driver", "pmac_rail_driver",
+                 params={"port": int(port), "diagnostics_period": 0.1})
     probe = Probe(rclpy_context, executor)
     wait_for(lambda: probe.rail() is not None, 20.0, what="rail on joint_states")
     assert probe.rail() == pytest.approx(0.01)
     assert probe.call("torque", wait_for, data=True).success
     wait_for(lambda: "connected to PMAC" in drv.output(), 5.0, what="driver log")
+    # rejections are throttled per reason: a second reason is logged at once, a repeated
+    # one is not (log_period 10 s); one joint_command at a time (depth 1)
+    for k, pos in enumerate((1.7, math.nan, 1.8, math.nan, -1.9)):
+        probe.command(["rail"], [pos])
+        wait_for(lambda: (d := probe.diag()) and int(d["rejected_setpoints"]) == k + 1, 5.0,
+                 what=f"rejection {k + 1}")
+    out = drv.output()
+    assert out.count("outside the soft limits") == 1 and out.count("not finite") == 1, out
 
 
 def _free_port() -> int:
@@ -249,46 +267,86 @@ def test_installed_driver_safety_on_the_emulator(launch, rclpy_context, executor
     time.sleep(1.0)                            # 5 more attempts: the same reason, not logged
     assert drv.output().count("Connection refused") == 1
 
-    with PmacEmulator(port=port, start_position=2000, limits=(-CPM, CPM)) as emu:
+    emu = PmacEmulator(port=port, start_position=2000, limits=(-CPM, CPM))
+    emu.globals.update({3: 1.0, 6: 0.0})       # factory framing: the driver must set I3/I6
+    with emu:
         probe = Probe(rclpy_context, executor)
         wait_for(lambda: "connected to PMAC" in drv.output(), 10.0, what="connected")
         assert emu.plcs[10].enabled                          # the safety PLC downloaded
-        assert probe.call("torque", wait_for, data=True).success
+        assert (emu.globals[3], emu.globals[6], emu.globals[64]) == (2.0, 1.0, 1.0)
+        # a busy card (NUL replies) and an unsolicited <STX> line (tagged: the driver set
+        # I64=1) are no link loss
+        emu.busy = 5
+        emu.send_message("HELLO FROM A PLC")
+        wait_for(lambda: "message from the card: 'HELLO FROM A PLC'" in drv.output(), 5.0,
+                 what="the card's message in the log")
+        assert emu.busy == 0 and "link lost" not in drv.output()
+
+        def stream_until(cond, base: float, timeout: float = 5.0) -> None:
+            deadline, k = time.monotonic() + timeout, 0
+            while not cond():                       # 200 Hz setpoints, as a task sends them
+                assert time.monotonic() < deadline, "no motion: " + drv.output()[-1500:]
+                probe.command(["rail"], [base + 1e-4 * (k % 100)])
+                k += 1
+                time.sleep(0.005)
+
+        def tripped_since(mark: int) -> bool:
+            # the watchdog stops the rail when the host is 100 ms late: on an overloaded test
+            # host that can happen before the event under test; the step is then run again
+            return "watchdog PLC tripped" in drv.output()[mark:]
 
         # 1. stream at 200 Hz; a momentary fatal following error kills the motor
-        k = 0
-        while emu.motor(1).vel == 0:
-            probe.command(["rail"], [0.02 + 1e-4 * k])
-            k += 1
-            time.sleep(0.005)
-        enables = emu.motor(1).enables
-        emu.set_disturbance(1, 2500)
-        emu.set_disturbance(1, 0)
-        for j in range(100):
-            probe.command(["rail"], [0.03 + 1e-4 * j])
-            time.sleep(0.005)
+        for _ in range(3):
+            mark = len(drv.output())
+            assert probe.call("torque", wait_for, data=True).success
+            stream_until(lambda: emu.motor(1).vel != 0, 0.02)
+            enables = emu.motor(1).enables
+            emu.set_disturbance(1, 2500)
+            emu.set_disturbance(1, 0)
+            t_end = time.monotonic() + 0.5
+            stream_until(lambda: time.monotonic() > t_end, 0.03)
+            if not tripped_since(mark):
+                break
+        else:
+            pytest.fail("the watchdog tripped before the fault three times: " + drv.output())
         assert not emu.motor(1).closed_loop and emu.motor(1).enables == enables
         wait_for(lambda: (d := probe.diag()) and "fatal following error" in d["latched_faults"],
                  2.0, what="fault latched on /diagnostics")
         d = probe.diag()
         assert d["level"] == 2 and d["amp_enabled"] == "false" and d["torque"] == "off"
-        assert drv.output().count("rail fault latched") == 1
-        wait_for(lambda: "setpoint rejected" in drv.output() and "latched" in drv.output(),
-                 2.0, what="rejection logged")
+        assert drv.output()[mark:].count("rail fault latched") == 1
+        wait_for(lambda: "setpoint rejected" in drv.output()[mark:] and
+                 "latched" in drv.output()[mark:], 2.0, what="rejection logged")
 
         # 2. torque on again; cut the link at full speed
-        assert probe.call("torque", wait_for, data=True).success
         cruise = emu.motor(1).ivars[22] * 1e3
-        probe.command(["rail"], [0.9])
-        wait_for(lambda: emu.motor(1).vel >= 0.999 * cruise, 5.0, what="full speed")
-        emu.mute = True
-        m = emu.motor(1)
-        t_cut, v = m.now, m.vel
+        for _ in range(3):
+            wait_for(lambda: (d := probe.diag()) and d["link"] == "up", 5.0, what="link up")
+            mark = len(drv.output())
+            assert probe.call("torque", wait_for, data=True).success
+            start = (emu.motor(1).actual - emu.motor(1).ref) / CPM
+            target = -0.9 if start > 0 else 0.9     # (where a previous try left the carriage)
+            probe.command(["rail"], [target])
+            try:
+                wait_for(lambda: abs(emu.motor(1).vel) >= 0.999 * cruise, 5.0,
+                         what="full speed")
+            except AssertionError:
+                if not tripped_since(mark):
+                    raise AssertionError("no full speed: " + drv.output()[-1500:]) from None
+                continue
+            emu.mute = True
+            m = emu.motor(1)
+            t_cut, v = m.now, abs(m.vel)
+            if not tripped_since(mark):
+                break
+            emu.mute = False
+        else:
+            pytest.fail("the watchdog tripped before the cut three times: " + drv.output())
         wait_for(lambda: emu.motor(1).vel == 0 and emu.motor(1).mode == "idle", 3.0,
                  what="stopped by the card")
         m = emu.motor(1)
         assert m.motion_ended_at - t_cut <= 0.1 + v / (m.ivars[19] * 1e6) + 0.01
-        assert m.closed_loop and m.actual - m.ref < 0.9 * CPM - 1000
+        assert m.closed_loop and abs(m.actual - m.ref - target * CPM) > 1000   # short of it
         wait_for(lambda: "PMAC link lost" in drv.output(), 2.0, what="link loss logged")
         emu.mute = False
         wait_for(lambda: "reconnected to PMAC" in drv.output(), 5.0, what="reconnected")

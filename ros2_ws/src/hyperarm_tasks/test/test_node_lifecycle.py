@@ -27,6 +27,7 @@ NODES = [
     ("hyperarm_driver", "pmac_rail_driver", "pmac_rail_driver"),
     ("hyperarm_ik", "fk_node", "fk_node"),
     ("hyperarm_ik", "ik_service", "ik_service"),
+    ("hyperarm_ik", "hybrid_force", "hybrid_force"),
     ("hyperarm_tasks", "task_node", "task_node"),
     ("hyperarm_tasks", "task_recorder", "task_recorder"),
 ]
@@ -60,7 +61,8 @@ def test_help_lists_each_nodes_parameters(executable):
               "fk_node": ["variant", "description_file"],
               "ik_service": ["default_solver", "max_timeout"],
               "task_node": ["command_rate", "tasks_dir", "detection_max_age"],
-              "task_recorder": ["output"]}
+              "task_recorder": ["output"],
+              "hybrid_force": ["output", "stale_timeout", "payload_mass"]}
     for package, name, _node in NODES:
         text = subprocess.run([executable(package, name), "--help"], capture_output=True,
                               text=True, timeout=30.0).stdout
@@ -86,6 +88,7 @@ def _start_all(launch, tmp_path, wait_for):
                                    params={"port": int(port)}),
         "fk_node": launch("hyperarm_ik", "fk_node"),
         "ik_service": launch("hyperarm_ik", "ik_service"),
+        "hybrid_force": launch("hyperarm_ik", "hybrid_force"),
         "task_node": launch("hyperarm_tasks", "task_node"),
         "task_recorder": launch("hyperarm_tasks", "task_recorder",
                                 params={"output": str(tmp_path / "rec.mcap")}),
@@ -151,3 +154,43 @@ def test_every_node_exits_cleanly_on_signals(launch, tmp_path, wait_for, rclpy_c
     finally:
         control.close()
 
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["sigint", "sigterm"])
+def test_signal_during_start_up_is_a_clean_exit(launch, sig):
+    """A signal while the node is still importing its libraries or building itself (seconds
+    on a loaded computer) ends it with 0 and no traceback: nothing had started."""
+    procs = {name: launch(package, name, params={"port": "/dev/does-not-exist"}
+                          if name == "dynamixel_driver" else None)
+             for package, name, _node in NODES}
+    # Signal each one while it imports its node module: numpy is mapped (the node's imports
+    # have begun) but the node has not said it is up yet. Before that, only Python itself
+    # and setuptools' console-script wrapper run (a window we cannot cover).
+    pending = dict(procs)
+    deadline = time.monotonic() + 30.0
+    while pending and time.monotonic() < deadline:
+        for name, item in list(pending.items()):
+            if item.proc.poll() is not None or _imports_numpy(item.proc.pid):
+                item.proc.send_signal(sig)
+                del pending[name]
+        time.sleep(0.002)
+    assert not pending, f"never saw these import numpy: {sorted(pending)}"
+    problems = []
+    for name, item in procs.items():
+        try:
+            code = item.proc.wait(timeout=EXIT_WITHIN + 3.0)
+        except subprocess.TimeoutExpired:
+            problems.append(f"{name}: still running after the signal")
+            continue
+        out = item.output()
+        if code != 0 or any(bad in out for bad in BAD_OUTPUT):
+            problems.append(f"{name}: exit code {code}\n{out[-2000:]}")
+    assert not problems, "\n".join(problems)
+
+
+def _imports_numpy(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/maps") as fh:
+            return "numpy" in fh.read()
+    except OSError:
+        return False

@@ -131,6 +131,8 @@ class DynamixelBus:
         # as written to each servo: every position-class command runs in current-based position
         self.modes = [OperatingMode.CURRENT_BASED_POSITION] * len(config.joints)
         self.torque = [False] * len(config.joints)   # as read from each servo every cycle
+        # torque turned off by a mode switch that failed before turning it back on
+        self.pending_on = [False] * len(config.joints)
         self.bus_watchdog = 0    # Bus Watchdog units armed in current mode (0 = off)
         self.has_watchdog = [False] * len(config.joints)   # firmware >= v38, see configure
 
@@ -169,6 +171,7 @@ class DynamixelBus:
     def close(self) -> None:
         port, self.port = self.port, None
         self._reader = self._writer = None
+        self.pending_on = [False] * len(self.config.joints)   # reconnect: torque off
         if port is not None:
             try:
                 port.closePort()
@@ -416,14 +419,33 @@ class DynamixelBus:
     # -- torque, modes, reboot ---------------------------------------------------------------
     def set_torque(self, indices: Sequence[int], on: bool) -> None:
         for i in indices:
+            self.pending_on[i] = False
             self.write(i, "torque_enable", 1 if on else 0)
             self.torque[i] = on
 
+    def restore_torque(self, hardware_error: Sequence[int]) -> list[int]:
+        """Turn torque back on where a mode switch turned it off and then failed (a
+        transaction lost midway); not on a servo in hardware error (that stays latched).
+        Returns the indices restored."""
+        done = []
+        for i, pending in enumerate(self.pending_on):
+            if not pending:
+                continue
+            if hardware_error[i]:
+                self.pending_on[i] = False
+                continue
+            self.write(i, "torque_enable", 1)
+            self.torque[i], self.pending_on[i] = True, False
+            done.append(i)
+        return done
+
     def set_mode(self, index: int, mode: int, goal_tick: int, goal_current: int) -> None:
         """Switch joint ``index`` to ``mode`` (torque off -> Bus Watchdog off -> mode ->
-        goals -> Bus Watchdog armed in current mode -> torque back)."""
-        was_on = self.torque[index]
-        if was_on:
+        goals -> Bus Watchdog armed in current mode -> torque back). If a transaction fails
+        midway, ``pending_on`` remembers that the torque must come back (restore_torque)."""
+        was_on = self.torque[index] or self.pending_on[index]
+        if self.torque[index]:
+            self.pending_on[index] = True
             self.write(index, "torque_enable", 0)
             self.torque[index] = False
         if self.has_watchdog[index]:
@@ -438,7 +460,7 @@ class DynamixelBus:
             self.write(index, "bus_watchdog", self.bus_watchdog)
         if was_on:
             self.write(index, "torque_enable", 1)
-            self.torque[index] = True
+            self.torque[index], self.pending_on[index] = True, False
 
     def reboot(self, index: int, timeout: float = 1.0) -> None:
         """REBOOT joint ``index``'s servo, wait until it answers, configure it (torque off)."""

@@ -108,6 +108,7 @@ class DynamixelDriver:
         self.brake_cycles = brake_cycles
         self._last_apply = -math.inf
         self._gap = 0.01                 # s, worst recent cycle gap (brake horizon)
+        self._last_goals: tuple[np.ndarray, np.ndarray] | None = None   # ticks, raw current
         self.bus = bus
         bus.set_bus_watchdog(min(command_timeout, 0.1) if bus_watchdog is None else bus_watchdog)
         self.config: BusConfig = bus.config
@@ -185,6 +186,7 @@ class DynamixelDriver:
 
     def _lost(self, exc: Exception, now: float) -> None:
         self.connected = False
+        self._last_goals = None
         self.state = None
         self.last_error = str(exc)
         self.bus.close()
@@ -264,7 +266,7 @@ class DynamixelDriver:
         return report
 
     def hold(self) -> None:
-        """Every joint: hold the present position in its configured mode."""
+        """Every joint: hold the present position (current-based position, default limit)."""
         if self.state is None:
             raise PortLostError("no state: port down")
         self._reset_goals_to_present()
@@ -297,10 +299,31 @@ class DynamixelDriver:
             return None
         except CommError as exc:   # retried already: skip this cycle, try again next one
             self.last_error = str(exc)
+            self._blind(now)
             return None
         self.bus.stats.cycle_times.append(time.perf_counter() - t0)
         self.cycles += 1
         return self.state
+
+    def _blind(self, now: float) -> None:
+        """No state this cycle: a joint in current mode cannot be braked before its limit,
+        so it stops pushing (goal current 0) until the state is back."""
+        if self._last_goals is None:
+            return
+        ticks, current = self._last_goals
+        blind = [i for i, c in enumerate(self.control)
+                 if c == CURRENT and self.bus.modes[i] == OperatingMode.CURRENT and current[i]]
+        if not blind:
+            return
+        current = current.copy()
+        current[blind] = 0
+        try:
+            self.bus.write_goals(ticks, current)   # a sync write: no reply to wait for
+            self._last_goals = (ticks, current)
+        except PortLostError as exc:
+            self._lost(exc, now)
+        except CommError:
+            pass
 
     def silent_for(self, now: float | None = None) -> float:
         """Seconds since the last successful sync read (0 while the port is down)."""
@@ -398,7 +421,11 @@ class DynamixelDriver:
                 self.bus.set_mode(i, want, int(ticks[i]), int(current[i]))
                 self._event(f"{self.config.joints[i].name}: operating mode -> {c}",
                             logging.DEBUG)
+        for i in self.bus.restore_torque(st.hardware_error):
+            self._event(f"{self.config.joints[i].name}: torque back on after an interrupted "
+                        "mode switch", logging.WARNING)
         self.bus.write_goals(ticks, current)
+        self._last_goals = (ticks, current)
 
     # -- diagnostics -------------------------------------------------------------------------
     def diagnostics(self, prefix: str, period: float) -> list[Status]:

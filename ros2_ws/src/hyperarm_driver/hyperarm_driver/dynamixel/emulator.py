@@ -428,18 +428,50 @@ class EmulatedBus:
         self._rng = random.Random(seed)
         self._last = time.monotonic()
         self.frozen = 0.0          # s of emulator starvation skipped (see freeze)
+        # lockstep: the servos move ``lockstep`` s per goal SYNC WRITE (one host cycle), on a
+        # virtual clock, whatever the wall clock does (deterministic tests of control logic)
+        self.lockstep: float | None = None
+        self._vt = 0.0
 
     # -- time ------------------------------------------------------------------------------
     def freeze(self, seconds: float) -> None:
         """The emulator process was not scheduled for ``seconds``: its servos do not move
         over that time (packets that queued up meanwhile are handled as if just in time)."""
         seconds = max(0.0, seconds)
+        if self.lockstep is not None:
+            return                 # on the virtual clock already
         self._last += seconds
         self.frozen += seconds
         for s in self.servos.values():   # nor does their Bus Watchdog count it
             s.last_rx += seconds
 
+    def _step_virtual(self) -> None:
+        """Lockstep: one host cycle of ``lockstep`` s on the virtual clock."""
+        assert self.lockstep is not None
+        dt, t = self.lockstep, self._vt
+        while dt > 1e-12:
+            h = min(dt, 0.005)
+            t += h
+            for s in self.units:
+                s.check_bus_watchdog(t)
+                s.step(h)
+            dt -= h
+        self._vt = t
+
+    def set_lockstep(self, dt: float | None) -> None:
+        """Lockstep with ``dt`` s per goal SYNC WRITE, or back to the wall clock (None)."""
+        if dt is not None and not 0.0 < dt <= 1.0:
+            raise ValueError(f"lockstep must be in (0, 1] s, got {dt}")
+        self.lockstep = dt
+        self._vt = 0.0
+        now = time.monotonic()
+        self._last = now
+        for s in self.units:       # the Bus Watchdog counts on the clock in use
+            s.last_rx = 0.0 if dt is not None else now
+
     def advance(self, now: float | None = None) -> None:
+        if self.lockstep is not None:
+            return                 # servos move per goal SYNC WRITE (see _step_virtual)
         now = time.monotonic() if now is None else now
         dt = min(max(0.0, now - self._last), 1.0)
         self._last = now
@@ -491,7 +523,7 @@ class EmulatedBus:
             self.advance(now)
             for s in self.units:   # every instruction packet feeds Bus Watchdog
                 if self._hears(s, now):
-                    s.last_rx = now
+                    s.last_rx = now if self.lockstep is None else self._vt
             self.instructions[pkt.instruction] = self.instructions.get(pkt.instruction, 0) + 1
             n0 = len(self.write_log)
             if pkt.crc_ok:
@@ -503,6 +535,8 @@ class EmulatedBus:
                         s.id, s.status_error(p2.ERR_CRC)), out)
             for rec in self.write_log[n0:]:
                 rec.inst, rec.t = pkt.instruction, now
+            if self.lockstep is not None and pkt.instruction == p2.INST_SYNC_WRITE:
+                self._step_virtual()
         return out
 
     def _reply(self, s: EmulatedServo, inst: int, packet: bytes, out: list[bytes]) -> None:
@@ -533,10 +567,14 @@ class EmulatedBus:
         inst, prm = pkt.instruction, pkt.params
         broadcast = pkt.id == p2.BROADCAST_ID
         if inst == p2.INST_PING:
-            for s in sorted(self._addressed(pkt.id, now), key=lambda s: s.id):
+            found = self._addressed(pkt.id, now)
+            for s in sorted(found, key=lambda s: s.id):
                 data = _reg_bytes("model_number", s.model.number) + bytes(
                     [s.get("firmware_version")])
-                self._emit(s.id, p2.build_status(s.id, s.status_error(), data), out)
+                reply = p2.build_status(s.id, s.status_error(), data)
+                if sum(o.id == s.id for o in found) > 1:     # same ID: they collide
+                    reply = reply[:-2] + bytes([reply[-2] ^ 0xA5, reply[-1]])
+                self._emit(s.id, reply, out)
             return
         targets = self._addressed(pkt.id, now)
         supported = [s for s in targets if inst in _INSTRUCTIONS[s.model.series]]
@@ -729,6 +767,9 @@ class EmulatedBus:
                 s = self.servos[int(cmd["id"])]
                 value, s.overshoot = s.overshoot, -float("inf")
                 return {"ok": True, "ticks": value if value > -float("inf") else None}
+            elif op == "lockstep":        # {"dt": s per goal SYNC WRITE, or null}
+                dt = cmd.get("dt")
+                self.set_lockstep(None if dt is None else float(dt))
             elif op == "units":           # every servo, also several sharing one ID
                 return {"ok": True, "units": [
                     {"id": s.id, "model": s.model.name, "baud": s.baud} for s in self.units]}
@@ -1045,6 +1086,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="probability a reply has a bad CRC")
     ap.add_argument("--reply-delay", type=float, default=0.0, help="extra reply delay, s")
     ap.add_argument("--seed", type=int, default=0, help="random seed of the fault injection")
+    ap.add_argument("--lockstep", type=float, default=0.0, metavar="S",
+                    help="move the servos S seconds per goal Sync Write (one host cycle) "
+                         "instead of with the wall clock (0 = off): deterministic tests")
     return ap
 
 
@@ -1066,6 +1110,12 @@ def main(argv: list[str] | None = None) -> int:
     bus.faults.drop_rate = args.drop_rate
     bus.faults.corrupt_rate = args.corrupt_rate
     bus.faults.reply_delay = args.reply_delay
+    if args.lockstep:
+        try:
+            bus.set_lockstep(args.lockstep)
+        except ValueError as exc:
+            print(f"dxl_emulator: {exc}", file=sys.stderr)
+            return 2
     emu = PtyEmulator(bus, link=args.link or None, control=args.control or None)
     device = emu.open()
     signal.signal(signal.SIGTERM, lambda *_: emu.stop())

@@ -155,11 +155,19 @@ class PmacClient(_Base):
                 self._connect_locked()
             t0 = time.perf_counter()
             deadline = time.monotonic() + self.timeout
+            busy = 0
             while True:
                 self._send(packet)
-                buf = self._receive_reply(deadline)
+                try:
+                    buf = self._receive_reply(deadline)
+                except PmacTimeoutError as exc:
+                    if not busy:
+                        raise
+                    raise PmacBusyError(f"PMAC at {self.endpoint} busy (NUL replies) for "
+                                        f"{self.timeout:g} s") from exc
                 if not proto.is_busy(buf):
                     break
+                busy += 1
                 self.busy_replies += 1
                 if time.monotonic() + BUSY_RETRY >= deadline:
                     self._drop()

@@ -20,45 +20,58 @@ logs it once. Callers (the ROS node) read :meth:`RailDriver.snapshot` and call
 """
 from __future__ import annotations
 
+import math
+import re
 import threading
 import time
 import traceback
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass, replace
-from typing import Callable, NoReturn
+from typing import Callable, NoReturn, Sequence
 
+from ..log_throttle import ReasonThrottle
 from .axis import MotorStatus, RailAxis, RailState
 from .errors import PmacCommandError, PmacError, PmacLinkError, PmacProtocolError, \
     RailCommandError, RailError
 
-__all__ = ["RailDriver", "DriverSnapshot", "REQUESTS", "OK", "WARN", "ERROR", "ReasonThrottle"]
+__all__ = ["RailDriver", "DriverSnapshot", "REQUESTS", "OK", "WARN", "ERROR", "check_command",
+           "reason_key"]
 
 OK, WARN, ERROR = 0, 1, 2          # diagnostic levels (diagnostic_msgs/DiagnosticStatus)
 REQUESTS = ("home", "hold", "enable", "kill")
 Logger = Callable[[str, str], None]   # (level: "info" | "warn" | "error", message)
 
 
-class ReasonThrottle:
-    """Lets a message through at once when its reason is new, else at most once per
-    ``period`` s per reason, so that throttling one problem never hides another."""
+def reason_key(message: str) -> str:
+    """A throttling key: the message with its numbers taken out (a value or address that
+    changes does not make a new reason, a different kind of problem does)."""
+    return re.sub(r"[-+]?\d[\d.]*(e[-+]?\d+)?", "#", message)
 
-    def __init__(self, period: float) -> None:
-        self.period = float(period)
-        self._last: dict[str, float] = {}
-        self._lock = threading.Lock()
 
-    def allow(self, reason: str, now: float | None = None) -> bool:
-        t = time.monotonic() if now is None else now
-        with self._lock:
-            last = self._last.get(reason)
-            if last is not None and t - last < self.period:
-                return False
-            self._last[reason] = t
-            if len(self._last) > 256:          # forget the oldest reasons
-                for k in sorted(self._last, key=self._last.get)[:128]:
-                    del self._last[k]
-            return True
+def check_command(names: Sequence[str], positions: Sequence[float],
+                  efforts: Sequence[float], joint: str) -> str | None:
+    """Why a ``joint_command`` that names ``joint`` is rejected whole, or None.
+
+    The contract (docs/architecture.md): a malformed message (length mismatch, NaN/inf in
+    any joint's value, duplicate names) is rejected whole, so that no driver applies part of
+    it while another refuses it; the rail is position-controlled: an effort for it other
+    than 0 (0 or an empty effort array = no extra limit) is refused.
+    """
+    if names.count(joint) > 1:
+        return f"{joint!r} named twice in one joint_command"
+    if len(positions) != len(names):
+        return f"{len(positions)} positions for {len(names)} names"
+    if len(efforts) not in (0, len(names)):
+        return f"{len(efforts)} efforts for {len(names)} names"
+    for kind, values in (("position", positions), ("effort", efforts)):
+        for name, v in zip(names, values):
+            if not math.isfinite(v):
+                return f"{kind} of {name!r} is not finite ({v}): the whole message is rejected"
+    if efforts and efforts[names.index(joint)] != 0.0:
+        return (f"effort {efforts[names.index(joint)]:g} for {joint!r} refused: the rail is "
+                "position-controlled (send 0 or no effort)")
+    return None
 
 
 @dataclass(frozen=True)
@@ -199,7 +212,7 @@ class RailDriver:
             traceback.print_exc()
 
     def _log_throttled(self, level: str, reason: str, message: str) -> None:
-        if self._throttle.allow(reason):
+        if self._throttle.allow(reason_key(reason)):
             self._log(level, message)
 
     # -- life cycle -----------------------------------------------------------------------
@@ -490,11 +503,20 @@ class RailDriver:
                                    "call rail/set_torque true first")
         if not snap.torque:
             raise RailCommandError("torque is off; call rail/set_torque true first")
-        if kind == "hold":
-            ax.stop()
-            return "holding"
-        ax.home()    # kind == "home"
-        return "home search started"
+        # J/ and HM close the loop of a motor the card killed since the last poll (the
+        # latch above can be one poll old). So: read the status first and refuse if the
+        # motor is killed; then send the command with the status read again in the same
+        # line, and if a kill landed in between (one round trip), kill it again at once.
+        # Either way the fault is latched and the request refused.
+        for check in (ax.status, ax.stop_checked if kind == "hold" else ax.home_checked):
+            st = check()
+            if st.faults or not st.amp_enabled:
+                reason = (f"{_fault_reason(st)} on the card" if st.faults else
+                          "motor killed by the card")
+                self._latch(reason, f" (seen with rail/{kind})")
+                raise RailCommandError(f"{kind} refused: {reason}; call rail/set_torque "
+                                       "true first")
+        return "holding" if kind == "hold" else "home search started"
 
 
 def _unique(items: tuple[str, ...]) -> tuple[str, ...]:

@@ -62,11 +62,17 @@ _MOTOR_DEFAULTS = {0: 1.0, 11: 32000.0, 12: 16000.0, 13: 0.0, 14: 0.0, 19: 0.015
 # Motor I-variables holding addresses (reported in hex while I9 bit 1 is set).
 _MOTOR_ADDRESS_IVARS = (1, 2, 3, 4, 5, 10, 24, 25, 42, 43, 81, 82, 83, 91)
 _GLOBAL_ADDRESS_IVARS = (20, 21, 22, 23, 24)
-# Integer I-variables with a range 0..2**bits-1: a larger value keeps its low bits.
+# Integer I-variables with a range 0..2**bits-1. Turbo PMAC User Manual, "Limited Range": "an
+# attempt to assign an out-of-range value does not cause an error. The value is automatically
+# rolled over to within the range by modulo arithmetic (truncation)": I3=5 gives 5 mod 4 = 1.
 _GLOBAL_BITS = {3: 2, 6: 2, 9: 2, 63: 1, 64: 1}
 _MOTOR_BITS = {0: 1}
 _RE_VAR = re.compile(r"([PQMI])(\d+)")
 _RE_INT = re.compile(r"\d+")
+# Status bits an M-variable can read without building the whole status (same as status()).
+_FAST_BITS = {("Y", 2): lambda m: m.fatal_fe, ("Y", 3): lambda m: m.amp_fault,
+              ("Y", 10): lambda m: m.homed, ("X", 19): lambda m: m.closed_loop,
+              ("X", 18): lambda m: not m.closed_loop}
 _RE_STATUS_MDEF = re.compile(r"([XY]):\$?([0-9A-F]+),(\d+)(?:,1)?")
 _RE_MDEF = re.compile(r"\*|[XYDLF]:\$?[0-9A-F]+(?:,\d+)*(?:,[SU])?")
 
@@ -325,7 +331,8 @@ class PmacEmulator:
         self.plcs: dict[int, plclang.PlcProgram] = {}
         self._timers: dict[int, tuple[float, float]] = {}   # I5s11/I5s12: (value, set at)
         self._messages: list[str] = []
-        self._internal = _Port()
+        self._internal = _Port()      # execute() without a port (tests, the API)
+        self._plc_port = _Port()      # CMD"..." of PLC programs
         self._lock = threading.RLock()
         self._t0 = time.monotonic()
         self._t = self._t0            # simulated time (monotonic clock), advanced lazily
@@ -475,7 +482,7 @@ class PmacEmulator:
     def _plc_command(self, text: str) -> None:
         """A CMD"..." of a PLC program: an on-line command from the card itself."""
         try:
-            self._execute(plclang.squeeze(text), [], self._internal)
+            self._execute(plclang.squeeze(text), [], self._plc_port)
         except (_CmdError, plclang.PlcSyntaxError):
             pass
 
@@ -510,14 +517,19 @@ class PmacEmulator:
             k, off = divmod(addr - base, 0x80)
             mot = self.motors.get(k + 1)
             if off == 0 and mot is not None and 0 <= bit < 24:
+                fast = _FAST_BITS.get((space, bit))     # (PLC scans read these every ms)
+                if fast is not None:
+                    return float(bool(fast(mot)))
                 st = mot.status()
                 return float((st.word1 if space == "X" else st.word2) >> bit & 1)
         return self.mvars.get(n, 0.0)
 
     def _get_ivar(self, k: int) -> float:
         if _is_timer(k):
+            # Software Reference, Isx11: "count down one unit per servo cycle ... until it
+            # reaches its maximum negative value of -8,388,608. It will not roll over."
             value, at = self._timers.get(k, (0.0, self._t))
-            return value - (self._t - at) / self.servo_period
+            return float(max(-8388608, value - math.floor((self._t - at) / self.servo_period)))
         mot = self.motors.get(k // 100) if 100 <= k < 3300 else None
         if mot is not None:
             return mot.ivars.get(k % 100, 0.0)
@@ -525,7 +537,7 @@ class PmacEmulator:
 
     def _set_ivar(self, k: int, v: float) -> None:
         if _is_timer(k):
-            self._timers[k] = (v, self._t)
+            self._timers[k] = (float(int(v)), self._t)     # a signed 24-bit integer
             return
         mot = self.motors.get(k // 100) if 100 <= k < 3300 else None
         bits = _MOTOR_BITS.get(k % 100) if mot is not None else _GLOBAL_BITS.get(k)
@@ -542,8 +554,6 @@ class PmacEmulator:
                    else k in _GLOBAL_ADDRESS_IVARS)
         if is_addr and int(self.globals[9]) & 2:
             return f"${int(value):X}"
-        if _is_timer(k):
-            value = float(math.floor(value))
         return _fmt(value)
 
     # -- command interpreter --------------------------------------------------------------

@@ -7,13 +7,15 @@ from 1 to 0 when the offending motor is re-enabled", Turbo PMAC Software Referen
 coordinate-system status). So the card itself must
 
 1. stop the rail when the host is gone: the driver increments a heartbeat P-variable in
-   every poll; the PLC re-arms a countdown timer (Isx11, decremented every servo cycle)
+   every poll; the PLC re-arms a countdown timer (Isx11: "Isx11 will count down one unit per
+   servo cycle", Software Reference; "multiply [ms] by 8,388,608 and divide by I10")
    whenever the heartbeat changes, and when the timer runs out while the host has torque on
    (the "armed" P-variable is 1) it disarms and issues ``#nJ/`` (decelerate at the jog
    acceleration and hold, servo on);
 2. keep a motor the card killed killed: when the fatal-following-error or amplifier-fault
    status bit of the motor is set (read through M-variables on the motor status words, the
-   Turbo PMAC suggested definitions ``Mxx42->Y:$0000C0,2``, ``Mxx43->Y:$0000C0,3``) it
+   Turbo PMAC suggested definitions ``M142->Y:$0000C0,2,1``, ``M143->Y:$0000C0,3,1`` for
+   motor 1, $80 further per motor) it
    disarms and deactivates the motor (Ixx00=0), so that no jog streamed afterwards can close
    its loop; ``set_torque true`` re-activates it (Ixx00=1) and closes the loop (``J/``).
 
@@ -94,7 +96,7 @@ def download_lines(cfg: WatchdogConfig, motor: int, servo_period: float) -> list
     status = 0x0000C0 + (motor - 1) * 0x80       # motor status word 2 (Y register)
     return [f"DISABLE PLC {cfg.plc}",
             f"P{cfg.armed}=0 P{cfg.seen}=P{cfg.heartbeat}",
-            f"M{cfg.mvar}->Y:${status:06X},2 M{cfg.mvar + 1}->Y:${status:06X},3",
+            f"M{cfg.mvar}->Y:${status:06X},2,1 M{cfg.mvar + 1}->Y:${status:06X},3,1",
             f"OPEN PLC {cfg.plc} CLEAR",
             *program(cfg, motor, servo_period),
             "CLOSE",

@@ -1,0 +1,1 @@
+"""hyperarm bring-up: the `hyperarm` command-line tool, the viewer, launch/config files."""

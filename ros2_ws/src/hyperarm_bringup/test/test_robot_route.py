@@ -1,0 +1,128 @@
+"""The robot route (Ubuntu 24.04 + ROS 2 Jazzy from apt) installs without breaking ROS:
+pip's plan never replaces apt's numpy 1.26 nor adds a second pinocchio, every third-party
+import has an apt (rosdep) key or a line in requirements-robot.txt, and the ROS-free core
+tests pass under numpy 1.26 (docs/robot-install.md)."""
+from __future__ import annotations
+
+import ast
+import importlib.util
+import re
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.core
+
+ROOT = Path(__file__).resolve().parents[4]
+SRC = ROOT / "ros2_ws" / "src"
+CHECK = ROOT / "scripts" / "robot_route" / "check_plan.py"
+
+
+def _check_module():
+    spec = importlib.util.spec_from_file_location("check_plan", CHECK)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_violations_name_numpy_2_a_second_pinocchio_and_ros_wheels():
+    cp = _check_module()
+    apt = cp.read_pins(cp.APT_CONSTRAINTS)
+    assert apt["numpy"] == "1.26.4"
+    plan = [("pyserial", "3.5"), ("numpy", "2.4.6"), ("pin", "4.1.0"), ("cmeel-boost", "1.90.0"),
+            ("ros-rclpy", "7.1.6"), ("paramiko", "5.1.0")]
+    bad = cp.violations(plan, apt, installed=False)
+    assert len(bad) == 4 and all(n in " ".join(bad) for n in ("numpy", "pin", "cmeel", "ros-"))
+    # with the apt set installed, even the same pyserial is a replacement
+    assert any("pyserial" in b for b in cp.violations(plan, apt, installed=True))
+    assert cp.violations([("paramiko", "5.1.0")], apt, installed=True) == []
+
+
+@pytest.mark.slow
+def test_robot_pip_plan_resolves_against_apt_numpy_and_adds_no_pinocchio():
+    """pip --dry-run --report for CPython 3.12 manylinux with the apt versions as
+    constraints (needs PyPI, as `make setup` does)."""
+    proc = subprocess.run([sys.executable, str(CHECK)], capture_output=True, text=True,
+                          timeout=170)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "ok [cp312" in proc.stdout and "dls-pmaclib" in proc.stdout
+
+
+@pytest.mark.slow
+def test_plan_check_fails_on_a_requirement_that_needs_numpy_2(tmp_path):
+    req = tmp_path / "req.txt"
+    req.write_text("pin==4.1.0\n")
+    proc = subprocess.run([sys.executable, str(CHECK), "--requirements", str(req)],
+                          capture_output=True, text=True, timeout=170)
+    assert proc.returncode == 1 and "FAIL" in proc.stdout, proc.stdout
+
+
+# import name -> rosdep key (apt on the robot); pip-only ones are in requirements-robot.txt
+ROSDEP_OF = {"numpy": "python3-numpy", "yaml": "python3-yaml", "pinocchio": "pinocchio",
+             "eigenpy": "pinocchio", "coal": "coal", "dynamixel_sdk": "dynamixel_sdk",
+             "serial": "python3-serial", "pytest": "python3-pytest",
+             "hypothesis": "python3-hypothesis", "launch": "launch",
+             "launch_ros": "launch_ros"}
+PIP_OF = {"dls_pmaclib": "dls-pmaclib", "viser": "viser"}
+BENCH_ONLY = {"matplotlib", "ikpy", "pytracik"}  # requirements-bench.txt, never at run time
+
+
+def _imports(source: Path) -> set[str]:
+    """Top-level names of the absolute imports of a module (anywhere in it)."""
+    names = set()
+    for node in ast.walk(ast.parse(source.read_text())):
+        if isinstance(node, ast.Import):
+            names |= {a.name.split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names.add(node.module.split(".")[0])
+    return names
+
+
+def _python_packages() -> list[Path]:
+    return sorted(p.parent for p in SRC.glob("*/package.xml") if (p.parent / "setup.py").exists())
+
+
+def test_every_third_party_import_has_an_apt_key_or_a_robot_pip_line():
+    robot_pip = {re.split(r"[=<>]", line)[0].strip().lower()
+                 for line in (ROOT / "requirements-robot.txt").read_text().splitlines()
+                 if line.strip() and not line.startswith("#")}
+    local = {p.name for p in SRC.iterdir() if p.is_dir()} | {"conftest"}
+    missing = []
+    for pkg in _python_packages():
+        keys = {e.text for e in ET.parse(pkg / "package.xml").getroot()
+                if e.tag.endswith("depend")}
+        own = {p.stem for p in pkg.rglob("*.py")} | {p.name for p in pkg.rglob("*") if p.is_dir()}
+        for source in pkg.rglob("*.py"):
+            if "benchmark" in source.parts or source.name == "setup.py":
+                continue
+            for name in _imports(source):
+                if (name in sys.stdlib_module_names or name in local or name in own
+                        or name in BENCH_ONLY or name == "setuptools"):
+                    continue
+                if name in PIP_OF:
+                    ok = PIP_OF[name] in robot_pip
+                elif name in ROSDEP_OF:
+                    ok = ROSDEP_OF[name] in keys
+                else:  # a ROS package: its key is its name (rclpy, sensor_msgs, ...)
+                    ok = name in keys or name in ("rcl_interfaces", "builtin_interfaces",
+                                                  "action_msgs", "rosgraph_msgs")
+                if not ok:
+                    missing.append(f"{source.relative_to(SRC)}: import {name}")
+    assert not missing, "no rosdep key / robot pip line for:\n" + "\n".join(sorted(set(missing)))
+
+
+@pytest.mark.slow
+def test_core_tests_pass_under_numpy_1_26():
+    """scripts/robot_route/core_tests.sh: pytest -m core in a venv with the apt versions
+    (numpy 1.26.4); modules needing pinocchio/rclpy are skipped by name, nothing fails."""
+    proc = subprocess.run(["bash", str(ROOT / "scripts/robot_route/core_tests.sh"),
+                           "--ignore", str(Path(__file__))],
+                          capture_output=True, text=True, timeout=600)
+    tail = proc.stdout[-3000:] + proc.stderr[-2000:]
+    assert proc.returncode == 0, tail
+    assert "[np126] numpy 1.26.4" in proc.stdout
+    passed = int(re.search(r"(\d+) passed", proc.stdout).group(1))
+    assert passed >= 100, tail

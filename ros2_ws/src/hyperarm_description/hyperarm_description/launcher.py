@@ -1,0 +1,45 @@
+"""Entry points that are quiet about a signal during start-up (no rclpy, no numpy needed).
+
+A node's module imports rclpy, pinocchio and numpy before its ``main()`` can install the
+signal handling of :func:`hyperarm_description.ros_main.run_node`; on a loaded robot
+computer that takes seconds. A Ctrl-C or SIGTERM in that window would print a
+``KeyboardInterrupt`` traceback (or end the process with -15) although nothing has started.
+:func:`lazy_main` makes a console-script entry point that installs a handler first, imports
+the node module, and exits 0 if a signal came before the node's own main took over.
+"""
+from __future__ import annotations
+
+import importlib
+import signal
+import sys
+from typing import Any, Callable
+
+__all__ = ["lazy_main"]
+
+
+class _StoppedDuringStartup(BaseException):
+    """A signal arrived while the node module was being imported (not an error)."""
+
+
+def _on_signal(_signum: int, _frame: Any) -> None:
+    raise _StoppedDuringStartup
+
+
+def lazy_main(module: str, attr: str = "main") -> Callable[[], Any]:
+    """A ``console_scripts`` target that runs ``module.attr()`` (``module`` imported only
+    when the entry point runs), exiting 0 on SIGINT/SIGTERM during the import."""
+
+    def entry() -> Any:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, _on_signal)
+        try:
+            main = getattr(importlib.import_module(module), attr)
+            # run_node() replaces the handler at once; a signal in between is still quiet.
+            return main()
+        except _StoppedDuringStartup:
+            print("stopped during start-up", file=sys.stderr)
+            sys.exit(0)
+
+    entry.__name__ = entry.__qualname__ = f"{module.rsplit('.', 1)[-1]}_{attr}"
+    entry.__doc__ = f"Entry point of {module}.{attr} (see hyperarm_description.launcher)."
+    return entry
