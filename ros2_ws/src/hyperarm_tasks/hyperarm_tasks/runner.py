@@ -394,6 +394,15 @@ class Runner:
             self.force_on = False
             if reason:
                 self.robot.log("error", f"could not disable force control: {reason}")
+            self.keep_squeezing()
+
+    def keep_squeezing(self) -> None:
+        """After a hold (ours, or the force node's when it is disabled): a hold commands the
+        present position, so the fingers would stop squeezing and drop a held block; keep
+        closing them at the grip effort."""
+        if self.holding is not None:
+            g = self.desc.gripper
+            self.robot.command({g.name: g.lower}, {g.name: self.holding})
 
     # --- the task --------------------------------------------------------------------------
     def run(self) -> RunResult:
@@ -457,8 +466,4 @@ class Runner:
         reason = self.robot.hold()
         if reason:
             self.robot.log("error", f"hold failed: {reason}")
-        if self.holding is not None:
-            # a hold commands the present position: the fingers would stop squeezing and
-            # drop the block; keep closing them at the grip effort
-            g = self.desc.gripper
-            self.robot.command({g.name: g.lower}, {g.name: self.holding})
+        self.keep_squeezing()

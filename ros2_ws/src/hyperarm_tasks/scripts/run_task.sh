@@ -18,6 +18,8 @@
 #                        this ROS parameters file instead of the mock
 #   --workcell FILE      the mock's work-cell YAML (default: its packaged one)
 #   --seed N             the mock's imperfection and camera seeds (a copy of the work cell)
+#   --force-node         also start hybrid_force: force_insert then uses hybrid force control
+#                        instead of its pressing fallback (experimental, see docs/tasks.md)
 #   --record FILE        record the run to FILE (MCAP: joint_states, joint_command,
 #                        hybrid_goal, ee_wrench, detections, task feedback)
 #   --tasks-dir DIR      user task files (searched before the packaged ones)
@@ -29,6 +31,7 @@ set -uo pipefail
 usage() { sed -n '2,/^set -uo/p' "${BASH_SOURCE[0]}" | sed '$d; s/^# \{0,1\}//'; }
 
 variant=arm hardware="" workcell="" seed="" record="" tasks_dir="" timeout=300 logs="" tasks=()
+force_node=0
 while [ $# -gt 0 ]; do
   case "$1" in
     -h|--help) usage; exit 0 ;;
@@ -37,6 +40,7 @@ while [ $# -gt 0 ]; do
     --workcell) workcell="${2:?--workcell needs a file}"; shift 2 ;;
     --seed) seed="${2:?--seed needs a number}"; shift 2 ;;
     --record) record="${2:?--record needs a file}"; shift 2 ;;
+    --force-node) force_node=1; shift ;;
     --tasks-dir) tasks_dir="${2:?--tasks-dir needs a directory}"; shift 2 ;;
     --timeout) timeout="${2:?--timeout needs seconds}"; shift 2 ;;
     --logs) logs="${2:?--logs needs a directory}"; shift 2 ;;
@@ -120,6 +124,9 @@ PY
   fi
   [ -z "$workcell" ] || mock+=(-p "workcell_file:=$workcell")
   start mock_driver "$(exe hyperarm_driver mock_driver)" --ros-args "${mock[@]}"
+fi
+if [ "$force_node" = 1 ]; then
+  start hybrid_force "$(exe hyperarm_ik hybrid_force)" --ros-args "${ros[@]}"
 fi
 task_args=("${ros[@]}")
 [ -z "$tasks_dir" ] || task_args+=(-p "tasks_dir:=$tasks_dir")

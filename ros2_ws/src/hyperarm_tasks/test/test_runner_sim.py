@@ -31,13 +31,15 @@ def kin(desc):
 def cell(seed: int, **world):
     base = load_mock_config()
     w = base.world
+    spec = w.spec            # the shared work-cell schema (hyperarm_description.world)
     if "hole_radius" in world:
-        w = dataclasses.replace(w, block=dataclasses.replace(w.block,
-                                                             hole_radius=world["hole_radius"]))
+        spec = dataclasses.replace(spec, block=dataclasses.replace(
+            spec.block, hole_radius=world["hole_radius"]))
     if "destination" in world:
-        w = dataclasses.replace(w, pegs=tuple(
+        spec = dataclasses.replace(spec, pegs=tuple(
             dataclasses.replace(p, xy=world["destination"]) if p.name == "destination" else p
-            for p in w.pegs))
+            for p in spec.pegs))
+    w = dataclasses.replace(w, spec=spec)
     return dataclasses.replace(
         base, world=w,
         imperfections=dataclasses.replace(base.imperfections, seed=seed),
