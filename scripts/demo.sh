@@ -1,9 +1,13 @@
 #!/usr/bin/env bash
-# `make demo`: the main job on the mock driver, no hardware.
+# `make demo`: Danko & Oh's pick-and-place (Section IV) on the mock, from a shell script.
 #
-# Starts mock_driver, fk_node and task_node as separate processes (exactly what
-# `ros2 run` starts on the robot), then runs task sequences from the shell script and prints
-# where the tool went. Everything is stopped with Ctrl-C semantics (SIGINT) at the end.
+# run_task.sh starts mock_driver (its default work cell and noise: the arm's repeatability
+# is worse than the peg clearance, so the insertion needs the force-controlled dither),
+# task_node and task_recorder as separate processes (what `ros2 run` starts on the robot),
+# and runs block_transfer (the block from the source peg onto the destination peg) then
+# block_transfer_back (and back), printing every step. The run is recorded to an MCAP file
+# and plotted to PNGs; the script says where. Real time: about 2 minutes.
+# Output directory: HYPERARM_DEMO_OUT (default demo_output/ in the repository).
 set -eo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
@@ -11,62 +15,22 @@ cd "$ROOT"
 source scripts/env.sh
 export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-42}"
 export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
-LOGS="$(mktemp -d)"
-pids=()
-cleanup() {
-  # Ctrl-C for every node, then up to 10 s each to exit cleanly; a node that does not is
-  # named and killed, so the demo never hangs on its way out.
-  for pid in "${pids[@]}"; do kill -INT "$pid" 2>/dev/null || true; done
-  for pid in "${pids[@]}"; do
-    if ! timeout 10 tail --pid="$pid" -f /dev/null; then
-      echo "demo: process $pid did not exit on SIGINT (logs in $LOGS); killing it" >&2
-      kill -KILL "$pid" 2>/dev/null || true
-    fi
-    wait "$pid" 2>/dev/null || true
-  done
-  # the logs only matter when something failed; keep them then (or with KEEP_LOGS=1)
-  if [ "$status" = 0 ] && [ "${KEEP_LOGS:-0}" != 1 ]; then rm -rf "$LOGS"; else
-    echo "demo: logs kept in $LOGS" >&2; fi
-}
-trap 'status=$?; cleanup' EXIT
+OUT="${HYPERARM_DEMO_OUT:-$ROOT/demo_output}"
+mkdir -p "$OUT"
+rm -f "$OUT/block_transfer.mcap"
 
-lib() { echo "$ROOT/ros2_ws/install/$1/lib/$1/$2"; }
-
-echo "== hyperarm demo (ROS_DOMAIN_ID=$ROS_DOMAIN_ID, logs in $LOGS)"
-"$(lib hyperarm_description show_description)"
-echo
-echo "== starting mock_driver, fk_node, task_node"
-"$(lib hyperarm_driver mock_driver)" > "$LOGS/mock_driver.log" 2>&1 & pids+=($!)
-"$(lib hyperarm_ik fk_node)" > "$LOGS/fk_node.log" 2>&1 & pids+=($!)
-"$(lib hyperarm_tasks task_node)" > "$LOGS/task_node.log" 2>&1 & pids+=($!)
-
-tool_pose() {
-  python - <<'PY'
-import time, rclpy
-from geometry_msgs.msg import PoseStamped
-from hyperarm_description import contract
-from hyperarm_description.qos import qos_for
-rclpy.init()
-node = rclpy.create_node("demo_probe", namespace=contract.DEFAULT_NAMESPACE)
-got = []
-node.create_subscription(PoseStamped, contract.TOOL_POSE, got.append, qos_for(contract.TOOL_POSE))
-deadline = time.monotonic() + 10
-while not got and time.monotonic() < deadline:
-    rclpy.spin_once(node, timeout_sec=0.1)
-if got:
-    p = got[-1].pose.position
-    x, y, z = (round(v, 4) + 0.0 for v in (p.x, p.y, p.z))  # + 0.0: no "-0.0000"
-    print(f"   tool0 in {got[-1].header.frame_id}: x={x:.4f} y={y:.4f} z={z:.4f} m")
-else:
-    print("   no tool_pose received")
-node.destroy_node()
-rclpy.try_shutdown()
-PY
-}
-
-echo "== task sequence: rest, ready (hyperarm_tasks/scripts/run_sequence.sh)"
-"$(lib hyperarm_tasks run_sequence.sh)" rest
-tool_pose
-"$(lib hyperarm_tasks run_sequence.sh)" ready
-tool_pose
-echo "== demo done"
+echo "== hyperarm demo: block transfer there and back on the mock (ROS_DOMAIN_ID=$ROS_DOMAIN_ID)"
+set +e
+ros2_ws/src/hyperarm_tasks/scripts/run_task.sh --record "$OUT/block_transfer.mcap" \
+  --logs "$OUT/logs" block_transfer block_transfer_back
+rc=$?
+set -e
+if [ -f "$OUT/block_transfer.mcap" ]; then
+  echo "== plotting the recording"
+  ros2_ws/install/hyperarm_tasks/lib/hyperarm_tasks/plot_task "$OUT/block_transfer.mcap" --out "$OUT"
+fi
+echo "== demo $([ $rc -eq 0 ] && echo succeeded || echo "FAILED (exit $rc)")"
+echo "   recording (MCAP, rosbag2/Foxglove): $OUT/block_transfer.mcap"
+echo "   pictures: $OUT/tool_path.png $OUT/joints.png $OUT/insertion.png"
+echo "   node logs: $OUT/logs"
+exit $rc

@@ -25,6 +25,9 @@ setup(
             "fk_node = hyperarm_ik.entry:fk_node",
             "ik_service = hyperarm_ik.entry:ik_service",
             "ik_benchmark = hyperarm_ik.benchmark.ik_benchmark:main",
+            "hybrid_force = hyperarm_ik.entry:hybrid_force",
+            "hybrid_force_calibrate = hyperarm_ik.entry:hybrid_force_calibrate",
+            "force_benchmark = hyperarm_ik.benchmark.force_benchmark:main",
         ],
     },
 )

@@ -12,6 +12,7 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
+        ("share/" + package_name + "/tasks", glob("tasks/*.yaml")),
         ("share/" + package_name + "/launch", glob("launch/*.py")),
         # shell scripts, runnable as `ros2 run hyperarm_tasks <script>.sh`
         ("lib/" + package_name, glob("scripts/*.sh")),
@@ -26,6 +27,9 @@ setup(
         "console_scripts": [
             "task_node = hyperarm_tasks.entry:task_node",
             "run_task = hyperarm_tasks.run_task:main",
+            "task_recorder = hyperarm_tasks.recorder_node:main",
+            "plot_task = hyperarm_tasks.plots:main",
+            "soak_block_transfer = hyperarm_tasks.benchmarks.soak:main",
         ],
     },
 )

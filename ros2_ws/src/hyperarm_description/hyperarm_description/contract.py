@@ -59,8 +59,11 @@ QOS = {
     TOOL_POSE: {"reliability": "reliable", "durability": "volatile", "depth": 10},
     HYBRID_GOAL: {"reliability": "reliable", "durability": "volatile", "depth": 1},
     EE_WRENCH: {"reliability": "reliable", "durability": "volatile", "depth": 10},
+    EE_WRENCH_BASE: {"reliability": "reliable", "durability": "volatile", "depth": 10},
     DETECTIONS: {"reliability": "reliable", "durability": "volatile", "depth": 5},
     DETECTIONS_TRUTH: {"reliability": "reliable", "durability": "volatile", "depth": 5},
+    TOOL_WRENCH_TRUTH: {"reliability": "reliable", "durability": "volatile", "depth": 10},
+    CONTACTS_TRUTH: {"reliability": "reliable", "durability": "volatile", "depth": 5},
     DIAGNOSTICS: {"reliability": "reliable", "durability": "volatile", "depth": 10},
 }
 

@@ -35,7 +35,8 @@ def _mutate(data: dict, fn) -> dict:
 
 def test_every_link_and_the_gripper_has_one_capsule():
     desc = load_description()
-    assert [c.name for c in desc.capsules] == [*LINKS, "gripper"]
+    assert [c.name for c in desc.capsules] == [*LINKS, "gripper", "base"]
+    assert desc.capsule("base").frame == "base_link"
     assert desc.capsule("gripper").frame == "tool0"
     for c in desc.capsules:
         assert c.radius > 0 and c.length > 0

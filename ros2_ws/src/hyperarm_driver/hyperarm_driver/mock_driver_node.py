@@ -14,12 +14,13 @@ from __future__ import annotations
 
 import threading
 import time
+import traceback
 
 import numpy as np
 import pinocchio as pin
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import Pose
+from geometry_msgs.msg import Pose, WrenchStamped
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
@@ -69,6 +70,9 @@ PARAMETERS: ParamSpec = {
                        "/clock", _SimSpeed()),  # type: ignore[dict-item]
 }
 
+# Simulation events logged as warnings (a task relying on them would fail on the robot); the
+# others (grasped, released, threaded, unthreaded, homed, ...) are logged as info.
+WARNING_EVENTS = frozenset({"watchdog", "dropped", "hardware_error", "underpowered"})
 _LEVELS = {"OK": 0, "WARN": 1, "ERROR": 2}  # diagnostic_msgs/DiagnosticStatus levels
 _MAX_CATCH_UP = 5  # simulation steps per timer tick at most in real time
 
@@ -122,6 +126,14 @@ class MockDriver(Node):
         self._truth = self.create_publisher(Detections, contract.DETECTIONS_TRUTH,
                                             qos_for(contract.DETECTIONS_TRUTH),
                                             event_callbacks=quiet)
+        self._wrench = self.create_publisher(WrenchStamped, contract.TOOL_WRENCH_TRUTH,
+                                             qos_for(contract.TOOL_WRENCH_TRUTH),
+                                             event_callbacks=quiet)
+        self._tool_frame = desc.tool_frame
+        self._contacts = self.create_publisher(DiagnosticArray, contract.CONTACTS_TRUTH,
+                                               qos_for(contract.CONTACTS_TRUTH),
+                                               event_callbacks=quiet)
+        self._touching = False
         self._clock_pub = None
         if self._speed > 0.0:
             self._clock_pub = self.create_publisher(ClockMsg, contract.CLOCK, QoSProfile(
@@ -129,11 +141,16 @@ class MockDriver(Node):
                 durability=DurabilityPolicy.VOLATILE), event_callbacks=quiet)
         self.create_subscription(JointState, contract.JOINT_COMMAND, self._on_command,
                                  qos_for(contract.JOINT_COMMAND))
+        # One owner per service (docs/architecture.md): set_torque, hold, reboot act on the
+        # arm and the gripper; on rail_arm the rail has its own under rail/.
+        self._servos = [n for n in self._sim.names if n != self._sim.rail]
         self.create_service(SetBool, contract.SET_TORQUE, self._on_set_torque)
         self.create_service(Reboot, contract.REBOOT, self._on_reboot)
         self.create_service(Trigger, contract.HOLD, self._on_hold)
         if self._sim.rail is not None:
             self.create_service(Trigger, contract.RAIL_HOME, self._on_home)
+            self.create_service(SetBool, contract.RAIL_SET_TORQUE, self._on_rail_torque)
+            self.create_service(Trigger, contract.RAIL_HOLD, self._on_rail_hold)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(self._diag_period / max(self._speed, 1.0), self._publish_diagnostics,
                           clock=steady)
@@ -142,6 +159,8 @@ class MockDriver(Node):
         # Callbacks (commands, services, diagnostics) share the simulation under _lock.
         self._lock = threading.Lock()
         self._stop = threading.Event()
+        self._failure: BaseException | None = None
+        self._failed = self.create_guard_condition(self._on_failure)
         self._loop = threading.Thread(target=self._run, name="mock_driver-sim", daemon=True)
         self._loop.start()
         if self.get_parameter("use_sim_time").value and self._speed == 0.0:
@@ -176,12 +195,14 @@ class MockDriver(Node):
             try:
                 with self._lock:
                     self._tick(steps)
-            except Exception as exc:  # noqa: BLE001 - context gone at shutdown: stop quietly
-                if self.context.ok():   # a bug: say so loudly, joint_states stop
-                    self.get_logger().fatal(f"simulation loop failed, joint_states stop: "
-                                            f"{exc!r}")
-                    raise
-                self.get_logger().debug(f"simulation loop stopped: {exc}")
+            except Exception as exc:  # noqa: BLE001 - a bug, or the context gone at shutdown
+                if self.context.ok() and not self._stop.is_set():
+                    # a bug: log the traceback once, then end the node (non-zero exit) from
+                    # the executor's thread: no half-alive node that answers but never moves
+                    self.get_logger().fatal("simulation loop failed, the node exits:\n"
+                                            + traceback.format_exc())
+                    self._failure = exc
+                    self._failed.trigger()
                 return
             next_tick += self._dt
             delay = next_tick - time.monotonic()
@@ -207,12 +228,29 @@ class MockDriver(Node):
         msg.velocity = s.velocity.tolist()
         msg.effort = s.effort.tolist()
         self._pub.publish(msg)
+        w = self._sim.tool_wrench
+        wrench = WrenchStamped()
+        wrench.header.stamp = self._time(self._sim.time)   # the truth now (no latency)
+        wrench.header.frame_id = self._tool_frame
+        (wrench.wrench.force.x, wrench.wrench.force.y, wrench.wrench.force.z,
+         wrench.wrench.torque.x, wrench.wrench.torque.y, wrench.wrench.torque.z) = \
+            (float(v) for v in w)
+        self._wrench.publish(wrench)
+        touching = bool(self._sim.link_contacts)
+        if touching or self._touching:   # while links touch a pole, and once when they stop
+            self._publish_contacts(msg.header.stamp)
+        self._touching = touching
         for event in self._sim.take_events():
-            log = self.get_logger().warn if event.kind in (
-                "watchdog", "dropped", "hardware_error", "underpowered") else self.get_logger().info
-            log(f"{event.kind}: {event.detail}")
+            self._log_event(event.kind, event.detail)
         self._stats.cycles += 1
         self._stats.cycle_times.append(time.monotonic() - start)
+
+    def _log_event(self, kind: str, detail: str) -> None:
+        """One call site per severity: rclpy raises if one call site logs at two."""
+        if kind in WARNING_EVENTS:
+            self.get_logger().warn(f"{kind}: {detail}")
+        else:
+            self.get_logger().info(f"{kind}: {detail}")
 
     def _time(self, t: float) -> Time:
         """Stamp of simulated time ``t`` (s): itself on sim time; in real time the node
@@ -222,12 +260,28 @@ class MockDriver(Node):
         now = self.get_clock().now().nanoseconds * 1e-9
         return _stamp(now - (self._sim.time - t))
 
+    def _publish_contacts(self, stamp: Time) -> None:
+        """debug/contacts: one status per link capsule touching a pole (none: empty)."""
+        arr = DiagnosticArray()
+        arr.header.stamp = stamp
+        arr.status = [diagnostic_status(
+            f"{self.get_name()}: contact {link}", pole, 0, f"{link} on {pole}",
+            [("link", link), ("pole", pole), ("depth_mm", f"{1e3 * depth:.2f}"),
+             ("force_N", " ".join(f"{v:.3f}" for v in force))])
+            for link, pole, depth, force in self._sim.link_contacts]
+        self._contacts.publish(arr)
+
+    def _on_failure(self) -> None:
+        """Executor thread: the simulation loop died (its traceback is logged): end."""
+        raise SystemExit(f"mock_driver: simulation loop failed: {self._failure!r}")
+
     def _publish_frame(self, frame: Frame) -> None:
-        for pub, poses in ((self._det, frame.detected), (self._truth, frame.truth)):
+        detected = () if frame.dropped else frame.detected   # a camera dropout: no detections
+        for pub, poses in ((self._det, detected), (self._truth, frame.truth)):
             msg = Detections()
             msg.header.stamp = self._time(frame.stamp)
             msg.header.frame_id = self._frame_id
-            msg.names = list(frame.names)
+            msg.names = list(frame.names) if poses else []
             msg.poses = [_pose(m) for m in poses]
             pub.publish(msg)
 
@@ -249,18 +303,35 @@ class MockDriver(Node):
     def _on_set_torque(self, req: SetBool.Request, res: SetBool.Response) -> SetBool.Response:
         def action(enable: bool) -> None:
             with self._lock:
-                self._sim.set_torque(enable)
+                self._sim.set_torque(enable, self._servos)
         return answer_set_torque(self, req.data, action, (MockError,), res)
+
+    def _on_rail_torque(self, req: SetBool.Request, res: SetBool.Response) -> SetBool.Response:
+        def action(enable: bool) -> None:
+            with self._lock:
+                self._sim.set_torque(enable, [self._sim.rail])
+        return answer_set_torque(self, req.data, action, (MockError,), res)
+
+    def _on_rail_hold(self, req: Trigger.Request, res: Trigger.Response) -> Trigger.Response:
+        with self._lock:
+            held = self._sim.hold([self._sim.rail])
+        res.success = bool(held)
+        res.message = "rail holding its present position" if held else \
+            "rail amplifier not enabled: rail/set_torque true first"
+        return res
 
     def _on_reboot(self, req: Reboot.Request, res: Reboot.Response) -> Reboot.Response:
         def action(joints: list[str]) -> list[str]:
+            if self._sim.rail in joints:
+                raise JointStateError(f"{self._sim.rail} is not a servo of this driver "
+                                      "(the rail: rail/set_torque, rail/hold, rail/home)")
             with self._lock:
                 return self._sim.reboot(joints)
         return answer_reboot(self, req.joints, action, (JointStateError, MockError), res)
 
     def _on_hold(self, req: Trigger.Request, res: Trigger.Response) -> Trigger.Response:
         with self._lock:
-            self._sim.hold()
+            self._sim.hold(self._servos)
         res.success, res.message = True, "holding the present position"
         return res
 

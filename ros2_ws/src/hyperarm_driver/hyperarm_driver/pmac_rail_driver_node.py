@@ -43,9 +43,10 @@ PARAMETERS: ParamSpec = {
                      "timeout + 1/rate)", Range(0.005, 0.4)),
     "reconnect_period": (1.0, "delay between reconnection attempts, s", Range(0.05, 60.0)),
     "require_homing": (True, "refuse setpoints until the card reports home complete", None),
-    "configure_card": (True, "on every (re)connect set I3=2 I6=1, write jog speed/acceleration "
-                             "(Ixx22, Ixx19, Ixx20, Ixx21) and soft limits (Ixx13, Ixx14) and "
-                             "download the safety PLC; false: only check I3/I6", None),
+    "configure_card": (True, "on every (re)connect set I3=2 I6=1 I64=1, write jog "
+                             "speed/acceleration (Ixx22, Ixx19, Ixx20, Ixx21) and soft limits "
+                             "(Ixx13, Ixx14) and download the safety PLC; false: only check "
+                             "I3/I6/I64", None),
     "watchdog_timeout": (0.1, "on-card watchdog: the safety PLC stops the rail when the "
                               "driver's heartbeat stops for this long, s; 0 = no safety PLC "
                               "(needs configure_card)", Range(0.0, 10.0)),

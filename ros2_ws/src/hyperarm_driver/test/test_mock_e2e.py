@@ -126,9 +126,11 @@ def test_mock_and_dynamixel_driver_expose_the_same_interface(launch, rclpy_conte
              "subscriptions": {contract.JOINT_COMMAND},
              "services": {contract.SET_TORQUE, contract.REBOOT, contract.HOLD}}
     real, mock = cmp.same_interface("/dxl", "dynamixel_driver", needs, SHARED_PARAMETERS)
-    # The mock adds only the camera (and /clock on sim time), nothing a driver user needs.
+    # The mock adds only the camera, its ground truth (and /clock on sim time), nothing a
+    # driver user needs.
     extra = set(mock["publishers"]) - set(real["publishers"])
-    assert extra == {contract.DETECTIONS, contract.DETECTIONS_TRUTH}
+    assert extra == {contract.DETECTIONS, contract.DETECTIONS_TRUTH, contract.TOOL_WRENCH_TRUTH,
+                     contract.CONTACTS_TRUTH}
     cmp.same_diagnostics("dynamixel_driver",
                          ["bus"] + [f"joint{i}" for i in range(1, 10)] + ["gripper"])
 

@@ -52,7 +52,8 @@ class Probe:
         self.pub = n.create_publisher(JointState, contract.JOINT_COMMAND,
                                       qos_for(contract.JOINT_COMMAND))
         self.types = {contract.SET_TORQUE: SetBool, contract.HOLD: Trigger,
-                      contract.REBOOT: Reboot, contract.RAIL_HOME: Trigger}
+                      contract.REBOOT: Reboot, contract.RAIL_HOME: Trigger,
+                      contract.RAIL_SET_TORQUE: SetBool, contract.RAIL_HOLD: Trigger}
         self.clients = {name: n.create_client(t, name) for name, t in self.types.items()}
         self.JointState = JointState
         executor.add_node(n)
@@ -141,8 +142,8 @@ def test_effort_watchdog_and_torque_mode(rclpy_context, executor, wait_for):
     p.send(["joint2"], effort=[0.0])              # no torque: joint 2 falls
     wait_for(lambda: p.diag("mock_driver: joint2")["mode"] == "current", 5.0,
              what="joint2 in current (torque) mode")
-    wait_for(lambda: p.diag("mock_driver: joint2")["mode"] == "position", 5.0,
-             what="the watchdog to switch joint2 back to position")
+    wait_for(lambda: p.diag("mock_driver: joint2")["mode"] == "current_based_position", 5.0,
+             what="the watchdog to switch joint2 back to (current-based) position")
     # joint_states published before the switch may still be in flight: judge the 30 latest
     # of the next 40 (0.4 s at the default 100 Hz), which all come after it
     n0 = len(p.states)
@@ -196,6 +197,51 @@ def test_rail_variant_homing(rclpy_context, executor, wait_for):
     p.send(["rail"], [0.3])
     wait_for(lambda: abs(p.position("rail") - 0.3) < 1e-6, 5.0, what="rail at 0.3 m")
     assert int(p.diag("mock_driver: rail")["rejected_setpoints"]) == 1
+
+
+def test_rail_services_own_the_rail_and_arm_services_the_servos(rclpy_context, executor,
+                                                                 wait_for):
+    """One owner per service on rail_arm: set_torque / hold / reboot act on the arm and the
+    gripper, rail/set_torque / rail/hold / rail/home on the rail."""
+    start(rclpy_context, executor, variant="rail_arm", diagnostics_period=0.1)
+    p = Probe(rclpy_context, executor)
+    wait_for(lambda: p.diag("mock_driver: rail") and p.diag("mock_driver: joint2"), 10.0,
+             what="diagnostics")
+    assert p.call(contract.RAIL_SET_TORQUE, wait_for, data=False).success
+    wait_for(lambda: p.diag("mock_driver: rail").get("amp_enabled") == "false", 5.0,
+             what="rail amplifier off")
+    assert p.diag("mock_driver: joint2")["torque"] == "on"
+    assert not p.call(contract.RAIL_HOME, wait_for).success      # amplifier off
+    assert not p.call(contract.RAIL_HOLD, wait_for).success
+    assert p.call(contract.RAIL_SET_TORQUE, wait_for, data=True).success
+    assert p.call(contract.SET_TORQUE, wait_for, data=False).success
+    wait_for(lambda: p.diag("mock_driver: joint2").get("torque") == "off", 5.0,
+             what="arm torque off")
+    assert p.diag("mock_driver: rail")["amp_enabled"] == "true"   # the rail's own
+    assert p.call(contract.RAIL_HOME, wait_for).success
+    wait_for(lambda: p.diag("mock_driver: rail").get("homed") == "true", 5.0, what="homed")
+    p.send(["rail"], [0.2])
+    wait_for(lambda: 0.01 < p.position("rail") < 0.19, 5.0, what="rail moving")
+    assert p.call(contract.RAIL_HOLD, wait_for).success
+    stopped = p.position("rail")
+    time.sleep(0.5)
+    assert abs(p.position("rail") - stopped) < 0.02 and p.position("rail") < 0.19
+    r = p.call(contract.REBOOT, wait_for, joints=["rail"])
+    assert not r.success and "rail/" in r.message
+
+
+def test_true_tool_wrench_is_published_at_tool0(rclpy_context, executor, wait_for):
+    from geometry_msgs.msg import WrenchStamped
+
+    start(rclpy_context, executor)
+    p = Probe(rclpy_context, executor)
+    got: list = []
+    p.node.create_subscription(WrenchStamped, contract.TOOL_WRENCH_TRUTH, got.append,
+                               qos_for(contract.TOOL_WRENCH_TRUTH))
+    wait_for(lambda: len(got) > 5, 10.0, what="debug/tool_wrench_truth")
+    assert got[-1].header.frame_id == contract.TOOL_FRAME
+    w = got[-1].wrench
+    assert [w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z] == [0.0] * 6
 
 
 @pytest.mark.parametrize("params, message", [

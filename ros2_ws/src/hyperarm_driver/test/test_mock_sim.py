@@ -21,10 +21,16 @@ DT = 0.005
 ARM = [f"joint{i}" for i in range(1, 10)]
 
 
-def config(**imperfections):
+def config(current: bool = False, **imperfections):
+    """The packaged cell without repeatability; ideal servos (no current model, no torque
+    gap at a mode switch) unless ``current``: those have their own tests
+    (test_mock_servo.py)."""
     cfg = load_mock_config()
     imp = dataclasses.replace(cfg.imperfections, repeatability=0.0, seed=1, **imperfections)
-    return dataclasses.replace(cfg, imperfections=imp)
+    return dataclasses.replace(
+        cfg, imperfections=imp, current=dataclasses.replace(cfg.current, enabled=current),
+        servo=dataclasses.replace(cfg.servo, mode_switch_gap=cfg.servo.mode_switch_gap
+                                  if current else 0.0))
 
 
 @pytest.fixture(scope="module")
@@ -86,7 +92,7 @@ def test_bad_commands_rejected_whole(sim, names, pos, eff, message):
         sim.command(names, pos, eff)
     run(sim, 0.05)
     assert np.array_equal(sim.goal, before)
-    assert all(m is ControlMode.POSITION for m in sim.mode)
+    assert all(m is ControlMode.CURRENT_POSITION for m in sim.mode)
 
 
 def test_gravity_effort_reported_in_position_mode(sim):
@@ -140,7 +146,7 @@ def test_effort_watchdog_holds_position(desc):
     run(sim, 0.15)
     assert sim.mode[1] is ControlMode.TORQUE and sim.take_events() == []
     run(sim, 0.1)
-    assert sim.mode[1] is ControlMode.POSITION
+    assert sim.mode[1] is ControlMode.CURRENT_POSITION     # back to position class
     events = sim.take_events()
     assert [e.kind for e in events] == ["watchdog"] and "joint2" in events[0].detail
     held = sim.position[1]
@@ -175,8 +181,8 @@ def test_overload_error_after_sustained_stall(desc):
     sim.command(["joint2"], [0.0], [1.0])     # current limit 1 N·m < gravity load
     run(sim, 0.5)
     assert sim.errors == {}                   # current-based mode: limited, no error
-    sim.command(ARM, [0.0] * 9)
-    sim.limit[1] = 1.0                        # a weak servo in position mode (test only)
+    sim.command(ARM, [0.0] * 9)               # position only: the default limit (stall)
+    sim.stall[1] = sim.limit[1] = sim.limit_cmd[1] = 1.0   # a weak servo (test only)
     run(sim, OVERLOAD_TIME + 0.1)
     assert sim.errors == {"joint2": "overload"} and sim.mode[1] is ControlMode.OFF
 
@@ -189,7 +195,7 @@ def test_hold_stops_motion_and_drops_efforts(sim):
     moving = sim.position[0]
     assert 0.0 < moving < 1.0
     sim.hold()
-    assert sim.mode[1] is ControlMode.POSITION
+    assert sim.mode[1] is ControlMode.CURRENT_POSITION
     run(sim, 0.5)
     assert abs(sim.position[0] - moving) < 0.05      # lag + brake distance only
     assert sim.velocity[0] == 0.0

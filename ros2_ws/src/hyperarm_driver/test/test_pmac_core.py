@@ -150,7 +150,7 @@ def test_jog_formats_counts_within_limits(config: RailConfig) -> None:
 def test_configure_writes_ivariables(config: RailConfig) -> None:
     port = RecordingPort({"I10": ["3713991"]})
     RailAxis(port, config).configure()
-    assert port.sent[:2] == ["I3=2 I6=1", "I10"]   # communication set-up first
+    assert port.sent[:2] == ["I3=2 I6=1 I64=1", "I10"]   # communication set-up first
     sent = dict(kv.split("=") for kv in port.sent[2].split())
     # 0.5 m/s * 200000 counts/m = 100 counts/ms; 1 m/s^2 -> 0.2 counts/ms^2
     assert float(sent["I122"]) == pytest.approx(100.0)

@@ -249,6 +249,28 @@ def test_driver_refuses_motion_until_homed(driver, emu, wait_for) -> None:
     assert ("info", "home complete") in driver.events
 
 
+@pytest.mark.parametrize("kind", ["hold", "home"])
+def test_hold_or_home_right_after_a_card_kill_never_closes_the_loop(driver, emu, wait_for,
+                                                                    kind) -> None:
+    """Without the safety PLC (watchdog off), ``J/`` and ``HM`` close a killed motor's loop;
+    a request arriving before the next poll saw the kill must be refused and the fault
+    latched, not answered "holding" with the motor quietly re-enabled."""
+    wait_for(lambda: driver.snapshot().link_up, 2.0, what="link")
+    for trial in range(5):
+        driver.request("enable")
+        wait_for(lambda: emu.motor(1).closed_loop, 2.0, what="enabled")
+        enables = emu.motor(1).enables
+        emu.set_disturbance(1, 2500)             # a momentary fatal following error ...
+        emu.set_disturbance(1, 0)                # ... gone at once
+        with pytest.raises(RailCommandError, match="fatal following error"):
+            driver.request(kind)
+        m = emu.motor(1)
+        assert not m.closed_loop and m.enables == enables, f"trial {trial}: loop closed"
+        snap = driver.snapshot()
+        assert snap.latched and "fatal following error" in snap.latched[0], snap.latched
+        assert not snap.torque and snap.diagnostic()[0] == ERROR
+
+
 def test_driver_hold_and_kill(driver, emu, wait_for) -> None:
     wait_for(lambda: driver.snapshot().link_up, 2.0, what="link")
     with pytest.raises(RailCommandError, match="torque is off"):
@@ -411,6 +433,17 @@ def test_stx_message_then_the_reply_via_getbuffer(client, emu) -> None:
     emu.send_message("HELLO FROM PLC")
     assert client.command("#1P #1V") == ["2000", "0"]
     assert list(client.messages) == ["HELLO FROM PLC"]
+
+
+def test_set_communication_tags_unsolicited_messages(client, emu) -> None:
+    """The card's default I64=0 mixes a PLC's SEND text into the next reply (a corrupt reply,
+    taken for a link loss); the driver's set-up sets I64=1 so it comes tagged."""
+    ax = RailAxis(client, RailConfig.from_rail(load_description(variant="rail_arm").rail))
+    emu.globals[64] = 0.0
+    ax.set_communication()
+    emu.send_message("PLC5 SAYS HI")
+    assert client.command("#1P #1V") == ["2000", "0"]
+    assert list(client.messages) == ["PLC5 SAYS HI"]
 
 
 def test_check_communication_refuses_a_card_not_set_up(client, emu) -> None:

@@ -7,6 +7,8 @@ decisions live here. Units: m, rad, s. Frames: the target must be in the model's
 from __future__ import annotations
 
 import math
+import queue
+import threading
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -15,14 +17,17 @@ import pinocchio as pin
 
 from hyperarm_description import contract
 from hyperarm_description.joints import JointStateCache
+from hyperarm_description.world import WorldSpec
 
+from .collision import CollisionError, CollisionModel
 from .errors import FrameError, InvalidOptionError, InvalidSeedError, InvalidTargetError
 from .kinematics import Kinematics
 from .solvers import (DEFAULT_ORIENTATION_TOLERANCE, DEFAULT_POSITION_TOLERANCE,
                       DEFAULT_SOLVER, DEFAULT_TIMEOUT, IKResult, Solver, make_solver,
                       solver_names)
+from .solvers.base import COLLISION_MODES
 
-__all__ = ["IKRequest", "IKDefaults", "IKCore", "QUATERNION_NORM_TOLERANCE"]
+__all__ = ["IKRequest", "IKDefaults", "IKCore", "IKPool", "QUATERNION_NORM_TOLERANCE"]
 
 QUATERNION_NORM_TOLERANCE = 1e-3  # |norm - 1| accepted (and then normalised)
 
@@ -41,6 +46,8 @@ class IKRequest:
     position_tolerance: float = 0.0            # m
     orientation_tolerance: float = 0.0         # rad
     timeout: float = 0.0                       # s
+    collisions: str = ""                       # "" = default, "ignore", "check", "avoid"
+    block_held: bool = False                   # the block is in the gripper
 
 
 @dataclass
@@ -52,8 +59,12 @@ class IKDefaults:
     orientation_tolerance: float = DEFAULT_ORIENTATION_TOLERANCE
     timeout: float = DEFAULT_TIMEOUT
     max_timeout: float = 10.0                  # s, longer requests are refused
+    collisions: str = "avoid"                  # when a request leaves it empty
 
     def __post_init__(self) -> None:
+        if self.collisions not in COLLISION_MODES:
+            raise InvalidOptionError(f"default collisions must be one of "
+                                     f"{', '.join(COLLISION_MODES)}, got {self.collisions!r}")
         for name in ("position_tolerance", "orientation_tolerance", "timeout", "max_timeout"):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0.0:
@@ -70,10 +81,21 @@ class IKCore:
     kin: Kinematics
     defaults: IKDefaults = field(default_factory=IKDefaults)
     joint_states: JointStateCache = field(default_factory=JointStateCache)
+    world: WorldSpec | None = None             # the work cell (None: self-collision only)
+    collision_margin: float = 0.0              # m, added to every collision capsule
 
     def __post_init__(self) -> None:
         self.solvers: dict[str, Solver] = {n: make_solver(n, self.kin)
                                            for n in solver_names(self.kin.variant)}
+        try:
+            self.collision = CollisionModel(self.kin, self.world, margin=self.collision_margin)
+        except CollisionError:
+            if self.world is not None:
+                raise  # a work cell to avoid, but no robot geometry: refuse to start
+            self.collision = None  # a description without capsules: requests that check
+            # collisions are refused (with the reason), collisions=ignore ones are served
+        for s in self.solvers.values():
+            s.use_collision_model(self.collision)
         if self.defaults.solver not in self.solvers:
             make_solver(self.defaults.solver, self.kin)  # raises the precise error
         self.frame = (contract.WORLD_FRAME if self.kin.variant == "rail_arm"
@@ -167,8 +189,70 @@ class IKCore:
         solver = self.solver_for(req.solver)
         p, r = self.target(req)
         ptol, otol, timeout = self.options(req)
+        mode = req.collisions or self.defaults.collisions
+        if mode not in COLLISION_MODES:
+            raise InvalidOptionError(f"collisions must be one of {', '.join(COLLISION_MODES)} "
+                                     f"(or empty: the default), got {mode!r}")
         q0, source = self.seed(req)
         result = solver.solve(p, r, q0, position_only=bool(req.position_only),
                               position_tolerance=ptol, orientation_tolerance=otol,
-                              timeout=timeout)
+                              timeout=timeout, collisions=mode, held=bool(req.block_held))
         return result, source
+
+
+class IKPool:
+    """``size`` independent :class:`IKCore` s for concurrent requests (one per thread).
+
+    Pinocchio's data and the solvers' scratch state are not shared between threads, so
+    every core has its own Kinematics and solvers (the default solver's start table is
+    shared read-only). :meth:`solve` borrows a free core for the request, waiting if all
+    ``size`` are busy; the joint_states cache is common to all. Thread-safe.
+    """
+
+    def __init__(self, kin_factory, defaults: IKDefaults | None = None, size: int = 4,
+                 world: WorldSpec | None = None, collision_margin: float = 0.0) -> None:
+        if isinstance(size, bool) or not isinstance(size, int) or size < 1:
+            raise InvalidOptionError(f"pool size must be an integer >= 1, got {size!r}")
+        self.joint_states = JointStateCache()
+        defaults = defaults if defaults is not None else IKDefaults()
+        self.cores = [IKCore(kin_factory(), defaults, self.joint_states, world,
+                             collision_margin) for _ in range(size)]
+        self._free: queue.SimpleQueue[IKCore] = queue.SimpleQueue()
+        for core in self.cores:
+            self._free.put(core)
+        self._lock = threading.Lock()
+        self.busy = 0          # cores solving right now
+        self.peak_busy = 0     # most cores ever busy at once
+
+    @property
+    def size(self) -> int:
+        return len(self.cores)
+
+    @property
+    def kin(self) -> Kinematics:
+        return self.cores[0].kin
+
+    @property
+    def frame(self) -> str:
+        return self.cores[0].frame
+
+    @property
+    def defaults(self) -> IKDefaults:
+        return self.cores[0].defaults
+
+    def update_joint_states(self, names, position, velocity=(), effort=()) -> None:
+        with self._lock:
+            self.joint_states.update(names, position, velocity, effort)
+
+    def solve(self, req: IKRequest) -> tuple[IKResult, str]:
+        """Like :meth:`IKCore.solve`, on a free core (waits for one if all are busy)."""
+        core = self._free.get()
+        with self._lock:
+            self.busy += 1
+            self.peak_busy = max(self.peak_busy, self.busy)
+        try:
+            return core.solve(req)
+        finally:
+            with self._lock:
+                self.busy -= 1
+            self._free.put(core)

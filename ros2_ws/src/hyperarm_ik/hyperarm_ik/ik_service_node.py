@@ -3,29 +3,48 @@
 The target is a PoseStamped of tool0 in base_link (world for the rail variant); the seed
 comes from the request, else the latest ``joint_states``, else q = 0. Bad requests get
 success=false and a message naming the problem. Diagnostics on /diagnostics at 1 Hz.
+
+Requests are served concurrently: the service callback is in a reentrant group, spun by a
+MultiThreadedExecutor, and each request borrows one of ``concurrency`` independent solver
+sets (:class:`~hyperarm_ik.ik_core.IKPool`), so a long request (up to ``max_timeout``) does
+not delay an ordinary one. More than ``concurrency`` simultaneous requests wait for a free
+solver set.
 """
 from __future__ import annotations
 
+import sys
+import threading
+
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from hyperarm_description import contract
 from hyperarm_description.joints import JointStateError
 from hyperarm_description.model import VARIANTS, DescriptionError, load_description
-from hyperarm_description.params import ParamSpec
+from hyperarm_description.params import OneOf, ParamSpec, Range, declare_parameters
 from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import run_node
+from hyperarm_description.world import load_world
 from hyperarm_interfaces.srv import SolveIK
 
 from .errors import IKError
-from .ik_core import IKCore, IKDefaults, IKRequest
+from .ik_core import IKDefaults, IKPool, IKRequest
+from .solvers.base import COLLISION_MODES
 from .kinematics import Kinematics
 from .ros_conversions import joint_state
 from .solvers import DEFAULT_SOLVER, solver_names
 
 
+DEFAULT_CONCURRENCY = 4
+MAX_CONCURRENCY = 16
+SWITCH_INTERVAL = 0.001  # s, sys.setswitchinterval of the ik_service process
+_COLLISION_MODES = {SolveIK.Request.COLLISIONS_DEFAULT: "",
+                    SolveIK.Request.COLLISIONS_IGNORE: "ignore",
+                    SolveIK.Request.COLLISIONS_CHECK: "check",
+                    SolveIK.Request.COLLISIONS_AVOID: "avoid"}
 _D = IKDefaults()
 #: Every parameter of the node (also its --help): name -> (default, description, check).
 PARAMETERS: ParamSpec = {
@@ -38,6 +57,13 @@ PARAMETERS: ParamSpec = {
                               None),
     "timeout": (_D.timeout, "s, solve time budget when a request gives 0", None),
     "max_timeout": (_D.max_timeout, "s, requests asking for more are refused", None),
+    "concurrency": (DEFAULT_CONCURRENCY, "requests solved at the same time (one solver set "
+                    "each); more wait for a free one", Range(1, MAX_CONCURRENCY)),
+    "collisions": (_D.collisions, "collision handling of requests that leave it at "
+                   "COLLISIONS_DEFAULT", OneOf(COLLISION_MODES)),
+    "world_file": ("", "work-cell YAML whose world: mapping (table, pegs, poles) is avoided "
+                   "('' = self-collision only)", None),
+    "collision_margin": (0.0, "m, added to every collision capsule", Range(0.0, 0.1)),
 }
 
 
@@ -48,40 +74,51 @@ class IkServiceNode(Node):
         """``kwargs`` go to rclpy's Node (e.g. context, parameter_overrides)."""
         kwargs.setdefault("namespace", contract.DEFAULT_NAMESPACE)
         super().__init__("ik_service", **kwargs)
-        for name, (default, text, _check) in PARAMETERS.items():
-            self.declare_parameter(name, default, ParameterDescriptor(
-                description=text, read_only=True, dynamic_typing=isinstance(default, float)))
-        get = lambda n: self.get_parameter(n).value  # noqa: E731
+        values = declare_parameters(self, PARAMETERS)
+        get = values.__getitem__
         try:
             desc = load_description(get("description_file") or None, get("variant"))
             defaults = IKDefaults(solver=get("default_solver"),
                                   position_tolerance=float(get("position_tolerance")),
                                   orientation_tolerance=float(get("orientation_tolerance")),
                                   timeout=float(get("timeout")),
-                                  max_timeout=float(get("max_timeout")))
-            self._core = IKCore(Kinematics(desc), defaults)
-        except (DescriptionError, IKError, TypeError, ValueError) as exc:
+                                  max_timeout=float(get("max_timeout")),
+                                  collisions=get("collisions"))
+            world = load_world(get("world_file")) if get("world_file") else None
+            self._pool = IKPool(lambda: Kinematics(desc), defaults,
+                                int(get("concurrency")), world,
+                                float(get("collision_margin")))
+        except (DescriptionError, IKError, OSError, TypeError, ValueError) as exc:
             raise SystemExit(f"ik_service: bad parameter: {exc}") from exc
         self._stats = {"requests": 0, "solved": 0, "refused": 0, "last_time": 0.0,
-                       "last_message": ""}
+                       "last_message": "", "busy": 0, "peak_busy": 0}
+        self._stats_lock = threading.Lock()
         self.create_subscription(JointState, contract.JOINT_STATES, self._on_joint_states,
                                  qos_for(contract.JOINT_STATES))
-        self.create_service(SolveIK, contract.SOLVE_IK, self._on_solve)
+        self.create_service(SolveIK, contract.SOLVE_IK, self._on_solve,
+                            callback_group=ReentrantCallbackGroup())
         self._diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
                                            qos_for(contract.DIAGNOSTICS))
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(
-            f"ik_service: {desc.variant} variant, targets in {self._core.frame}, solvers "
-            f"{', '.join(self._core.solvers)} (default {defaults.solver})")
+            f"ik_service: {desc.variant} variant, targets in {self._pool.frame}, solvers "
+            f"{', '.join(self._pool.cores[0].solvers)} (default {defaults.solver}), "
+            f"{self._pool.size} requests at a time, collisions: {defaults.collisions} "
+            f"({'work cell ' + get('world_file') if world else 'self-collision only'})")
 
     def _on_joint_states(self, msg: JointState) -> None:
         try:
-            self._core.joint_states.update(msg.name, msg.position, msg.velocity, msg.effort)
+            self._pool.update_joint_states(msg.name, msg.position, msg.velocity, msg.effort)
         except JointStateError as exc:
             self.get_logger().warn(f"joint_states: {exc}", throttle_duration_sec=5.0)
 
+    def _count(self, **add) -> None:
+        with self._stats_lock:
+            for k, v in add.items():
+                self._stats[k] += v
+
     def _on_solve(self, request: SolveIK.Request, response: SolveIK.Response):
-        self._stats["requests"] += 1
+        self._count(requests=1)
         pose = request.target.pose
         req = IKRequest(
             frame_id=request.target.header.frame_id,
@@ -91,41 +128,49 @@ class IkServiceNode(Node):
             seed_names=list(request.seed.name), seed_positions=list(request.seed.position),
             solver=request.solver, position_only=request.position_only,
             position_tolerance=request.position_tolerance,
-            orientation_tolerance=request.orientation_tolerance, timeout=request.timeout)
+            orientation_tolerance=request.orientation_tolerance, timeout=request.timeout,
+            collisions=_COLLISION_MODES.get(request.collisions, f"<{request.collisions}>"),
+            block_held=request.block_held)
         try:
-            result, source = self._core.solve(req)
+            result, source = self._pool.solve(req)
         except IKError as exc:
-            self._stats["refused"] += 1
+            self._count(refused=1)
             response.success = False
             response.message = f"request refused: {exc}"
             self.get_logger().warn(response.message, throttle_duration_sec=2.0)
             return response
         except Exception as exc:  # a bug must not take the service down
-            self._stats["refused"] += 1
+            self._count(refused=1)
             response.success = False
             response.message = f"internal error: {type(exc).__name__}: {exc}"
             self.get_logger().error(response.message)
             return response
         response.success = bool(result.success)
-        response.solution = joint_state(self._core.kin.joint_names, result.q)
+        response.solution = joint_state(self._pool.kin.joint_names, result.q)
         response.solution.header.stamp = self.get_clock().now().to_msg()
         response.position_error = float(result.position_error)
         response.orientation_error = float(result.orientation_error)
         response.iterations = int(result.iterations)
         response.solve_time = float(result.solve_time)
         response.message = f"{result.message} (seed: {source})"
-        self._stats["solved"] += int(result.success)
-        self._stats["last_time"] = result.solve_time
-        self._stats["last_message"] = response.message
+        response.contacts = list(result.contacts)
+        self._count(solved=int(result.success))
+        with self._stats_lock:
+            self._stats["last_time"] = result.solve_time
+            self._stats["last_message"] = response.message
         if not result.success:
             self.get_logger().info(response.message, throttle_duration_sec=2.0)
         return response
 
     def _publish_diagnostics(self) -> None:
+        with self._stats_lock:
+            self._stats["busy"] = self._pool.busy
+            self._stats["peak_busy"] = self._pool.peak_busy
+            stats = dict(self._stats)
         st = DiagnosticStatus(level=DiagnosticStatus.OK, name=f"{self.get_name()}: IK",
                               hardware_id="hyperarm",
-                              message=f"{self._stats['requests']} requests")
-        st.values = [KeyValue(key=k, value=str(v)) for k, v in self._stats.items()]
+                              message=f"{stats['requests']} requests")
+        st.values = [KeyValue(key=k, value=str(v)) for k, v in stats.items()]
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = [st]
@@ -133,7 +178,13 @@ class IkServiceNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node(IkServiceNode, args, parameters=PARAMETERS, robot_description=False)
+    # a solving thread hands the GIL over after at most 1 ms (Python's default: 5 ms), so a
+    # short request is not held up by a long one for long (measured: see the benchmark)
+    sys.setswitchinterval(SWITCH_INTERVAL)
+    # threads: MAX_CONCURRENCY solves + the subscription and the diagnostics timer
+    run_node(IkServiceNode, args,
+             executor=lambda: MultiThreadedExecutor(num_threads=MAX_CONCURRENCY + 2),
+             parameters=PARAMETERS, robot_description=False)
 
 
 if __name__ == "__main__":

@@ -12,14 +12,20 @@ pytestmark = pytest.mark.core
 
 def test_benchmark_runs_and_prints_its_table(capsys, tmp_path):
     doc = tmp_path / "ik.md"
-    doc.write_text("intro\n<!-- ik_benchmark:begin -->\nold\n<!-- ik_benchmark:end -->\nend\n")
+    doc.write_text("intro\n<!-- ik_benchmark:begin -->\nOLD-BLOCK\n<!-- ik_benchmark:end -->\nend\n")
     bench.main(["--count", "6", "--slow-count", "1", "--ikpy-count", "1",
-                "--skip", "tight", "unreachable", "rail", "service", "--markdown", str(doc)])
+                "--unreachable-count", "3", "--sensitivity-count", "2",
+                "--skip", "tight", "rail", "service", "--markdown", str(doc)])
     out = capsys.readouterr().out
     assert "| random | default | 6 |" in out
     assert "| figure8 | default | 6 |" in out
+    assert "| figure8_wide | pinv (re-seeded from failures) | 6 |" in out
+    assert "| near_limit | default | 6 |" in out
+    assert "| default (service default timeout 0.1 s) | 3 |" in out
+    assert "within 1.2x: 3/3" in out  # every unreachable target's answer is proven close
+    assert "| K_w = 1000, full steps (no halving) |" in out
     text = doc.read_text()
-    assert "old" not in text and "| random | default | 6 |" in text
+    assert "OLD-BLOCK" not in text and "| random | default | 6 |" in text
     assert text.startswith("intro\n") and text.endswith("end\n")
 
 
@@ -34,3 +40,23 @@ def test_evaluation_judges_by_our_fk():
     assert not bench.evaluate(kin, run, bad, kin.forward(bad)[:3, 3], t[:3, :3], (1e-3, 1e-3))
     assert not bench.evaluate(kin, run, None, t[:3, 3], t[:3, :3], (1e-3, 1e-3))
     assert (run.n, run.ok_paper, run.violations, run.no_answer) == (3, 1, 1, 1)
+
+
+def test_tracking_is_reseeded_from_the_last_success_only():
+    kin = Kinematics()
+    seeds = []
+    q_good = np.full(9, 0.1)
+    answers = iter([q_good, np.full(9, 2.9), q_good])  # second: outside the limits
+
+    def solve(p, r, seed):
+        seeds.append(np.array(seed))
+        return next(answers)
+    t = kin.forward(q_good)
+    targets = [(t[:3, 3], t[:3, :3])] * 3
+    bench.run_track(kin, bench.Adapter("fake", solve), "x", targets, (1e-3, 1e-3))
+    np.testing.assert_array_equal(seeds[2], q_good)  # not the failed answer
+    seeds.clear()
+    answers = iter([q_good, np.full(9, 2.9), q_good])
+    bench.run_track(kin, bench.Adapter("fake", solve), "x", targets, (1e-3, 1e-3),
+                    reseed="returned")
+    np.testing.assert_array_equal(seeds[2], np.full(9, 2.9))

@@ -10,7 +10,7 @@ import pytest
 from hyperarm_ik.errors import (FrameError, InvalidOptionError, InvalidSeedError,
                                 InvalidTargetError, UnknownSolverError,
                                 UnsupportedVariantError)
-from hyperarm_ik.ik_core import IKCore, IKDefaults, IKRequest
+from hyperarm_ik.ik_core import IKCore, IKDefaults, IKPool, IKRequest
 from hyperarm_ik.kinematics import Kinematics
 
 pytestmark = pytest.mark.core
@@ -128,3 +128,34 @@ def test_solver_choice(core):
         core.solve(_request(solver="augmented"))
     with pytest.raises(UnknownSolverError):
         IKCore(ARM, IKDefaults(solver="nope"))
+
+
+def test_pool_serves_requests_concurrently_on_separate_solvers():
+    import threading
+
+    pool = IKPool(Kinematics, size=2)
+    assert pool.cores[0].kin is not pool.cores[1].kin  # pinocchio data is per thread
+    kin = pool.kin
+    t = kin.forward(np.array([0.2, 0.5, -0.3, 0.4, 0.1, -0.5, 0.3, 0.2, -0.1]))
+    quat = pin.Quaternion(t[:3, :3])
+    base = dict(frame_id="base_link", position=t[:3, 3].tolist(),
+                orientation=[quat.x, quat.y, quat.z, quat.w])
+    slow_done = threading.Event()
+
+    def slow():
+        pool.solve(IKRequest(**base, solver="heuristic", timeout=5.0,
+                             position_tolerance=1e-300, orientation_tolerance=1e-300))
+        slow_done.set()
+
+    th = threading.Thread(target=slow)
+    th.start()
+    try:
+        while pool.busy == 0:  # the slow request holds a core
+            threading.Event().wait(0.001)
+        res, _ = pool.solve(IKRequest(**base))
+        assert res.success and not slow_done.is_set()
+        assert pool.peak_busy == 2
+    finally:
+        th.join()
+    with pytest.raises(InvalidOptionError):
+        IKPool(Kinematics, size=0)

@@ -163,3 +163,75 @@ def test_installed_ik_service_across_processes(launch, client_node, wait_for):
     resp = c.call(_request(ARM, q, frame="map"))
     assert not resp.success and "'map'" in resp.message
     assert proc.proc.poll() is None, proc.output()
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+def test_a_long_request_does_not_delay_an_ordinary_one(launch, client_node, wait_for):
+    import time
+
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    launch("hyperarm_ik", "ik_service")
+    long_client = _Client(client_node, wait_for)
+    ordinary = _Client(client_node, wait_for)  # a second client of the same service
+    long_client.ready(30.0)
+    ordinary.ready(30.0)
+    busy = []
+    client_node.create_subscription(
+        DiagnosticArray, contract.DIAGNOSTICS,
+        lambda m: busy.extend(int(kv.value) for s in m.status for kv in s.values
+                              if kv.key == "busy"), qos_for(contract.DIAGNOSTICS))
+    q = np.array([0.2, 0.5, -0.3, 0.4, 0.1, -0.5, 0.3, 0.2, -0.1])
+    assert ordinary.call(_request(ARM, q)).success  # warm-up: discovery, first solve
+    # a legal 5 s request: the heuristic with a tolerance it can never meet (it searches
+    # for seconds, until its step falls below 1e-9 rad or the 5 s are up)
+    slow = long_client.cli.call_async(_request(ARM, q, solver="heuristic", timeout=5.0,
+                                               position_tolerance=1e-300,
+                                               orientation_tolerance=1e-300))
+    wait_for(lambda: busy and busy[-1] >= 1, 10.0, what="the long request to be running")
+    rtts = []
+    for _ in range(5):
+        t0 = time.monotonic()
+        resp = ordinary.call(_request(ARM, q))
+        rtts.append(time.monotonic() - t0)
+        assert resp.success, resp.message
+    assert not slow.done(), "the long request ended before the ordinary ones were answered"
+    assert float(np.median(rtts)) < 0.1, rtts
+    wait_for(slow.done, 15.0, what="the long request's answer")
+    long_resp = slow.result()
+    assert not long_resp.success and long_resp.solve_time > max(1.0, sum(rtts))
+
+
+@pytest.mark.node
+def test_service_checks_and_avoids_collisions_in_its_work_cell(rclpy_context, executor,
+                                                               client_node, wait_for,
+                                                               tmp_path):
+    cell = tmp_path / "cell.yaml"
+    cell.write_text("world:\n  table_height: -0.20\n  pegs:\n"
+                    "    source: {xy: [0.35, 0.12], height: 0.08, radius: 0.008}\n")
+    _start_service(rclpy_context, executor, world_file=str(cell))
+    c = _Client(client_node, wait_for)
+    c.ready()
+    q = np.zeros(9)
+    q[1] = math.radians(80)  # the stretched arm pitched down through the table
+    req = _request(ARM, q, seed=JointState(name=ARM.joint_names, position=list(q)),
+                   collisions=SolveIK.Request.COLLISIONS_CHECK)
+    resp = c.call(req)
+    assert not resp.success and "in collision" in resp.message
+    assert any(pair.endswith("with table") for pair in resp.contacts), resp.contacts
+    req.collisions = SolveIK.Request.COLLISIONS_IGNORE
+    resp = c.call(req)
+    assert resp.success and not resp.contacts  # the seed is the solution: not checked
+    req.collisions = 7
+    resp = c.call(req)
+    assert not resp.success and "collisions must be one of" in resp.message
+    # the node's default is avoid: an ordinary target gets a collision-free answer
+    good = c.call(_request(ARM, [0.3, -0.4, 0.2, 0.5, -0.1, 0.3, 0.2, -0.6, 0.4]))
+    assert good.success and not good.contacts, good.message
+    # a target inside the base: no configuration puts tool0 there without a collision
+    base = _request(ARM, np.zeros(9), position_only=True)
+    base.target.pose.position.x, base.target.pose.position.y = 0.0, 0.0
+    base.target.pose.position.z = 0.05
+    resp = c.call(base)
+    assert not resp.success and resp.contacts and "in collision" in resp.message

@@ -347,3 +347,16 @@ def test_solver_options_are_validated():
         make_solver("default", ARM, orientation_scale=-1.0)
     with pytest.raises(InvalidOptionError, match="preferred posture"):
         make_solver("default", ARM, preferred=np.zeros(3))
+
+
+def test_step_rule_of_the_paper_solvers():
+    t = ARM.forward(np.full(9, 0.3))
+    p, r = t[:3, 3].copy(), t[:3, :3].copy()
+    for rule in ("reset", "persist", "full"):
+        res = make_solver("weighted_pinv", ARM, step_rule=rule).solve(p, r, np.zeros(9),
+                                                                       timeout=1.0)
+        _check_honest(ARM, res, p, r, 1e-4, 1e-3)
+    with pytest.raises(InvalidOptionError, match="step_rule"):
+        make_solver("pinv", ARM, step_rule="halve")
+    with pytest.raises(InvalidOptionError, match="k_w"):
+        make_solver("weighted_pinv", ARM, k_w=-1.0)

@@ -17,10 +17,13 @@ def test_solve_ik_contract():
     assert req == {"target": "geometry_msgs/PoseStamped", "seed": "sensor_msgs/JointState",
                    "solver": "string", "position_only": "boolean",
                    "position_tolerance": "double", "orientation_tolerance": "double",
-                   "timeout": "double"}
+                   "timeout": "double", "collisions": "uint8", "block_held": "boolean"}
     assert res == {"success": "boolean", "solution": "sensor_msgs/JointState",
                    "position_error": "double", "orientation_error": "double",
-                   "iterations": "uint32", "solve_time": "double", "message": "string"}
+                   "iterations": "uint32", "solve_time": "double", "message": "string",
+                   "contacts": "sequence<string>"}
+    assert (SolveIK.Request.COLLISIONS_DEFAULT, SolveIK.Request.COLLISIONS_IGNORE,
+            SolveIK.Request.COLLISIONS_CHECK, SolveIK.Request.COLLISIONS_AVOID) == (0, 1, 2, 3)
 
 
 def test_hybrid_goal_and_detections():
@@ -40,8 +43,11 @@ def test_run_task_and_reboot():
     from hyperarm_interfaces.srv import Reboot
 
     assert set(_fields(RunTask.Goal)) == {"task", "object_names", "object_poses"}
-    assert set(_fields(RunTask.Feedback)) == {"stage", "stage_index", "stage_count", "progress"}
-    assert set(_fields(RunTask.Result)) == {"success", "message", "stage_names",
-                                            "stage_durations", "total_time"}
+    assert set(_fields(RunTask.Feedback)) == {"stage", "step_type", "phase", "stage_index",
+                                              "stage_count", "progress", "step_progress",
+                                              "waypoint", "force", "depth"}
+    assert set(_fields(RunTask.Result)) == {"success", "message", "failure_kind", "stage_names",
+                                            "stage_durations", "total_time", "metric_names",
+                                            "metric_values"}
     assert _fields(Reboot.Request) == {"joints": "sequence<string>"}
     assert set(_fields(Reboot.Response)) == {"success", "rebooted", "message"}

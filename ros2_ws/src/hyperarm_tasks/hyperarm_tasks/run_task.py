@@ -1,60 +1,139 @@
 """run_task: command-line client of the task node (for shell scripts).
 
-    run_task ready [--timeout 60] [--namespace /hyperarm]
+    run_task block_transfer [--timeout 300] [--namespace /hyperarm] [--quiet]
 
-Prints stage feedback; exit code 0 on success, 1 on failure/cancel/rejection, 2 on bad use.
-Ctrl-C cancels the running task before exiting.
+Prints a line per step (and per phase), then the result; exit code 0 on success, 1 on
+failure, cancel or rejection, 2 on bad use. Ctrl-C or SIGTERM cancels the running task (the
+arm holds, force control off) and waits for the node to confirm; a second Ctrl-C while
+cancelling only says it is already cancelling.
 """
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import time
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from rclpy.signals import SignalHandlerOptions
 
 from hyperarm_description import contract
 
 from .task_client import TaskClient, TaskResult
 
 
-def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
+class _Interrupted(Exception):
+    pass
+
+
+def _parse(argv: list[str]) -> argparse.Namespace:
     args_no_ros = rclpy.utilities.remove_ros_args(["run_task", *argv])[1:]
     ap = argparse.ArgumentParser(prog="run_task", description=__doc__.split("\n\n")[0])
-    ap.add_argument("task", help="task name, e.g. ready, rest")
-    ap.add_argument("--timeout", type=float, default=120.0, help="overall timeout, s")
+    ap.add_argument("task", help="task name, e.g. block_transfer, ready, rest")
+    ap.add_argument("--timeout", type=float, default=300.0, help="overall timeout, s")
     ap.add_argument("--namespace", default=contract.DEFAULT_NAMESPACE)
-    args = ap.parse_args(args_no_ros)
-    rclpy.init(args=["run_task", *argv])
+    ap.add_argument("--quiet", action="store_true", help="only the result line")
+    ap.add_argument("--wait-ready", type=float, default=0.0, metavar="S",
+                    help="first wait up to S s for joint_states and the task node")
+    return ap.parse_args(args_no_ros)
+
+
+def _wait_ready(node, client: TaskClient, timeout: float) -> str | None:
+    """Wait for joint_states and the action server; None when both are there."""
+    from sensor_msgs.msg import JointState
+
+    from hyperarm_description.qos import qos_for
+
+    seen: set[str] = set()
+    sub = node.create_subscription(JointState, contract.JOINT_STATES,
+                                   lambda m: seen.update(m.name), qos_for(contract.JOINT_STATES))
+    deadline = time.monotonic() + timeout
+    try:
+        while time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.05)
+            if seen and client.server_ready():
+                return None
+        return ("no joint_states from a driver" if not seen
+                else "the task node's run_task action is not available")
+    finally:
+        node.destroy_subscription(sub)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    args = _parse(argv)
+    state = {"interrupts": 0}
+
+    def on_signal(signum, _frame):
+        state["interrupts"] += 1
+        if state["interrupts"] == 1:
+            raise _Interrupted(signal.Signals(signum).name)
+        print("run_task: already cancelling, please wait", file=sys.stderr, flush=True)
+
+    # rclpy's own handler would shut the context down before the cancel could go out.
+    rclpy.init(args=["run_task", *argv], signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
     node = rclpy.create_node("run_task_client", namespace=args.namespace)
     client = TaskClient(node)
     code = 1
     try:
+        if args.wait_ready > 0.0:
+            reason = _wait_ready(node, client, args.wait_ready)
+            if reason:
+                print(f"run_task: not ready after {args.wait_ready:g} s: {reason}",
+                      file=sys.stderr)
+                return 1
         if not client.send(args.task, timeout=min(args.timeout, 15.0)):
             print(f"run_task: {client.message}", file=sys.stderr)
             return 1
         deadline = time.monotonic() + args.timeout
         last = None
         while not client.done():
-            fb = client.feedback()
-            if fb is not None and fb.stage != last:
-                last = fb.stage
-                print(f"[{fb.stage_index + 1}/{fb.stage_count}] {fb.stage}", flush=True)
+            for fb in ([] if args.quiet else client.new_feedback()):
+                if (fb.stage, fb.phase) == last:
+                    continue
+                if last is None or fb.stage != last[0] or fb.phase == "start":
+                    print(f"[{fb.stage_index + 1}/{fb.stage_count}] {fb.stage} ({fb.step_type})",
+                          flush=True)
+                elif fb.phase != "done":
+                    p = fb.waypoint.point
+                    where = ([f"tool target {p.x:.3f} {p.y:.3f} {p.z:.3f} m"]
+                             if (p.x, p.y, p.z) != (0.0, 0.0, 0.0) else [])
+                    where += [f"depth {fb.depth * 1000:.1f} mm"] if fb.depth > 0 else []
+                    print(f"      {fb.phase}" + (f" ({', '.join(where)})" if where else ""),
+                          flush=True)
+                last = (fb.stage, fb.phase)
             if time.monotonic() > deadline:
                 print(f"run_task: timeout after {args.timeout:g} s, cancelling", file=sys.stderr)
                 client.cancel()
                 return 1
         outcome = client.result()
-        print(f"run_task: {outcome.name.lower()}: {client.message}", flush=True)
+        res = client.result_message()
+        extra = ""
+        if res is not None and outcome is TaskResult.SUCCEEDED:
+            extra = f" in {res.total_time:.1f} s"
+            figures = ", ".join(f"{n} {v:.4g}" for n, v in zip(res.metric_names,
+                                                               res.metric_values))
+            extra += f" ({figures})" if figures else ""
+        print(f"run_task: {outcome.name.lower()}: {client.message}{extra}", flush=True)
         code = 0 if outcome is TaskResult.SUCCEEDED else 1
-    except (KeyboardInterrupt, ExternalShutdownException):
-        print("run_task: interrupted, cancelling the task", file=sys.stderr)
-        if rclpy.ok():
-            client.cancel(timeout=2.0)
+    except _Interrupted as exc:
+        print(f"run_task: {exc} received, cancelling the task", file=sys.stderr, flush=True)
+        try:
+            client.cancel(timeout=5.0)
+            end = time.monotonic() + 10.0
+            while not client.done() and time.monotonic() < end:
+                pass
+            if client.result_message() is not None:
+                print(f"run_task: {client.result().name.lower()}: {client.message}",
+                      flush=True)
+        except _Interrupted:
+            pass
         code = 1
     finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
         node.destroy_node()
         rclpy.try_shutdown()
     return code

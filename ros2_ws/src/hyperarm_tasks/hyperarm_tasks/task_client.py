@@ -40,11 +40,15 @@ class TaskClient:
         self._goal_handle = None
         self._result_future = None
         self._feedback: RunTask.Feedback | None = None
+        self._unread: list[RunTask.Feedback] = []
         self._state = TaskResult.UNKNOWN
         self.message = ""
 
     def _spin(self, timeout: float = 0.05) -> None:
         rclpy.spin_once(self._node, timeout_sec=timeout)
+
+    def server_ready(self) -> bool:
+        return self._client.server_is_ready()
 
     def send(self, task: str, timeout: float = 10.0) -> bool:
         """Send a task; False if the server is not there within ``timeout`` s or rejects."""
@@ -71,9 +75,17 @@ class TaskClient:
 
     def _on_feedback(self, msg) -> None:
         self._feedback = msg.feedback
+        self._unread.append(msg.feedback)
+        del self._unread[:-1000]   # bounded if nobody reads them
 
     def feedback(self) -> RunTask.Feedback | None:
+        """The newest feedback."""
         return self._feedback
+
+    def new_feedback(self) -> list[RunTask.Feedback]:
+        """Every feedback received since the last call, oldest first."""
+        out, self._unread = self._unread, []
+        return out
 
     def done(self) -> bool:
         """Spin once; True when the task has finished (or was never accepted)."""

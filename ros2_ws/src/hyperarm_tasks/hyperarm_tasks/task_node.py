@@ -1,140 +1,163 @@
-"""task_node: runs named task sequences through the RunTask action.
+"""task_node: runs task files (YAML sequences) through the RunTask action.
 
-Streams each stage's joint goals on ``joint_command`` and watches ``joint_states`` until the
-stage is reached (see :mod:`hyperarm_tasks.sequences`). One goal at a time: a new goal while
-one runs is rejected. Cancel stops the arm where it is (hold: current positions commanded).
+Thin: parameters, the action server and the ROS side of the robot (:mod:`.ros_robot`); the
+sequencing is :class:`hyperarm_tasks.runner.Runner`, the task files
+:mod:`hyperarm_tasks.sequence`. One goal at a time: a goal while another runs is rejected
+(logged with the reason). Cancel: the runner stops where it is, force control off, the
+drivers hold, and the result says "cancelled during <step>". See docs/tasks.md.
 """
 from __future__ import annotations
 
 import threading
 import time
 
-import rclpy
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
-from sensor_msgs.msg import JointState
 
 from hyperarm_description import contract
-from hyperarm_description.joints import JointStateCache, JointStateError
 from hyperarm_description.params import ParamSpec, Range, declare_parameters
-from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import declare_robot_description, run_node
+from hyperarm_ik.kinematics import Kinematics
+from hyperarm_ik.solvers import solver_names
 from hyperarm_interfaces.action import RunTask
 
-from .sequences import StageStatus, TaskError, build_task, stage_status
+from .errors import TaskError, TaskFileError, UnknownTaskError
+from .ros_robot import RosRobot, pose_to_matrix
+from .runner import Feedback, Runner, RunnerParams
+from .sequence import load_task, packaged_tasks_dir
 
+FEEDBACK_PERIOD = 0.05   # s, feedback published at most this often
 
 #: Every parameter of the node (also its --help): name -> (default, description, check).
 PARAMETERS: ParamSpec = {
-    "command_rate": (50.0, "rate at which stage goals are re-sent on joint_command, Hz",
+    "command_rate": (50.0, "rate at which goals are streamed on joint_command, Hz",
                      Range(1.0, 500.0)),
+    "tasks_dir": ("", "directories of user task files (':'-separated), searched before the "
+                      "package's share/hyperarm_tasks/tasks", None),
+    "detection_frames": (5, "camera frames averaged per object estimate", Range(1, 30)),
+    "detection_max_age": (1.0, "s: an older detection is stale", Range(0.05, 60.0)),
+    "detection_timeout": (3.0, "s: wait this long for fresh detections", Range(0.1, 60.0)),
+    "detection_outlier": (0.01, "m: detections this far from the median are rejected",
+                          Range(0.0005, 1.0)),
+    "solver": ("", "IK solver ('' = the default; see hyperarm_ik)", None),
 }
 
 
 class TaskNode(Node):
     def __init__(self) -> None:
         super().__init__("task_node", namespace=contract.DEFAULT_NAMESPACE)
-        rate = declare_parameters(self, PARAMETERS)["command_rate"]
-        self._period = 1.0 / rate
         self._desc = declare_robot_description(self)
-        self._cache = JointStateCache()
+        p = declare_parameters(self, PARAMETERS)
+        if p["solver"] and p["solver"] not in solver_names(self._desc.variant):
+            raise SystemExit(f"task_node: parameter solver={p['solver']!r} not one of "
+                             f"{', '.join(solver_names(self._desc.variant))}")
+        self._dirs = [d for d in p.pop("tasks_dir").split(":") if d]
+        self._params = RunnerParams(**p)
+        self._kin = Kinematics(self._desc)
+        self._robot = RosRobot(self, self._desc)
         self._lock = threading.Lock()
-        self._busy = False
-        group = ReentrantCallbackGroup()
-        self._cmd = self.create_publisher(JointState, contract.JOINT_COMMAND,
-                                          qos_for(contract.JOINT_COMMAND))
-        self.create_subscription(JointState, contract.JOINT_STATES, self._on_states,
-                                 qos_for(contract.JOINT_STATES), callback_group=group)
+        self._busy: str | None = None
         self._server = ActionServer(
             self, RunTask, contract.RUN_TASK, execute_callback=self._execute,
-            goal_callback=self._on_goal, cancel_callback=lambda _: CancelResponse.ACCEPT,
-            callback_group=group)
-        self.get_logger().info(f"task_node ready: action {contract.RUN_TASK}")
-
-    def _on_states(self, msg: JointState) -> None:
-        try:
-            with self._lock:
-                self._cache.update(msg.name, msg.position, msg.velocity, msg.effort)
-        except JointStateError as exc:
-            self.get_logger().warn(f"joint_states ignored: {exc}", throttle_duration_sec=5.0)
+            goal_callback=self._on_goal, cancel_callback=self._on_cancel,
+            callback_group=ReentrantCallbackGroup())
+        self.get_logger().info(f"task_node ready: action {contract.RUN_TASK}, tasks from "
+                               f"{', '.join(self._dirs + [str(packaged_tasks_dir())])}")
 
     def _on_goal(self, goal: RunTask.Goal) -> GoalResponse:
         with self._lock:
-            if self._busy:
-                self.get_logger().warn(f"task {goal.task!r} rejected: another task is running")
+            if self._busy is not None:
+                self.get_logger().warn(f"task {goal.task!r} rejected: task {self._busy!r} is "
+                                       "running (one goal at a time)")
                 return GoalResponse.REJECT
-            self._busy = True
+            self._busy = goal.task
         return GoalResponse.ACCEPT
 
-    def _positions(self) -> dict[str, float]:
-        with self._lock:
-            return dict(self._cache.position)
+    def _on_cancel(self, handle) -> CancelResponse:
+        step = self._runner_step()
+        self.get_logger().warn(f"cancel requested for task {handle.request.task!r} during "
+                               f"{step}")
+        return CancelResponse.ACCEPT
 
-    def _send(self, goal: dict[str, float]) -> None:
-        msg = JointState()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.name = list(goal)
-        msg.position = [float(v) for v in goal.values()]
-        self._cmd.publish(msg)
+    def _runner_step(self) -> str:
+        runner = getattr(self, "_runner", None)
+        return runner.step.name if runner is not None and runner.step else "no step"
 
     def _execute(self, handle) -> RunTask.Result:
-        result = RunTask.Result()
         try:
-            return self._run(handle, result)
+            return self._run(handle)
         finally:
+            self._runner = None
+            self._robot.goal_handle = None
             with self._lock:
-                self._busy = False
+                self._busy = None
 
-    def _run(self, handle, result: RunTask.Result) -> RunTask.Result:
+    def _given(self, goal: RunTask.Goal) -> dict:
+        if len(goal.object_names) != len(goal.object_poses):
+            raise TaskError(f"{len(goal.object_names)} object names for "
+                            f"{len(goal.object_poses)} poses")
+        out = {}
+        for name, pose in zip(goal.object_names, goal.object_poses):
+            if pose.header.frame_id not in ("", self._desc.root_frame):
+                raise TaskError(f"object {name!r} is in {pose.header.frame_id!r}; give it in "
+                                f"{self._desc.root_frame!r}")
+            out[name] = pose_to_matrix(pose.pose)
+        return out
+
+    def _run(self, handle) -> RunTask.Result:
+        result = RunTask.Result()
         name = handle.request.task
         try:
-            stages = build_task(name, self._desc)
-        except TaskError as exc:
+            task = load_task(name, self._desc, self._dirs)
+            self._robot.given = self._given(handle.request)
+        except (TaskError, ValueError) as exc:
             result.success, result.message = False, str(exc)
-            self.get_logger().error(result.message)
+            result.failure_kind = "task_file" if isinstance(
+                exc, (TaskFileError, UnknownTaskError)) else "goal"
+            self.get_logger().error(f"task {name!r}: {exc}")
             handle.abort()
             return result
-        t_task = time.monotonic()
-        self.get_logger().info(f"task {name!r}: {len(stages)} stages")
-        for index, stage in enumerate(stages):
-            t0 = time.monotonic()
-            feedback = RunTask.Feedback(stage=stage.name, stage_index=index,
-                                        stage_count=len(stages))
-            status = StageStatus.RUNNING
-            while status is StageStatus.RUNNING:
-                if handle.is_cancel_requested:
-                    self._send({n: p for n, p in self._positions().items() if n in stage.goal})
-                    handle.canceled()
-                    result.success, result.message = False, f"cancelled during {stage.name}"
-                    return result
-                if not rclpy.ok(context=self.context):
-                    result.success, result.message = False, "shutting down"
-                    return result
-                self._send(dict(stage.goal))
-                elapsed = time.monotonic() - t0
-                status = stage_status(stage, self._positions(), elapsed)
-                feedback.progress = float((index + min(elapsed / stage.timeout, 0.99)) / len(stages))
-                handle.publish_feedback(feedback)
-                time.sleep(self._period)
-            result.stage_names.append(stage.name)
-            result.stage_durations.append(time.monotonic() - t0)
-            if status is StageStatus.TIMED_OUT:
-                missing = [n for n in stage.goal if n not in self._positions()]
-                why = (f"no joint_states for {missing}" if missing
-                       else "joints did not reach the goal")
-                result.success = False
-                result.message = f"stage {stage.name!r} timed out after {stage.timeout:g} s ({why})"
-                self.get_logger().error(f"task {name!r}: {result.message}")
-                handle.abort()
-                return result
-        result.success, result.message = True, f"task {name!r} done"
-        result.total_time = time.monotonic() - t_task
-        self.get_logger().info(f"{result.message} in {result.total_time:.2f} s")
-        handle.succeed()
-        return result
+        self._robot.goal_handle = handle
+        last = [0.0]
 
+        def feedback(fb: Feedback) -> None:
+            now = time.monotonic()
+            if now - last[0] < FEEDBACK_PERIOD and fb.phase not in ("start", "done"):
+                return
+            last[0] = now
+            msg = RunTask.Feedback(stage=fb.step, phase=fb.phase, stage_index=fb.index,
+                                   stage_count=fb.count, progress=float(fb.progress),
+                                   step_progress=float(fb.step_progress), force=fb.force,
+                                   depth=fb.depth)
+            msg.step_type = task.steps[fb.index].type
+            msg.waypoint.header.frame_id = self._desc.root_frame
+            msg.waypoint.header.stamp = self.get_clock().now().to_msg()
+            msg.waypoint.point.x, msg.waypoint.point.y, msg.waypoint.point.z = \
+                (float(v) for v in fb.waypoint)
+            handle.publish_feedback(msg)
+
+        self.get_logger().info(f"task {name!r}: {len(task.steps)} steps from {task.source}")
+        self._runner = Runner(self._robot, self._kin, task, self._params, feedback)
+        out = self._runner.run()
+        result.success, result.message, result.failure_kind = (out.success, out.message,
+                                                               out.failure_kind)
+        result.stage_names, result.stage_durations = out.step_names, out.step_durations
+        result.total_time = out.total_time
+        metrics = {k: v for k, v in out.metrics.items() if not k.endswith("_logged")}
+        result.metric_names, result.metric_values = list(metrics), list(metrics.values())
+        if out.success:
+            self.get_logger().info(f"{out.message} in {out.total_time:.2f} s")
+            handle.succeed()
+        elif out.failure_kind == "cancelled" and handle.is_cancel_requested:
+            self.get_logger().warn(f"task {name!r}: {out.message} (force control off, holding)")
+            handle.canceled()
+        else:
+            self.get_logger().error(f"task {name!r}: {out.message}")
+            if self.context.ok():
+                handle.abort()
+        return result
 
     def destroy_node(self) -> None:
         # The action server first: its pending tasks must not outlive the node's handles.
@@ -143,7 +166,7 @@ class TaskNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node(TaskNode, args, executor=lambda: MultiThreadedExecutor(num_threads=3),
+    run_node(TaskNode, args, executor=lambda: MultiThreadedExecutor(num_threads=4),
              parameters=PARAMETERS)
 
 

@@ -27,7 +27,9 @@ NODES = [
     ("hyperarm_driver", "pmac_rail_driver", "pmac_rail_driver"),
     ("hyperarm_ik", "fk_node", "fk_node"),
     ("hyperarm_ik", "ik_service", "ik_service"),
+    ("hyperarm_ik", "hybrid_force", "hybrid_force"),
     ("hyperarm_tasks", "task_node", "task_node"),
+    ("hyperarm_tasks", "task_recorder", "task_recorder"),
 ]
 
 BAD_OUTPUT = ("Traceback", "Segmentation fault", "Failed to publish log message",
@@ -58,7 +60,9 @@ def test_help_lists_each_nodes_parameters(executable):
               "pmac_rail_driver": ["host", "port", "require_homing"],
               "fk_node": ["variant", "description_file"],
               "ik_service": ["default_solver", "max_timeout"],
-              "task_node": ["command_rate"]}
+              "task_node": ["command_rate", "tasks_dir", "detection_max_age"],
+              "task_recorder": ["output"],
+              "hybrid_force": ["output", "stale_timeout", "payload_mass"]}
     for package, name, _node in NODES:
         text = subprocess.run([executable(package, name), "--help"], capture_output=True,
                               text=True, timeout=30.0).stdout
@@ -84,7 +88,10 @@ def _start_all(launch, tmp_path, wait_for):
                                    params={"port": int(port)}),
         "fk_node": launch("hyperarm_ik", "fk_node"),
         "ik_service": launch("hyperarm_ik", "ik_service"),
+        "hybrid_force": launch("hyperarm_ik", "hybrid_force"),
         "task_node": launch("hyperarm_tasks", "task_node"),
+        "task_recorder": launch("hyperarm_tasks", "task_recorder",
+                                params={"output": str(tmp_path / "rec.mcap")}),
     }
     return procs, EmulatorControl(ctl)
 

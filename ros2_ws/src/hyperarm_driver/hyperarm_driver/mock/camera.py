@@ -30,12 +30,15 @@ def pose_from_xyz_rpy(xyz, rpy) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Frame:
-    """One image's detections: ``stamp`` = exposure time (s); poses in camera_link."""
+    """One image's detections: ``stamp`` = exposure time (s); poses in camera_link.
+    ``dropped``: taken during a configured camera dropout: nothing detected (the truth is
+    still there, for tests)."""
 
     stamp: float
     names: tuple[str, ...]
     detected: tuple[np.ndarray, ...]
     truth: tuple[np.ndarray, ...]
+    dropped: bool = False
 
 
 class Camera:
@@ -64,7 +67,8 @@ class Camera:
             names.append(name)
             det.append(n)
             tru.append(t)
-        return Frame(stamp, tuple(names), tuple(det), tuple(tru))
+        return Frame(stamp, tuple(names), tuple(det), tuple(tru),
+                     dropped=self.cfg.dropped(stamp))
 
     def step(self, now: float, truth: Callable[[], Mapping[str, np.ndarray]]) -> list[Frame]:
         """Advance to ``now`` (s): take an image if one is due (``truth()`` is called only

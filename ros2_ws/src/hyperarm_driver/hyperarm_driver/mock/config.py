@@ -28,6 +28,7 @@ __all__ = [
     "GraspConfig",
     "WorldConfig",
     "CameraConfig",
+    "CurrentConfig",
     "MockConfig",
     "default_workcell_path",
     "load_mock_config",
@@ -84,12 +85,14 @@ def _reject_unknown(raw: Mapping[str, Any], known: frozenset[str] | None, where:
 
 _KNOWN = {
     "servo": frozenset({"stiffness", "gripper_stiffness", "rail_stiffness", "lag", "damping",
-                        "gripper_acceleration"}),
+                        "gripper_acceleration", "mode_switch_gap"}),
+    "current": frozenset({"enabled", "torque_constant_error", "friction", "quantum"}),
     "imperfections": frozenset({"repeatability", "move_threshold", "position_noise",
                                 "velocity_noise", "effort_noise", "state_latency",
                                 "command_latency", "seed"}),
     "world": WORLD_KEYS | MOCK_WORLD_KEYS,
-    "camera": frozenset({"rate", "position_noise", "orientation_noise", "latency", "seed"}),
+    "camera": frozenset({"rate", "position_noise", "orientation_noise", "latency", "seed",
+                         "dropouts"}),
 }
 
 
@@ -110,6 +113,23 @@ class ServoConfig:
     lag: float = 0.02
     damping: float = 0.05
     gripper_acceleration: float = 20.0
+    mode_switch_gap: float = 0.005
+
+
+@dataclass(frozen=True)
+class CurrentConfig:
+    """The servos' current model (on by default): what a servo exerts for a commanded
+    torque or current limit, and the effort it reports, differ from the nominal conversion
+    the driver uses. Per servo (arm joints and gripper), drawn once from
+    ``imperfections.seed``: a torque-constant ratio (true / nominal) uniform in
+    1 +- ``torque_constant_error``, a Coulomb friction uniform in 0.5..1.5 x ``friction``
+    (N·m, opposing motion); currents are quantized to ``quantum`` (N·m of nominal torque:
+    one unit of Goal/Present Current, ~2.7-3.4 mA). ``enabled: false`` = ideal servos."""
+
+    enabled: bool = True
+    torque_constant_error: float = 0.10
+    friction: float = 0.03
+    quantum: float = 0.005
 
 
 @dataclass(frozen=True)
@@ -197,6 +217,13 @@ class CameraConfig:
     orientation_noise: float = 0.0
     latency: float = 0.0
     seed: int | None = None
+    #: camera faults: (start s, duration s or None = for good) of simulated time during
+    #: which images carry no detections (the ground truth topic goes on)
+    dropouts: tuple[tuple[float, float | None], ...] = ()
+
+    def dropped(self, t: float) -> bool:
+        """Whether an image taken at simulated time ``t`` (s) falls in a dropout."""
+        return any(t >= a and (d is None or t < a + d) for a, d in self.dropouts)
 
 
 @dataclass(frozen=True)
@@ -206,6 +233,7 @@ class MockConfig:
     world: WorldConfig
     camera: CameraConfig
     source: str = "<data>"
+    current: CurrentConfig = CurrentConfig()
 
 
 def _seed(raw: Mapping[str, Any], where: str) -> int | None:
@@ -218,11 +246,28 @@ def _seed(raw: Mapping[str, Any], where: str) -> int | None:
     return value
 
 
+def _dropouts(raw: Any) -> tuple[tuple[float, float | None], ...]:
+    """``camera.dropouts``: a list of {start: s, duration: s or null (for good)}."""
+    if raw is None:
+        return ()
+    if not isinstance(raw, list):
+        raise MockConfigError("camera.dropouts: expected a list of {start, duration}")
+    out = []
+    for i, rd in enumerate(raw):
+        w = f"camera.dropouts[{i}]"
+        if not isinstance(rd, Mapping):
+            raise MockConfigError(f"{w}: expected a mapping {{start, duration}}")
+        _reject_unknown(rd, frozenset({"start", "duration"}), w)
+        start = _num(rd, "start", w, nonneg=True)
+        dur = rd.get("duration")
+        out.append((start, None if dur is None else
+                    check_number(dur, f"{w}.duration", positive=True, error=MockConfigError)))
+    return tuple(out)
+
+
 def _world(raw: Mapping[str, Any]) -> WorldConfig:
     w = "world"
     spec = parse_world(raw, w, extra_keys=MOCK_WORLD_KEYS, error=MockConfigError)
-    if spec.block is None:
-        raise MockConfigError(f"{w}.block: missing or not a mapping")
     rg = raw.get("grasp", {}) or {}
     if not isinstance(rg, Mapping):
         raise MockConfigError(f"{w}.grasp: expected a mapping")
@@ -255,7 +300,22 @@ def parse_mock_config(data: Any, source: str = "<data>") -> MockConfig:
         lag=_num(rs, "lag", "servo", ServoConfig.lag, nonneg=True),
         damping=_num(rs, "damping", "servo", ServoConfig.damping, positive=True),
         gripper_acceleration=_num(rs, "gripper_acceleration", "servo",
-                                  ServoConfig.gripper_acceleration, positive=True))
+                                  ServoConfig.gripper_acceleration, positive=True),
+        mode_switch_gap=_num(rs, "mode_switch_gap", "servo", ServoConfig.mode_switch_gap,
+                             nonneg=True))
+    rcur = _section(data, "current", "")
+    enabled = rcur.get("enabled", True)
+    if not isinstance(enabled, bool):
+        raise MockConfigError(f"current.enabled: expected true or false, got {enabled!r}")
+    current = CurrentConfig(
+        enabled=enabled,
+        torque_constant_error=_num(rcur, "torque_constant_error", "current",
+                                   CurrentConfig.torque_constant_error, nonneg=True),
+        friction=_num(rcur, "friction", "current", CurrentConfig.friction, nonneg=True),
+        quantum=_num(rcur, "quantum", "current", CurrentConfig.quantum, nonneg=True))
+    if current.torque_constant_error >= 0.5:
+        raise MockConfigError("current.torque_constant_error: must be < 0.5 (a fraction), got "
+                              f"{current.torque_constant_error:g}")
     ri = _section(data, "imperfections", "")
     imp = ImperfectionConfig(
         repeatability=_num(ri, "repeatability", "imperfections", 0.0, nonneg=True),
@@ -276,11 +336,11 @@ def parse_mock_config(data: Any, source: str = "<data>") -> MockConfig:
         position_noise=_num(rc, "position_noise", "camera", 0.0, nonneg=True),
         orientation_noise=_num(rc, "orientation_noise", "camera", 0.0, nonneg=True),
         latency=_num(rc, "latency", "camera", 0.0, nonneg=True),
-        seed=_seed(rc, "camera"))
+        seed=_seed(rc, "camera"), dropouts=_dropouts(rc.get("dropouts")))
     if camera.rate > 1000.0:
         raise MockConfigError(f"camera.rate: at most 1000 Hz, got {camera.rate:g}")
     return MockConfig(servo=servo, imperfections=imp, world=_world(rw), camera=camera,
-                      source=source)
+                      source=source, current=current)
 
 
 def default_workcell_path() -> Path:

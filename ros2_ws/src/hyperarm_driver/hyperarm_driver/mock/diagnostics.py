@@ -35,7 +35,7 @@ class BusStats:
 
 def _mode_name(sim: JointSim, i: int) -> str:
     mode = sim.mode[i]
-    return ControlMode.POSITION.value if mode is ControlMode.OFF else mode.value
+    return sim._hold_mode(i).value if mode is ControlMode.OFF else mode.value
 
 
 def mock_diagnostics(sim: JointSim, stats: BusStats, period: float, sim_speed: float,
@@ -94,5 +94,8 @@ def mock_diagnostics(sim: JointSim, stats: BusStats, period: float, sim_speed: f
         message=f"block {w.state.value}" + (f" ({w.peg})" if w.peg else ""),
         values={"sim_time_s": f"{sim.time:.3f}", "sim_speed": f"{sim_speed:g}",
                 "block_state": w.state.value, "block_peg": w.peg or "",
-                "contact_force_N": f"{f[0]:.3f} {f[1]:.3f} {f[2]:.3f}"}))
+                "contact_force_N": f"{f[0]:.3f} {f[1]:.3f} {f[2]:.3f}",
+                "link_contacts": ", ".join(
+                    f"{link}:{pole}:{float((force @ force) ** 0.5):.2f}N"
+                    for link, pole, _, force in sim.link_contacts)}))
     return out

@@ -49,10 +49,14 @@ __all__ = ["ControlMode", "CommandReport", "StateSample", "MockCommandError", "J
            "OVERLOAD_TIME", "RAIL_FORCE_LIMIT"]
 
 OVERLOAD_TIME = 2.0        # s at the stall torque before a POSITION servo's overload error
+OVERLOAD_FRACTION = 0.98   # of the torque limit: "at the limit" for the overload count
 RAIL_FORCE_LIMIT = 200.0   # N, the rail drive's force limit
+FRICTION_VELOCITY = 0.02   # rad/s, below which Coulomb friction acts as a steep damper
 CONTACT_DAMPING = 30.0     # N·s/m, against dynamic (torque-mode) joints
 SUBSTEPS = 4               # dynamic sub-steps per step while any joint is dynamic
-LINEARIZATIONS = 2         # quasi-static contact solves per step at most
+LINEARIZATIONS = 6         # quasi-static contact solves per step at most (stops when converged)
+HARD_DEPTH = 0.001         # m: contacts deeper than this are on the stiff branch
+HARD_FACTOR = 50.0         # the stiff branch's stiffness / contact_stiffness
 RELINEARIZE = 1e-3         # rad: re-linearize when the solution is this far from the point
 
 
@@ -136,10 +140,27 @@ class JointSim:
         self.rail = desc.rail.name if desc.rail else None
         self._arm = np.zeros(self.n, dtype=bool)
         self._arm[[self._index[j.name] for j in desc.joints]] = True
+        # the driver's default current limit of a position-class command (docs/dynamixel.md):
+        # the stall torque for the arm joints, grip_effort for the gripper
+        self.default_limit = self.stall.copy()
+        self.default_limit[self.g] = min(desc.gripper.grip_effort, self.stall[self.g])
+        self._current_model(desc)
 
         self.model = build_model(desc)
         self.data = self.model.createData()
         self.tool_id = self.model.getFrameId(desc.tool_frame)
+        tool_frame = self.model.frames[self.tool_id]
+        self._payload_joint = int(tool_frame.parentJoint)
+        self._tool_in_joint = tool_frame.placement.homogeneous
+        self._bare_inertia = pin.Inertia(self.model.inertias[self._payload_joint])
+        self.payload = False                       # the held block's inertia is in the model
+        # poles: the links' capsules (hyperarm_description) meet them
+        self._poles = bool(self.cfg.world.poles)
+        self._capsules = [(c.name, c.radius, self.model.getFrameId(c.frame), c.endpoints())
+                          for c in desc.capsules] if self._poles else []
+        self.link_contacts: list[tuple[str, str, float, np.ndarray]] = []
+        self._pole_normals: dict[str, np.ndarray] = {}   # ongoing link contacts' sides
+        self._link_rows: list = []
         self.world = World(self.cfg.world)
         imp = self.cfg.imperfections
         self._rng = np.random.default_rng(imp.seed)
@@ -151,9 +172,15 @@ class JointSim:
             q0[self._index[name]] = value
         q0 = np.clip(q0, self.lower, self.upper)
         self.time = 0.0
-        self.mode = [ControlMode.POSITION] * self.n
+        self.mode = [self._hold_mode(i) for i in range(self.n)]
         self.goal = q0.copy()
-        self.limit = self.stall.copy()
+        self.limit_cmd = self.default_limit.copy()   # N·m (N rail), nominal, as commanded
+        self.limit = self._true_limit(self.limit_cmd)  # what the servo really enforces
+        self._gap = np.zeros(self.n)               # s of torque off left (mode switch)
+        self.reported_effort = np.zeros(self.n)    # what the servos report (current model)
+        self.tool_wrench = np.zeros(6)             # N, N·m: contacts on the block, at tool0
+        self._last_rows = None                     # last contact rows and forces
+        self._gap_hold = np.zeros(self.n, dtype=bool)  # after the gap: goal := present
         self.tau_cmd = np.zeros(self.n)
         self._effort_time = np.zeros(self.n)
         self._prof_p, self._prof_v = q0.copy(), np.zeros(self.n)
@@ -177,6 +204,72 @@ class JointSim:
         self._tool = np.eye(4)
         self._update_tool()
         self._record()
+
+    def _current_model(self, desc: RobotDescription) -> None:
+        """Per-servo torque-constant ratio, Coulomb friction and current quantum (the rail:
+        ideal), drawn once from the imperfections seed (its own stream)."""
+        cur = self.cfg.current
+        seed = self.cfg.imperfections.seed
+        rng = np.random.default_rng(None if seed is None else [seed, 9])
+        self.kt_ratio = np.ones(self.n)
+        self.coulomb = np.zeros(self.n)
+        self.quantum = np.zeros(self.n)
+        servos = np.ones(self.n, dtype=bool)
+        if self.rail:
+            servos[self._index[self.rail]] = False
+        if cur.enabled:
+            m = int(servos.sum())
+            e = cur.torque_constant_error
+            self.kt_ratio[servos] = rng.uniform(1.0 - e, 1.0 + e, m)
+            self.coulomb[servos] = cur.friction * rng.uniform(0.5, 1.5, m)
+            self.quantum[servos] = cur.quantum
+
+    def _quantize(self, tau: np.ndarray | float, idx=slice(None)) -> np.ndarray:
+        """Nominal torque (N·m) rounded to whole current units of the servos ``idx``."""
+        q = self.quantum[idx]
+        return np.where(q > 0.0, np.round(tau / np.where(q > 0.0, q, 1.0)) * q, tau)
+
+    def _true_limit(self, nominal: np.ndarray) -> np.ndarray:
+        """Torque limit (N·m) a servo really enforces for a nominal current limit."""
+        return self.kt_ratio * np.abs(self._quantize(np.asarray(nominal, dtype=float)))
+
+    def _hold_mode(self, i: int) -> ControlMode:
+        """Position-class mode of joint ``i``: current-based position (arm, gripper; the
+        driver's rule: no mode switch between position-class commands), position (rail)."""
+        return ControlMode.POSITION if self.names[i] == self.rail else \
+            ControlMode.CURRENT_POSITION
+
+    def _set_limit(self, i: int, nominal: float) -> None:
+        """Nominal current limit (N·m) of joint ``i``; ``limit`` gets what it enforces."""
+        self.limit_cmd[i] = nominal
+        self.limit[i] = float(self.kt_ratio[i] * abs(self._quantize(nominal, i)))
+
+    def _switch(self, i: int, mode: ControlMode) -> None:
+        """Set joint ``i``'s mode; changing between position-class and current (torque)
+        control turns its torque off for ``servo.mode_switch_gap`` s first (rounded up to
+        whole steps), as the real driver must (Operating Mode is written with torque off)."""
+        old = self.mode[i]
+        if old is not ControlMode.OFF and (old is ControlMode.TORQUE) != (mode is ControlMode.TORQUE):
+            self._gap[i] = self.cfg.servo.mode_switch_gap
+        self.mode[i] = mode
+
+    def _sync_payload(self) -> None:
+        """The held block's mass and inertia in the model's last link while held."""
+        held = self.world.state is BlockState.HELD
+        if held == self.payload:
+            return
+        jid = self._payload_joint
+        if held:
+            b = self.cfg.world.block
+            sx, sy, sz = b.size
+            box = pin.Inertia(b.mass, np.zeros(3), np.diag(
+                [b.mass * (sy**2 + sz**2) / 12.0, b.mass * (sx**2 + sz**2) / 12.0,
+                 b.mass * (sx**2 + sy**2) / 12.0]))
+            placement = pin.SE3(self._tool_in_joint @ self.world.grasp_transform())
+            self.model.inertias[jid] = self._bare_inertia + placement.act(box)
+        else:
+            self.model.inertias[jid] = pin.Inertia(self._bare_inertia)
+        self.payload = held
 
     # -- commands -----------------------------------------------------------------------
     def command(self, names: Sequence[str], positions: Sequence[float] = (),
@@ -214,36 +307,48 @@ class JointSim:
                 goals[n] = g
             if n in torques:
                 t = torques[n]
-                lim = float(np.clip(abs(t) if n in goals else t, -self.stall[i], self.stall[i]))
-                if abs(lim) != abs(t):
-                    clamped.append(n)
+                if n in goals:   # a current limit: > 0 limits, 0 = the default limit
+                    lim = min(abs(t), self.stall[i]) if t != 0.0 else self.default_limit[i]
+                    if abs(t) > self.stall[i]:
+                        clamped.append(n)
+                else:            # a torque
+                    lim = float(np.clip(t, -self.stall[i], self.stall[i]))
+                    if lim != t:
+                        clamped.append(n)
                 values[n] = lim
-        if goals and torques:
-            mode = ControlMode.CURRENT_POSITION
-        elif goals:
-            mode = ControlMode.POSITION
-        else:
-            mode = ControlMode.TORQUE
+        mode = ControlMode.CURRENT_POSITION if goals else ControlMode.TORQUE
 
         def apply() -> None:
+            imp = self.cfg.imperfections
+            new_move = False
             for n, i in zip(names, idx):
                 if self.mode[i] is ControlMode.OFF:
                     continue  # torque went off while the command was in flight
                 if mode is ControlMode.TORQUE:
-                    self.mode[i] = mode
+                    self._switch(i, mode)
                     self.tau_cmd[i] = values[n]
                     self._effort_time[i] = self.time
                     continue
                 if self.mode[i] not in _HOLDING:
                     self._restart_profile(i)
-                self.mode[i] = mode
-                self.limit[i] = values[n] if mode is ControlMode.CURRENT_POSITION else self.stall[i]
+                elif (i == self.g and goals[n] > self.position[i]
+                      and self._ref[i] < self.position[i] - 1e-3):
+                    # fingers stopped on the block short of their profile: an opening goal
+                    # starts from where they are, not from the old goal inside the block
+                    self._prof_p[i] = self._ref[i] = self.position[i]
+                    self._prof_v[i] = self._ref_v[i] = 0.0
+                self._switch(i, self._hold_mode(i))
+                self._gap_hold[i] = False
+                self._set_limit(i, values.get(n, self.default_limit[i]))
                 self.goal[i] = goals[n]
-                imp = self.cfg.imperfections
                 if self._arm[i] and abs(goals[n] - self._anchor[i]) > imp.move_threshold:
-                    self._anchor[i] = goals[n]
-                    sigma = imp.repeatability
-                    self.offset[i] = self._rng.normal(0.0, sigma) if sigma > 0.0 else 0.0
+                    new_move = True
+                self._anchor[i] = goals[n]
+            if new_move and imp.repeatability > 0.0:
+                # one draw per move, for every arm joint (the backlash of the whole arm
+                # settles anew); streamed small setpoints continue the same move
+                arm = np.flatnonzero(self._arm)
+                self.offset[arm] = self._rng.normal(0.0, imp.repeatability, len(arm))
 
         self._schedule(apply)
         return CommandReport(applied=tuple(names), clamped=tuple(clamped), mode=mode)
@@ -254,32 +359,48 @@ class JointSim:
         else:
             fn()
 
-    def _restart_profile(self, i: int) -> None:
+    def _restart_profile(self, i: int, keep_goal: bool = False) -> None:
         self._prof_p[i] = self._ref[i] = self.position[i]
         self._prof_v[i] = self._ref_v[i] = 0.0
-        self.goal[i] = self.position[i]
-        self.limit[i] = self.stall[i]
+        if not keep_goal:
+            self.goal[i] = self.position[i]
+            self._set_limit(i, self.default_limit[i])
 
-    def hold(self) -> list[str]:
-        """Stop every powered joint where it is (position mode, effort commands dropped;
-        torque unchanged). Returns the joints held."""
-        powered = [i for i in range(self.n) if self.mode[i] is not ControlMode.OFF]
+    def _which(self, names: Sequence[str] | None) -> list[int]:
+        if names is None:
+            return list(range(self.n))
+        unknown = [n for n in names if n not in self._index]
+        if unknown:
+            raise JointStateError(f"unknown joint(s) {unknown}; known: {self.names}")
+        return [self._index[n] for n in names]
+
+    def hold(self, names: Sequence[str] | None = None) -> list[str]:
+        """Stop the powered joints among ``names`` (None = all) where they are
+        (position-class mode at the default limit, effort commands dropped; torque
+        unchanged). Returns the joints held."""
+        powered = [i for i in self._which(names) if self.mode[i] is not ControlMode.OFF]
         for i in powered:
             self._restart_profile(i)
-            self.mode[i] = ControlMode.POSITION
+            self._switch(i, self._hold_mode(i))
+            self._gap_hold[i] = self._gap[i] > 0.0
         return [self.names[i] for i in powered]
 
-    def set_torque(self, enable: bool) -> None:
-        """Torque on (every joint holds where it is, position mode) or off (limp)."""
+    def set_torque(self, enable: bool, names: Sequence[str] | None = None) -> None:
+        """Torque on (the joints among ``names``, None = all, hold where they are in their
+        position-class mode) or off (limp)."""
+        which = self._which(names)
         if enable:
-            if self.errors:
-                raise MockCommandError(f"hardware error on {sorted(self.errors)}: reboot first")
-            for i in range(self.n):
+            errors = sorted(n for n in self.errors if self._index[n] in which)
+            if errors:
+                raise MockCommandError(f"hardware error on {errors}: reboot first")
+            for i in which:
                 self._restart_profile(i)
-                self.mode[i] = ControlMode.POSITION
+                self.mode[i] = self._hold_mode(i)
+                self._gap[i] = 0.0
         else:
-            self.mode = [ControlMode.OFF] * self.n
-            self.tau_cmd[:] = 0.0
+            for i in which:
+                self.mode[i] = ControlMode.OFF
+                self.tau_cmd[i] = 0.0
 
     def torque_enabled(self) -> list[bool]:
         return [m is not ControlMode.OFF for m in self.mode]
@@ -317,7 +438,7 @@ class JointSim:
     def _home(self, i: int) -> None:
         if self.mode[i] not in _HOLDING:
             self._restart_profile(i)
-        self.mode[i] = ControlMode.POSITION
+        self.mode[i] = self._hold_mode(i)
         self.goal[i] = 0.0
         self.homing = True
 
@@ -330,7 +451,8 @@ class JointSim:
         while self._pending and self._pending[0][0] <= self.time + 1e-12:
             self._pending.popleft()[1]()
         self._watchdog()
-        held = np.array([m in _HOLDING for m in self.mode])
+        gapped = self._gap > 0.0   # torque off during a mode switch (this step)
+        held = np.array([m in _HOLDING for m in self.mode]) & ~gapped
         self._profile(dt, held)
         nk = self.nk
         P = held[:nk]
@@ -354,6 +476,7 @@ class JointSim:
         self.velocity[:nk] = v
         self.position[:nk] = qk
         self.effort[:nk] = effort
+        self._set_contact_wrench()
         self._check_underpowered(P, tau_id)
         if self.homing:
             i = self._index[self.rail]
@@ -366,15 +489,65 @@ class JointSim:
         self.world.update_held(self._tool)
         self._gripper(dt)
         self._overload(dt, held)
+        self._sync_payload()
+        if gapped.any():   # after the gap: restart from where it is
+            self._gap = np.maximum(self._gap - dt, 0.0)
+            for i in np.flatnonzero(gapped & (self._gap == 0.0)):
+                if self.mode[i] in _HOLDING:   # hold / watchdog: hold where it is now
+                    self._restart_profile(int(i), keep_goal=not self._gap_hold[i])
+                self._gap_hold[i] = False
+        self._report_efforts(gapped)
         self.events.extend(self.world.take_events())
         self._record()
+
+    def _report_efforts(self, gapped: np.ndarray) -> None:
+        """The efforts the servos report: the true torque (plus the friction the motor also
+        overcomes while moving) through the true torque constant, in whole current units,
+        converted back with the nominal one; in current mode the present current follows
+        the commanded one."""
+        if not self.cfg.current.enabled:
+            self.reported_effort = self.effort.copy()
+            return
+        moving = np.abs(self.velocity) > FRICTION_VELOCITY
+        motor = self.effort + np.where(moving, np.sign(self.velocity) * self.coulomb, 0.0)
+        out = self._quantize(motor / self.kt_ratio)
+        for i, m in enumerate(self.mode):
+            if m is ControlMode.OFF or gapped[i]:
+                out[i] = 0.0
+            elif m is ControlMode.TORQUE:
+                out[i] = self._quantize(self.tau_cmd[i], i)
+        if self.rail:
+            r = self._index[self.rail]
+            out[r] = self.effort[r]
+        self.reported_effort = out
+
+    def _set_contact_wrench(self) -> None:
+        """Ground truth for tests: the wrench (N, N·m) the contacts exert on the held block,
+        at tool0 in tool0's axes (``tool_wrench``: force then torque)."""
+        rows = getattr(self, "_last_rows", None)
+        if rows is None or self.world.state is not BlockState.HELD:
+            self.tool_wrench = np.zeros(6)
+            return
+        dirs, points, owner, f, block = rows
+        tool = self._tool
+        force = np.zeros(3)
+        torque = np.zeros(3)
+        for r, fr in enumerate(f):
+            if not block[r]:
+                continue                  # a link on a pole: not on the block
+            fv = dirs[r] * fr
+            force += fv
+            torque += np.cross(points[owner[r]] - tool[:3, 3], fv)
+        rot = tool[:3, :3]
+        self.tool_wrench = np.r_[rot.T @ force, rot.T @ torque]
 
     def _watchdog(self) -> None:
         late = [i for i in range(self.n) if self.mode[i] is ControlMode.TORQUE
                 and self.time - self._effort_time[i] > self.effort_timeout]
         for i in late:
             self._restart_profile(i)
-            self.mode[i] = ControlMode.POSITION
+            self._switch(i, self._hold_mode(i))
+            self._gap_hold[i] = self._gap[i] > 0.0
         if late:
             self.events.append(WorldEvent(
                 "watchdog", f"no effort command for {self.effort_timeout:g} s: holding "
@@ -414,9 +587,13 @@ class JointSim:
         self._ref = np.where(held, ref, self._ref)
 
     def _applied_torque(self, D: np.ndarray) -> np.ndarray:
+        """Torque (N·m) the motors of the dynamic joints ``D`` exert: a commanded torque in
+        whole current units through the true torque constant (friction: in the dynamics);
+        0 with torque off or during a mode switch."""
         idx = np.flatnonzero(D)
-        return np.array([self.tau_cmd[i] if self.mode[i] is ControlMode.TORQUE else 0.0
-                         for i in idx])
+        return np.array([self.kt_ratio[i] * float(self._quantize(self.tau_cmd[i], i))
+                         if self.mode[i] is ControlMode.TORQUE and self._gap[i] == 0.0
+                         else 0.0 for i in idx])
 
     def _dynamics(self, dt: float, q: np.ndarray, v: np.ndarray, a: np.ndarray,
                   P: np.ndarray, D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -433,8 +610,12 @@ class JointSim:
         lo, hi = self.lower[:nk][D], self.upper[:nk][D]
         m = pin.crba(self.model, self.data, q + self.offset[:nk])
         m = np.triu(m) + np.triu(m, 1).T
-        mdd = m[np.ix_(D, D)] + h * damping * np.eye(int(D.sum()))
-        rows = self._contact_rows(q) if self.world.state is BlockState.HELD else None
+        # viscous damping plus Coulomb friction, both implicit (the friction as a viscous
+        # term c = F_c / max(|v|, FRICTION_VELOCITY), steep near rest: static friction)
+        c_d = damping + self.coulomb[:nk][D] / np.maximum(np.abs(v[D]), FRICTION_VELOCITY)
+        mdd = m[np.ix_(D, D)] + h * np.diag(c_d)
+        rows = self._contact_rows(q) if self.world.state is BlockState.HELD or self._poles \
+            else None
         kinv = np.where(P, 1.0 / self.stiffness[:nk], 0.0)
         q0 = q.copy()
         for _ in range(SUBSTEPS):
@@ -444,7 +625,7 @@ class JointSim:
                 f = self._solve_contacts(jr, p0 + jr @ (q - q0), owner, tangential, kinv, v)
                 gen = jr.T @ f
             b = pin.rnea(self.model, self.data, q + self.offset[:nk], v, a)
-            rhs = tau_d + gen[D] - b[D] - damping * v[D]
+            rhs = tau_d + gen[D] - b[D] - c_d * v[D]
             vd = v[D] + h * np.linalg.solve(mdd, rhs)
             qd = q[D] + h * vd
             at_limit = (qd <= lo) | (qd >= hi)
@@ -466,8 +647,9 @@ class JointSim:
         zero = np.zeros(nk)
         self._contact_rows_used = None
         warm, self._warm = self._warm, None
-        if self.world.state is not BlockState.HELD:
+        if self.world.state is not BlockState.HELD and not self._poles:
             self.contact_force = np.zeros(3)
+            self._last_rows = None
             self._anchors.clear()
             return zero, zero
         kinv = np.where(P, 1.0 / self.stiffness[:nk], 0.0)
@@ -479,18 +661,26 @@ class JointSim:
         # last step's deflected joints: in a sustained press one solve is then enough.
         if warm is not None:
             at_q = self.world.contacts(self._tool_at(q))
-            if not at_q or not all(c.frictional for c in at_q):
+            # (links on a pole: linearized where they are, near the pole's surface)
+            if (not at_q and not self.link_contacts) or not all(c.frictional for c in at_q):
                 warm = None
         q_lin, solved = (q, None) if warm is None else (q + warm, None)
+        side = None
         # (a warm start that missed gets the cold start's number of re-linearizations)
         for _ in range((LINEARIZATIONS + (warm is not None)) if v is None else 1):
-            rows = self._contact_rows(q_lin)
+            # re-linearizing, the threaded peg's side is the plane of its normal at q (a
+            # linear solution may overshoot the curved side, even past the axis)
+            rows = self._contact_rows(q_lin, side if q_lin is not q else None)
             if rows is None and q_lin is not q:   # contact lost where it was: try q itself
                 q_lin = q
                 rows = self._contact_rows(q)
             if rows is None:
                 break
             contacts, jr, p0, owner, tangential, points = rows
+            if q_lin is q:
+                side = next((c.normal for c in contacts if c.kind.startswith("peg_side:")
+                             and self.world.peg and c.kind.endswith(":" + self.world.peg)),
+                            None)
             p0 = p0 + jr @ (q_lin - q)             # the interference at the undeflected q
             f = self._solve_contacts(jr, p0, owner, tangential, kinv, v)
             solved = contacts, jr, p0, f, owner, tangential, points, q_lin
@@ -500,11 +690,21 @@ class JointSim:
             q_lin = q + deflection
         if solved is None:
             self.contact_force = np.zeros(3)
+            self._last_rows = None
+            self.link_contacts = []
+            if v is None:
+                self._pole_normals = {}
             self._anchors.clear()
             return zero, zero
         contacts, jr, p0, f, owner, tangential, points, q_used = solved
-        self._contact_rows_used = jr, p0, f
         dq = kinv * (jr.T @ f)
+        lo, hi = self.lower[:nk], self.upper[:nk]
+        stopped = ((q + dq < lo) & (dq < 0.0)) | ((q + dq > hi) & (dq > 0.0))
+        if stopped.any():   # joints pushed onto their mechanical stops are rigid there
+            kinv = np.where(stopped, 0.0, kinv)
+            f = self._solve_contacts(jr, p0, owner, tangential, kinv, v)
+            dq = kinv * (jr.T @ f)
+        self._contact_rows_used = jr, p0, f
         if v is None:   # move friction anchors of sliding contacts along with the block
             moved = jr @ (q + dq - q_used)        # points were taken at q_used
             kinds = set()
@@ -519,23 +719,41 @@ class JointSim:
                     del self._anchors[kind]
         if v is None:
             self._warm = dq
-        self.contact_force = np.asarray(self._row_dirs).T @ f
+        block = np.array([not contacts[o].kind.startswith("pole:") for o in owner])
+        dirs = np.asarray(self._row_dirs)
+        self.contact_force = dirs[block].T @ f[block] if block.any() else np.zeros(3)
+        self._link_rows = [(c, int(np.flatnonzero(owner == ci)[0]))
+                           for ci, c in enumerate(contacts) if c.kind.startswith("pole:")]
+        self._set_link_contacts(f)
+        if v is None and self._poles:
+            self._pole_normals = {c.kind: c.normal for ci, c in enumerate(contacts)
+                                  if c.kind.startswith("pole:")
+                                  and f[int(np.flatnonzero(owner == ci)[0])] > 0.0}
+        self._last_rows = (self._row_dirs, points, owner, f, block)
         return dq, jr.T @ f
 
-    def _contact_rows(self, q: np.ndarray):
+    def _contact_rows(self, q: np.ndarray, side_normal: np.ndarray | None = None):
         """Contact rows of the held block at chain positions ``q``: the contacts, the
         Jacobian rows (m/rad) of each constrained direction, their interferences (m), the
         contact each row belongs to, which rows are tangential, and the contact points."""
         qt = q + self.offset[:self.nk]
         tool = self._tool_at(q)
-        contacts = self.world.contacts(tool)
+        contacts = self.world.contacts(tool, side_normal)
+        if self._poles:
+            contacts = contacts + self._pole_contacts()
         if not contacts:
             return None
         j6 = pin.computeFrameJacobian(self.model, self.data, qt, self.tool_id,
                                       pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
         rows, p0, owner, tangential, dirs, points = [], [], [], [], [], []
         for ci, c in enumerate(contacts):
-            jp = j6[:3] - _skew(c.point - tool[:3, 3]) @ j6[3:]
+            if c.kind.startswith("pole:"):     # on a link: that link's frame Jacobian
+                fid = self._capsule_frame[c.kind.rsplit(":", 1)[1]]
+                jf = pin.computeFrameJacobian(self.model, self.data, qt, fid,
+                                              pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+                jp = jf[:3] - _skew(c.point - self.data.oMf[fid].translation) @ jf[3:]
+            else:
+                jp = j6[:3] - _skew(c.point - tool[:3, 3]) @ j6[3:]
             rows.append(c.normal @ jp); p0.append(c.depth); owner.append(ci)
             tangential.append(False); dirs.append(c.normal); points.append(c.point)
             if c.frictional:
@@ -546,6 +764,23 @@ class JointSim:
         self._row_dirs = dirs
         return (contacts, np.array(rows), np.array(p0), np.array(owner),
                 np.array(tangential), points)
+
+    def _set_link_contacts(self, f: np.ndarray) -> None:
+        """``link_contacts``: (capsule, pole, depth m at the commanded joints, force N on
+        the link) of every link touching a pole, from the contact rows' forces ``f``."""
+        self.link_contacts = [(c.kind.split(":")[2], c.kind.split(":")[1], c.depth,
+                               c.normal * f[row]) for c, row in self._link_rows]
+
+    def _pole_contacts(self) -> list:
+        """Capsule-pole contacts at the configuration last put in ``self.data``."""
+        segments = []
+        self._capsule_frame = {}
+        for name, radius, fid, (a, b) in self._capsules:
+            m = self.data.oMf[fid]
+            rot, pos = m.rotation, m.translation
+            segments.append((name, radius, rot @ a + pos, rot @ b + pos))
+            self._capsule_frame[name] = fid
+        return self.world.pole_contacts(segments, self._pole_normals)
 
     def _solve_contacts(self, jr: np.ndarray, p0: np.ndarray, owner: np.ndarray,
                         tangential: np.ndarray, kinv: np.ndarray,
@@ -559,11 +794,32 @@ class JointSim:
         tangential rows if any. The systems are tiny (3-6 rows), so the bookkeeping is done
         on Python lists: numpy's per-call overhead would dominate."""
         k_env = self.cfg.world.contact_stiffness
-        mu = self.cfg.world.friction
         m = len(p0)
-        a_full = (jr * kinv) @ jr.T
+        base = (jr * kinv) @ jr.T
+        a_full = base.copy()
         a_full.flat[::m + 1] += 1.0 / k_env
         damp = CONTACT_DAMPING * (jr @ v) if v is not None else None
+        f = self._solve_rows(a_full, p0, tangential, damp)
+        # Beyond HARD_DEPTH the surface stiffens (HARD_FACTOR x): normal rows pressed deeper
+        # are solved again on the stiff branch, f = k d0 + k_hard (d - d0), so no servo can
+        # push the block more than ~HARD_DEPTH into a surface.
+        deep = [i for i in range(m) if not tangential[i] and f[i] > k_env * HARD_DEPTH]
+        self._row_comp = np.full(m, 1.0 / k_env)
+        self._row_shift = np.zeros(m)
+        if deep:
+            k_hard = HARD_FACTOR * k_env
+            self._row_comp[deep] = 1.0 / k_hard
+            self._row_shift[deep] = HARD_DEPTH * (1.0 - k_env / k_hard)
+            a_full = base.copy()
+            a_full.flat[::m + 1] += self._row_comp
+            f = self._solve_rows(a_full, p0 - self._row_shift, tangential, damp)
+        return f
+
+    def _solve_rows(self, a_full: np.ndarray, p0: np.ndarray, tangential: np.ndarray,
+                    damp: np.ndarray | None) -> np.ndarray:
+        """The active-set solve of :meth:`_solve_contacts` for one compliance matrix."""
+        mu = self.cfg.world.friction
+        m = len(p0)
         # per contact: its normal row and its tangential rows
         groups: list[tuple[int, list[int]]] = []
         for i in range(m):
@@ -631,9 +887,9 @@ class JointSim:
             kinv_u = np.where(P & ~over, 1.0 / self.stiffness[:nk], 0.0)
             js = jr[:, over]
             ns = js.shape[1]
-            lhs = np.block([[np.eye(m) / self.cfg.world.contact_stiffness
-                             + (jr * kinv_u) @ jr.T, js], [js.T, np.zeros((ns, ns))]])
-            rhs = np.r_[p0, tau_id[over] - sign[over] * lim[over]]
+            lhs = np.block([[np.diag(self._row_comp) + (jr * kinv_u) @ jr.T, js],
+                            [js.T, np.zeros((ns, ns))]])
+            rhs = np.r_[p0 - self._row_shift, tau_id[over] - sign[over] * lim[over]]
             sol = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
             f, dq_s = sol[:m], sol[m:]
             tau_new = tau_id - jr.T @ f
@@ -644,7 +900,13 @@ class JointSim:
             over |= newly
         dq = kinv_u * (jr.T @ f)
         dq[over] = dq_s
-        self.contact_force = np.asarray(self._row_dirs).T @ f
+        if self._last_rows is not None:
+            block = self._last_rows[4]
+            self.contact_force = np.asarray(self._row_dirs)[block].T @ f[block] \
+                if block.any() else np.zeros(3)
+            self._last_rows = (*self._last_rows[:3], f, block)
+            if self._poles:
+                self._set_link_contacts(f)
         return dq, np.clip(tau_new, -lim, lim)
 
     def _check_underpowered(self, P: np.ndarray, tau_id: np.ndarray) -> None:
@@ -668,13 +930,15 @@ class JointSim:
         """A POSITION servo (arm, gripper; rail) at its torque limit for OVERLOAD_TIME s:
         overload error, torque off. E.g. a gripper closed on the block in plain position
         mode, goal inside the block: the real servo overloads, hence current-based position
-        for grasping."""
-        stalled = held & (np.abs(self.effort) >= self.limit * (1.0 - 1e-9))
-        if not stalled.any():
-            self._saturated_for[:] = 0.0
+        for grasping. The time at the limit is a leaky count (+dt at >= 98 % of the limit,
+        -dt below), as a servo's thermal load: a servo that yields step after step against
+        a contact, touching its limit every other step, overloads too."""
+        stalled = held & (np.abs(self.effort) >= self.limit * OVERLOAD_FRACTION)
+        if not stalled.any() and not self._saturated_for.any():
             return
-        stalled &= np.array([m is ControlMode.POSITION for m in self.mode])
-        self._saturated_for = np.where(stalled, self._saturated_for + dt, 0.0)
+        stalled &= self.limit_cmd >= self.stall * (1.0 - 1e-9)   # at its stall torque
+        self._saturated_for = np.where(stalled, self._saturated_for + dt,
+                                       np.maximum(self._saturated_for - dt, 0.0))
         for i in np.flatnonzero(self._saturated_for >= OVERLOAD_TIME):
             self.inject_error(self.names[i], "overload")
             self._saturated_for[i] = 0.0
@@ -703,7 +967,8 @@ class JointSim:
         qc = self._contact_angle() if present else -math.inf
         reachable = prev >= qc - 1e-3          # fingers open enough to get around the block
         effort, contact = 0.0, False
-        if mode in _HOLDING:
+        gap = self._gap[g] > 0.0
+        if mode in _HOLDING and not gap:
             q = self._ref[g]
             if present and reachable and q <= qc:
                 contact = True
@@ -711,9 +976,10 @@ class JointSim:
                 effort = float(np.clip(self.stiffness[g] * (self._ref[g] - qc),
                                        -self.limit[g], self.limit[g]))
             vel = (q - prev) / dt
-        elif mode is ControlMode.TORQUE:
-            effort = self.tau_cmd[g]
-            vel = float(np.clip(effort / self.cfg.servo.damping, -self.vmax[g], self.vmax[g]))
+        elif mode is ControlMode.TORQUE and not gap:
+            effort = self.kt_ratio[g] * float(self._quantize(self.tau_cmd[g], g))
+            drive = math.copysign(max(abs(effort) - self.coulomb[g], 0.0), effort)
+            vel = float(np.clip(drive / self.cfg.servo.damping, -self.vmax[g], self.vmax[g]))
             q = float(np.clip(prev + vel * dt, self.lower[g], self.upper[g]))
             if present and reachable and q <= qc and effort < 0.0:
                 contact, q, vel = True, qc, 0.0
@@ -733,7 +999,7 @@ class JointSim:
 
     def _record(self) -> None:
         self._history.append((self.time, self.position.copy(), self.velocity.copy(),
-                              self.effort.copy()))
+                              self.reported_effort.copy()))
         keep = self.cfg.imperfections.state_latency
         while len(self._history) > 1 and self._history[1][0] <= self.time - keep + 1e-12:
             self._history.popleft()
@@ -757,7 +1023,8 @@ class JointSim:
 
     def truth(self) -> dict[str, np.ndarray]:
         """True poses of what the camera sees: the block and each peg's top, root frame."""
-        out = {"block": self.world.block_pose(self._tool)}
+        out = {} if self.world.state is BlockState.ABSENT else \
+            {"block": self.world.block_pose(self._tool)}
         for name in self.world.peg_names:
             out[f"{name}_peg"] = self.world.peg_top(name)
         return out

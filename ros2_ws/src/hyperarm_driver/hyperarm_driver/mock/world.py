@@ -30,7 +30,8 @@ import numpy as np
 
 from .config import MockError, WorldConfig
 
-__all__ = ["WorldError", "BlockState", "Contact", "WorldEvent", "World"]
+__all__ = ["WorldError", "BlockState", "Contact", "WorldEvent", "World",
+           "segment_closest_points"]
 
 # Depth (m) below a peg's top that the block's bottom must reach, aligned, to be threaded
 # (more than the penalty penetration of a pressing contact, so pressing never threads).
@@ -42,9 +43,11 @@ class WorldError(MockError):
 
 
 class BlockState(str, Enum):
-    ON_PEG = "on_peg"
+    ON_PEG = "on_peg"            # threaded on a peg, down at its base
+    ON_PEG_TOP = "on_peg_top"    # resting on a peg's top, misaligned (balanced on it)
     ON_TABLE = "on_table"
     HELD = "held"
+    ABSENT = "none"              # a work cell without a block
 
 
 @dataclass(frozen=True)
@@ -73,6 +76,32 @@ _UP = np.array([0.0, 0.0, 1.0])
 _UP.flags.writeable = False
 
 
+def segment_closest_points(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """Closest points (m) of segments a0-a1 and b0-b1 (closed form, clamped; Ericson,
+    Real-Time Collision Detection, 5.1.9)."""
+    d1, d2, r = a1 - a0, b1 - b0, a0 - b0
+    a, e, f = float(d1 @ d1), float(d2 @ d2), float(d2 @ r)
+    if a <= 1e-18 and e <= 1e-18:
+        return a0, b0
+    if a <= 1e-18:
+        s, t = 0.0, min(max(f / e, 0.0), 1.0)
+    else:
+        c = float(d1 @ r)
+        if e <= 1e-18:
+            s, t = min(max(-c / a, 0.0), 1.0), 0.0
+        else:
+            b = float(d1 @ d2)
+            den = a * e - b * b
+            s = min(max((b * f - c * e) / den, 0.0), 1.0) if den > 1e-18 else 0.0
+            t = (b * s + f) / e
+            if t < 0.0:
+                s, t = min(max(-c / a, 0.0), 1.0), 0.0
+            elif t > 1.0:
+                s, t = min(max((b - c) / a, 0.0), 1.0), 1.0
+    return a0 + d1 * s, b0 + d2 * t
+
+
 def _yaw_only(rot: np.ndarray) -> np.ndarray:
     yaw = math.atan2(rot[1, 0], rot[0, 0])
     c, s = math.cos(yaw), math.sin(yaw)
@@ -84,15 +113,20 @@ class World:
 
     def __init__(self, cfg: WorldConfig) -> None:
         self.cfg = cfg
-        self._half = np.array(cfg.block.size) / 2.0
-        self._corner = math.hypot(self._half[0], self._half[1])   # m, centre to a corner
         self._pegs = {p.name: p for p in cfg.pegs}
         self.events: list[WorldEvent] = []
+        self._grasp: np.ndarray | None = None    # tool0 -> block, while held
+        self._pose = np.eye(4)
+        if cfg.block is None:                    # nothing to grasp
+            self._half = np.zeros(3)
+            self._corner = 0.0
+            self.state, self.peg = BlockState.ABSENT, None
+            return
+        self._half = np.array(cfg.block.size) / 2.0
+        self._corner = math.hypot(self._half[0], self._half[1])   # m, centre to a corner
         self.state = BlockState.ON_PEG
         self.peg: str | None = cfg.block.start   # the peg the block is threaded on, if any
-        self._grasp: np.ndarray | None = None    # tool0 -> block, while held
         p = self._pegs[cfg.block.start]
-        self._pose = np.eye(4)
         self._pose[:3, 3] = (p.xy[0], p.xy[1], cfg.table_height + self._half[2])
 
     # -- queries ------------------------------------------------------------------------
@@ -115,6 +149,12 @@ class World:
             return tool_pose @ self._grasp  # type: ignore[operator]
         return self._pose.copy()
 
+    def grasp_transform(self) -> np.ndarray:
+        """tool0 -> block (4x4) while held; WorldError otherwise."""
+        if self._grasp is None:
+            raise WorldError("the block is not held")
+        return self._grasp.copy()
+
     def grasp_point(self, tool_pose: np.ndarray) -> np.ndarray:
         return tool_pose[:3, :3] @ np.asarray(self.cfg.grasp.offset) + tool_pose[:3, 3]
 
@@ -123,6 +163,8 @@ class World:
         point, so that closing fingers would meet it."""
         if self.state is BlockState.HELD:
             return True
+        if self.state is BlockState.ABSENT:
+            return False
         d = np.linalg.norm(self.grasp_point(tool_pose) - self._pose[:3, 3])
         return bool(d <= self.cfg.grasp.capture_radius)
 
@@ -154,9 +196,78 @@ class World:
         dy = max(abs(-s * ex + c * ey) - self._half[1], 0.0)
         return math.hypot(dx, dy) < p.radius
 
+    def _side_contact(self, peg: str, block_pose: np.ndarray) -> tuple[float, np.ndarray] | None:
+        """The unthreaded block's side against peg ``peg``: when the peg's axis is outside
+        the block's footprint but the peg overlaps it, the overlap (m) and the horizontal
+        normal pushing the block away; None otherwise (no overlap, or the axis under the
+        block's solid part: only the top can push then)."""
+        p = self._pegs[peg]
+        ex, ey = p.xy[0] - float(block_pose[0, 3]), p.xy[1] - float(block_pose[1, 3])
+        if math.hypot(ex, ey) >= self._corner + p.radius:
+            return None
+        yaw = math.atan2(float(block_pose[1, 0]), float(block_pose[0, 0]))
+        c, s = math.cos(yaw), math.sin(yaw)
+        lx, ly = c * ex + s * ey, -s * ex + c * ey            # peg axis in the block's frame
+        dx = max(abs(lx) - self._half[0], 0.0)
+        dy = max(abs(ly) - self._half[1], 0.0)
+        d = math.hypot(dx, dy)
+        if d == 0.0 or d >= p.radius:
+            return None
+        nx, ny = math.copysign(dx, lx) / d, math.copysign(dy, ly) / d   # block -> peg
+        n = -np.array([c * nx - s * ny, s * nx + c * ny, 0.0])
+        return p.radius - d, n
+
+    # -- contacts of the robot's links with the poles ------------------------------------
+    def pole_contacts(self, segments, normals: dict | None = None) -> list[Contact]:
+        """Penetrating contacts of link capsules with the poles: ``segments`` are
+        (capsule name, radius, end a, end b) in the root frame (m). Each contact is named
+        ``pole:<pole>:<capsule>``; its normal pushes the capsule away from the pole's axis,
+        its point is on the capsule's surface. Frictionless (a smooth pole).
+        ``normals`` (by contact name) keep an ongoing contact's side: its depth is then
+        measured along that normal, so a link pushed past the pole's axis (a thin
+        obstacle) is still pushed back the way it came, not through."""
+        normals = normals or {}
+        out: list[Contact] = []
+        for pole in self.cfg.poles:
+            b0 = np.array([pole.xy[0], pole.xy[1], pole.z_min])
+            b1 = np.array([pole.xy[0], pole.xy[1], pole.z_max])
+            for name, radius, a0, a1 in segments:
+                kind = f"pole:{pole.name}:{name}"
+                # cheap reject: horizontal distance of the segment's box from the axis
+                if kind not in normals and (min(a0[0], a1[0]) - radius - pole.radius > pole.xy[0]
+                        or max(a0[0], a1[0]) + radius + pole.radius < pole.xy[0]
+                        or min(a0[1], a1[1]) - radius - pole.radius > pole.xy[1]
+                        or max(a0[1], a1[1]) + radius + pole.radius < pole.xy[1]):
+                    continue
+                pa, pb = segment_closest_points(a0, a1, b0, b1)
+                d = pa - pb
+                if kind in normals:
+                    n = normals[kind]
+                    depth = radius + pole.radius - float(n @ d)
+                    if depth > 0.0:
+                        out.append(Contact(kind, n, depth, pa - n * radius))
+                    continue
+                dist = float(np.linalg.norm(d))
+                depth = radius + pole.radius - dist
+                if depth <= 0.0:
+                    continue
+                if dist > 1e-9:
+                    n = d / dist
+                else:   # the axes cross: push horizontally, across the capsule's axis
+                    across = np.cross([0.0, 0.0, 1.0], a1 - a0)
+                    norm = float(np.linalg.norm(across))
+                    n = across / norm if norm > 1e-12 else np.array([1.0, 0.0, 0.0])
+                out.append(Contact(kind, n, depth, pa - n * radius))
+        return out
+
     # -- contacts of the held block -----------------------------------------------------
-    def contacts(self, tool_pose: np.ndarray) -> list[Contact]:
-        """Penetrating contacts of the held block at this tool pose (empty if not held)."""
+    def contacts(self, tool_pose: np.ndarray,
+                 side_normal: np.ndarray | None = None) -> list[Contact]:
+        """Penetrating contacts of the held block at this tool pose (empty if not held).
+        With ``side_normal``, the side of the peg the block is threaded on is taken as the
+        plane of that normal tangent to the clearance circle, and reported at any depth
+        (re-linearizing a contact found elsewhere: the linear solution may overshoot the
+        curved side, even past the axis, where its own normal would flip)."""
         if self.state is not BlockState.HELD:
             return []
         pose = self.block_pose(tool_pose)
@@ -172,16 +283,29 @@ class World:
             top = self.cfg.table_height + p.height
             if name == self.peg:
                 e = self.misalignment(name, pose)
-                excess = e - (self.cfg.block.hole_radius - p.radius)
-                if excess > 0.0 and e > 0.0:
-                    n = -np.array([centre[0] - p.xy[0], centre[1] - p.xy[1], 0.0]) / e
+                clearance = self.cfg.block.hole_radius - p.radius
+                rel = np.array([centre[0] - p.xy[0], centre[1] - p.xy[1], 0.0])
+                if side_normal is not None:
+                    n, excess = side_normal, float(-(side_normal @ rel)) - clearance
+                else:
+                    n, excess = (-rel / e if e > 0.0 else None), e - clearance
+                if n is not None and (excess > 0.0 or side_normal is not None):
                     low = max(bottom, self.cfg.table_height)     # middle of the overlap
                     z = low + 0.5 * (min(top, centre[2] + self._half[2]) - low)
                     out.append(Contact(f"peg_side:{name}", n, excess,
                                        np.array([centre[0], centre[1], z])))
                 continue
             depth = top - bottom
-            if 0.0 < depth <= p.height and self._touches_top(name, pose):
+            if depth <= 0.0 or centre[2] + self._half[2] <= self.cfg.table_height:
+                continue
+            side = self._side_contact(name, pose)
+            if side is not None and side[0] < depth:
+                excess, n = side   # beside the peg, low: pushed off sideways
+                low = max(bottom, self.cfg.table_height)
+                z = low + 0.5 * (min(top, centre[2] + self._half[2]) - low)
+                out.append(Contact(f"peg_side:{name}", n, excess,
+                                   np.array([centre[0], centre[1], z])))
+            elif self._touches_top(name, pose):
                 out.append(Contact(f"peg_top:{name}", up, depth,
                                    np.array([centre[0], centre[1], bottom]), frictional=True))
         return out
@@ -200,7 +324,7 @@ class World:
             return
         for name, p in self._pegs.items():
             top = self.cfg.table_height + p.height
-            if (bottom < top - THREAD_DEPTH and bottom > top - 2.0 * self._half[2]
+            if (bottom < top - THREAD_DEPTH
                     and self.misalignment(name, pose) <= self.cfg.block.hole_radius - p.radius):
                 self.peg = name
                 self.events.append(WorldEvent("threaded", name))
@@ -214,13 +338,19 @@ class World:
         if not self.block_between_fingers(tool_pose):
             raise WorldError("the block is not between the fingers")
         self._grasp = np.linalg.inv(tool_pose) @ self._pose
+        if self.state is BlockState.ON_PEG_TOP:
+            where, self.peg = f"on top of {self.peg}", None
+        else:
+            where = f"on {self.peg}" if self.peg else "from table"
         self.state = BlockState.HELD
-        self.events.append(WorldEvent("grasped", f"on {self.peg}" if self.peg else "from table"))
+        self.events.append(WorldEvent("grasped", where))
 
     def release(self, tool_pose: np.ndarray, kind: str = "released") -> None:
-        """Let go of the block (``kind`` "released" or "dropped"): it falls and comes to
-        rest threaded on a peg's base if its hole is on the peg, else on the table (beside a
-        peg if it would land on one)."""
+        """Let go of the block (``kind`` "released" or "dropped"). It falls: threaded down a
+        peg if its hole is within the clearance of the peg's axis (its xy kept within the
+        clearance); else, over a peg's top, it stays balanced on the top if its centre is
+        over the top's disc, or tips off onto the table just clear of the peg; else onto
+        the table where it is."""
         if self.state is not BlockState.HELD:
             return
         pose = self.block_pose(tool_pose)
@@ -228,34 +358,61 @@ class World:
         xy = pose[:2, 3].copy()
         rest = np.eye(4)
         rest[:3, :3] = _yaw_only(pose[:3, :3])
+        z = self.cfg.table_height + self._half[2]
         landed = self.peg
         if landed is None:
             for name, p in self._pegs.items():
-                top = self.cfg.table_height + p.height
-                if (pose[2, 3] - self._half[2] >= top - 2.0 * self._half[2]
-                        and self.misalignment(name, pose) <= self.cfg.block.hole_radius - p.radius):
+                if self.misalignment(name, pose) <= self.cfg.block.hole_radius - p.radius:
                     landed = name
                     break
+        on_top = None
         if landed is None:
             for name, p in self._pegs.items():
-                probe = pose.copy()
-                if self._touches_top(name, probe):
-                    d = xy - np.array(p.xy)
-                    n = d / np.linalg.norm(d) if np.linalg.norm(d) > 1e-9 else np.array([1.0, 0.0])
-                    reach = float(np.linalg.norm(self._half[:2])) + p.radius + 1e-3
-                    xy = np.array(p.xy) + n * reach
+                if self._touches_top(name, pose) and \
+                        pose[2, 3] - self._half[2] > self.cfg.table_height + p.height - 0.01:
+                    if self.misalignment(name, pose) <= p.radius:   # balanced on the top
+                        on_top = name
+                        z = self.cfg.table_height + p.height + self._half[2]
+                    else:                                           # tips off
+                        xy = self._clear_of(name, pose)
                     break
         if landed is not None:
             p = self._pegs[landed]
-            xy = pose[:2, 3]  # stays within the clearance of the axis
+            e = np.array(xy) - np.array(p.xy)
+            clearance = self.cfg.block.hole_radius - p.radius
+            if np.linalg.norm(e) > clearance:                       # the hole's wall
+                xy = np.array(p.xy) + e * clearance / np.linalg.norm(e)
             self.state = BlockState.ON_PEG
+        elif on_top is not None:
+            self.state = BlockState.ON_PEG_TOP
         else:
             self.state = BlockState.ON_TABLE
-        self.peg = landed
-        rest[:3, 3] = (xy[0], xy[1], self.cfg.table_height + self._half[2])
+        self.peg = landed if landed is not None else on_top
+        rest[:3, 3] = (xy[0], xy[1], z)
         self._pose = rest
-        where = f"on peg {landed}" if landed else f"on the table at ({xy[0]:.3f}, {xy[1]:.3f})"
+        if landed:
+            where = f"on peg {landed}"
+        elif on_top:
+            where = f"on top of peg {on_top} ({1e3 * self.misalignment(on_top, rest):.1f} mm " \
+                    "off its axis)"
+        else:
+            where = f"on the table at ({xy[0]:.3f}, {xy[1]:.3f})"
         self.events.append(WorldEvent(kind, where))
+
+    def _clear_of(self, peg: str, pose: np.ndarray) -> np.ndarray:
+        """The block's xy moved directly away from peg ``peg``'s axis just far enough for
+        its footprint to clear the peg (it tipped off the top)."""
+        p = self._pegs[peg]
+        d = pose[:2, 3] - np.array(p.xy)
+        norm = float(np.linalg.norm(d))
+        n = d / norm if norm > 1e-9 else np.array([1.0, 0.0])
+        probe = pose.copy()
+        step = 0.0005
+        for k in range(int((self._corner + p.radius) / step) + 2):
+            probe[:2, 3] = np.array(p.xy) + n * (norm + k * step)
+            if not self._touches_top(peg, probe) and self._side_contact(peg, probe) is None:
+                break
+        return probe[:2, 3].copy()
 
     def on_peg(self, name: str) -> bool:
         """Whether the block rests threaded on peg ``name`` (down at its base)."""

@@ -239,22 +239,27 @@ class RailAxis:
         return self.servo_period
 
     def set_communication(self) -> None:
-        """``I3=2 I6=1``: ACK-terminated replies with CR line ends, errors as ``ERRnnn``
-        (Software Reference, I3 and I6; public Turbo PMAC Ethernet drivers such as
-        dls-pmaclib send the same at connect). Applies to this very command's reply."""
-        self.port.command("I3=2 I6=1")
+        """``I3=2 I6=1 I64=1``: ACK-terminated replies with CR line ends, errors as
+        ``ERRnnn`` (Software Reference, I3 and I6; public Turbo PMAC Ethernet drivers such as
+        dls-pmaclib send the same at connect), and unsolicited messages (a PLC's ``SEND``)
+        tagged ``<STX>text<CR>`` (I64), so they are told apart from command replies instead
+        of corrupting one and looking like a link loss. Applies to this very command's
+        reply."""
+        self.port.command("I3=2 I6=1 I64=1")
 
     def check_communication(self) -> None:
-        """Read I3 and I6; RailConfigError unless I3 is 2 or 3 and I6 is 1 or 3 (a card at
-        I3=1 already fails to answer in ACK framing: PmacProtocolError names it)."""
-        lines = self.port.command("I3 I6")
-        if len(lines) != 2:
-            raise PmacProtocolError(f"I3 I6: expected two values, got {lines!r}")
-        i3, i6 = (parse_number([x], "I3/I6") for x in lines)
-        if i3 not in (2, 3) or i6 not in (1, 3):
-            raise RailConfigError(f"the card has I3={i3:g}, I6={i6:g}; the driver needs I3=2 "
-                                  "(ACK replies) and I6=1 (ERRnnn errors): set them on the "
-                                  "card or let the driver configure it")
+        """Read I3, I6 and I64; RailConfigError unless I3 is 2 or 3, I6 is 1 or 3 and I64 is
+        1 (a card at I3=1 already fails to answer in ACK framing: PmacProtocolError names
+        it)."""
+        lines = self.port.command("I3 I6 I64")
+        if len(lines) != 3:
+            raise PmacProtocolError(f"I3 I6 I64: expected three values, got {lines!r}")
+        i3, i6, i64 = (parse_number([x], "I3/I6/I64") for x in lines)
+        if i3 not in (2, 3) or i6 not in (1, 3) or i64 != 1:
+            raise RailConfigError(f"the card has I3={i3:g}, I6={i6:g}, I64={i64:g}; the driver "
+                                  "needs I3=2 (ACK replies), I6=1 (ERRnnn errors) and I64=1 "
+                                  "(tagged unsolicited messages): set them on the card or let "
+                                  "the driver configure it")
 
     def download_watchdog(self) -> None:
         """Download and enable the safety PLC (needs :attr:`servo_period` from I10)."""
@@ -347,6 +352,23 @@ class RailAxis:
     def stop(self) -> None:
         """``#nJ/``: decelerate and hold position with the servo on (also closes the loop)."""
         self.port.command(f"#{self.motor}J/")
+
+    def stop_checked(self) -> MotorStatus:
+        """``#n?#nJ/``: like :meth:`stop`, returning the motor status read on the card just
+        before it, in the same command line. ``J/`` closes the loop of a killed motor, so
+        the caller must check that status (as for :meth:`jog_to`)."""
+        return self._status_then(f"#{self.motor}J/")
+
+    def home_checked(self) -> MotorStatus:
+        """``#n?#nHM``: like :meth:`home`, with the status read just before it (``HM`` also
+        closes the loop of a killed motor)."""
+        return self._status_then(f"#{self.motor}HM")
+
+    def _status_then(self, command: str) -> MotorStatus:
+        lines = self.port.command(f"#{self.motor}?{command}")
+        if len(lines) != 1:
+            raise PmacProtocolError(f"{command}: expected the status line, got {lines!r}")
+        return MotorStatus.from_hex(lines[0])
 
     def enable(self) -> None:
         """Close the loop and hold at the present position (``#nJ/``); with the safety PLC

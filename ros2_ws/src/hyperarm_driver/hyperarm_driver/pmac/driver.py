@@ -503,11 +503,20 @@ class RailDriver:
                                    "call rail/set_torque true first")
         if not snap.torque:
             raise RailCommandError("torque is off; call rail/set_torque true first")
-        if kind == "hold":
-            ax.stop()
-            return "holding"
-        ax.home()    # kind == "home"
-        return "home search started"
+        # J/ and HM close the loop of a motor the card killed since the last poll (the
+        # latch above can be one poll old). So: read the status first and refuse if the
+        # motor is killed; then send the command with the status read again in the same
+        # line, and if a kill landed in between (one round trip), kill it again at once.
+        # Either way the fault is latched and the request refused.
+        for check in (ax.status, ax.stop_checked if kind == "hold" else ax.home_checked):
+            st = check()
+            if st.faults or not st.amp_enabled:
+                reason = (f"{_fault_reason(st)} on the card" if st.faults else
+                          "motor killed by the card")
+                self._latch(reason, f" (seen with rail/{kind})")
+                raise RailCommandError(f"{kind} refused: {reason}; call rail/set_torque "
+                                       "true first")
+        return "holding" if kind == "hold" else "home search started"
 
 
 def _unique(items: tuple[str, ...]) -> tuple[str, ...]:

@@ -3,14 +3,26 @@
 Sets (targets are tool0 poses in the root frame):
 - random:      FK of uniform random joints within limits, cold start from q = 0.
 - figure8:     a figure "8" in front of the arm, fixed orientation, each waypoint warm
-               started from the previous solution.
+               started from the last successful solution (the paper: "the previous joint
+               angles serve as a close starting point"; q = 0 before the first success).
 - figure8_tight, tight: the same at TRAC-IK's usual tolerance (1e-5 m, 1e-4 rad).
-- unreachable: targets beyond the reach bound; time to a definite "no".
+- figure8_wide: a second, larger 1,000-waypoint figure-8 (ik_studies.FIGURE8_WIDE), also
+               with the paper's solvers re-seeded from their returned joints after a
+               failure (the old protocol), for comparison.
+- near_limit:  FK of configurations with every joint within 5 % of a limit (cold).
+- impossible:  reachable positions with orientations no configuration reaches (wrist point
+               beyond 0.6034 m): time to an honest failure, ours vs TRAC-IK (5 ms, its
+               default timeout, and 50 ms).
+- unreachable: targets beyond the reach bound; time to a definite "no", and the default's
+               closest configuration against the proven distance to the workspace.
+- sensitivity: weighted_pinv's random-set success under K_w, the step rule and wrapping.
+- collision:   collision-aware solves on the random set in a work cell (ignored, checked,
+               avoided).
 - rail_random: the random set on the rail variant (augmented, wln, default, TRAC-IK).
 - rail_line:   Jia et al.'s experiment: a straight tool path with fixed orientation that
                needs the rail (joint motions plotted like their Fig. 5).
 - service:     round trip of SolveIK from a Python client to the installed ik_service
-               (two processes), p50/p95.
+               (two processes), p50/p95; and the same while a long (5 s) request runs.
 
 Success by the paper's criterion: position within 1 mm and no joint outside its limits;
 6-D success: also orientation within 1 deg. Everything is judged by our FK of the returned
@@ -42,6 +54,7 @@ from hyperarm_description.urdf import generate_urdf
 
 from ..kinematics import Kinematics, rotation_angle
 from ..solvers import make_solver
+from . import ik_studies as studies
 
 PAPER_POS = 1e-3                 # m, Danko & Oh's success criterion
 SIX_D_ORI = math.radians(1.0)    # rad, our 6-D criterion
@@ -178,8 +191,11 @@ def run_cold(kin, adapter: Adapter, set_name, targets, tol) -> Run:
     return run
 
 
-def run_track(kin, adapter: Adapter, set_name, targets, tol) -> Run:
-    run = Run(set_name, adapter.name)
+def run_track(kin, adapter: Adapter, set_name, targets, tol, reseed: str = "last_ok") -> Run:
+    """Track ``targets`` warm started: from the last successful solution (``last_ok``, the
+    paper's protocol as we read it) or from whatever the solver returned (``returned``)."""
+    run = Run(set_name, adapter.name if reseed == "last_ok" else
+              f"{adapter.name} (re-seeded from failures)")
     seed = np.zeros(kin.nq)
     prev_ok: np.ndarray | None = None
     steps = []
@@ -198,7 +214,7 @@ def run_track(kin, adapter: Adapter, set_name, targets, tol) -> Run:
             prev_ok = np.array(q)
         else:
             prev_ok = None
-        if q is not None:
+        if q is not None and (ok or reseed == "returned"):
             seed = np.array(q)
     run.max_step = max(steps) if steps else float("nan")
     return run
@@ -334,6 +350,7 @@ def service_round_trip(count: int, timeout: float = 30.0) -> dict | str:
                             "p50": float(np.percentile(rtts, 50)),
                             "p95": float(np.percentile(rtts, 95)),
                             "solve_p50": float(np.percentile(solves, 50))}
+        out["concurrent"] = _while_a_long_request_runs(node, cli, kin, targets, timeout)
         return out
     finally:
         node.destroy_node()
@@ -343,6 +360,58 @@ def service_round_trip(count: int, timeout: float = 30.0) -> dict | str:
             proc.wait(timeout=10)
         except subprocess.TimeoutExpired:
             proc.kill()
+
+
+def _solve_request(kin, p, r, seed, **fields):
+    from hyperarm_interfaces.srv import SolveIK
+    req = SolveIK.Request()
+    req.target.header.frame_id = kin.root_frame
+    req.target.pose.position.x, req.target.pose.position.y, req.target.pose.position.z = (
+        float(v) for v in p)
+    qu = pin.Quaternion(r)
+    o = req.target.pose.orientation
+    o.x, o.y, o.z, o.w = qu.x, qu.y, qu.z, qu.w
+    req.seed.name = kin.joint_names
+    req.seed.position = [float(v) for v in seed]
+    req.position_tolerance, req.orientation_tolerance = SOLVE_TOL
+    for k, v in fields.items():
+        setattr(req, k, v)
+    return req
+
+
+def _while_a_long_request_runs(node, cli, kin, targets, timeout: float) -> dict:
+    """Round trips of ordinary requests (spin_once client) while a legal 5 s request (the
+    heuristic at a tolerance it never meets) runs on the service."""
+    from rclpy.executors import SingleThreadedExecutor
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    # the target of the e2e test: the heuristic searches it for seconds from q = 0
+    far = kin.forward(np.array([0.2, 0.5, -0.3, 0.4, 0.1, -0.5, 0.3, 0.2, -0.1]))
+    p0, r0 = far[:3, 3], far[:3, :3]
+    slow = cli.call_async(_solve_request(kin, p0, r0, np.zeros(kin.nq), solver="heuristic",
+                                         timeout=5.0, position_tolerance=1e-300,
+                                         orientation_tolerance=1e-300))
+    ex.spin_once(timeout_sec=0.05)
+    t_start = time.perf_counter()
+    rtts, seed = [], np.zeros(kin.nq)
+    for p, r in targets * 100:
+        if slow.done():
+            break
+        t0 = time.perf_counter()
+        fut = cli.call_async(_solve_request(kin, p, r, seed))
+        wait_for_future(ex, fut, timeout)
+        rtts.append(time.perf_counter() - t0)
+        if fut.result() is not None:
+            seed = np.array(fut.result().solution.position)
+    during = time.perf_counter() - t_start
+    wait_for_future(ex, slow, timeout)
+    ex.remove_node(node)
+    ex.shutdown()
+    long_time = slow.result().solve_time if slow.result() is not None else float("nan")
+    return {"n": len(rtts), "p50": float(np.percentile(rtts, 50)) if rtts else float("nan"),
+            "p95": float(np.percentile(rtts, 95)) if rtts else float("nan"),
+            "max": max(rtts) if rtts else float("nan"), "during": during,
+            "long": long_time}
 
 
 # --- output --------------------------------------------------------------------------------
@@ -462,7 +531,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--slow-count", type=int, default=200,
                     help="subsample of the random sets for the heuristic solver")
     ap.add_argument("--ikpy-count", type=int, default=100, help="subsample for ikpy")
-    ap.add_argument("--unreachable-count", type=int, default=200)
+    ap.add_argument("--unreachable-count", type=int, default=200,
+                    help="targets in the unreachable and impossible sets")
+    ap.add_argument("--collision-count", type=int, default=1000,
+                    help="random targets of the collision-aware study")
+    ap.add_argument("--sensitivity-count", type=int, default=1000,
+                    help="random targets of the weighted_pinv sensitivity study")
     ap.add_argument("--rail-count", type=int, default=300)
     ap.add_argument("--service-count", type=int, default=500, help="0 skips the service run")
     ap.add_argument("--seed", type=int, default=2026)
@@ -491,6 +565,7 @@ def main(argv: list[str] | None = None) -> None:
 
     paper = ["pinv", "weighted_pinv", "heuristic", "wln"]
     runs: list[Run] = []
+    extra: list[str] = []  # further tables and lines of the studies
     cold: dict[str, Run] = {}
     track: dict[str, Run] = {}
 
@@ -529,6 +604,23 @@ def main(argv: list[str] | None = None) -> None:
         for a in [ours(kin, "default", *TIGHT, 0.05)] + peers(TIGHT, 0.05):
             report(run_track(kin, a, "figure8_tight", fig8, TIGHT))
 
+    if "figure8_wide" not in args.skip:
+        print("figure8_wide (second figure-8, warm start from the last success):", flush=True)
+        wide = figure8_targets(kin, args.count, **studies.FIGURE8_WIDE)
+        adapters = [ours(kin, "default", *SOLVE_TOL, 0.05)] + peers(SOLVE_TOL, 0.05)
+        adapters += [ours(kin, n, *SOLVE_TOL, 1.0) for n in paper]
+        for a in adapters:
+            report(run_track(kin, a, "figure8_wide", wide, SOLVE_TOL))
+        for n in ("pinv", "weighted_pinv"):
+            report(run_track(kin, ours(kin, n, *SOLVE_TOL, 1.0), "figure8_wide", wide,
+                             SOLVE_TOL, reseed="returned"))
+
+    if "near_limit" not in args.skip:
+        print("near_limit (every joint within 5 % of a limit, cold start):", flush=True)
+        near = studies.near_limit_targets(kin, args.count, rng)
+        for a in [ours(kin, "default", *SOLVE_TOL, 0.05)] + peers(SOLVE_TOL, 0.05):
+            report(run_cold(kin, a, "near_limit", near, SOLVE_TOL))
+
     if "unreachable" not in args.skip:
         print("unreachable (time to a definite no):", flush=True)
         far = unreachable_targets(kin, args.unreachable_count, rng)
@@ -537,6 +629,63 @@ def main(argv: list[str] | None = None) -> None:
                      for n in paper]
         for a in adapters:
             report(run_cold(kin, a, "unreachable", far, SOLVE_TOL))
+        c = studies.closest_study(kin, far)
+        extra.append(
+            f"- unreachable, default's closest configuration ({c['n']} targets): position "
+            f"error / proven lower bound of the distance to the workspace: median "
+            f"{c['median']:.3f}, p95 {c['p95']:.3f}, max {c['max']:.3f}; within 1.2x: "
+            f"{c['within_1_2']}/{c['n']}; answers saying 'proven within 1.2x': "
+            f"{c['proven']}/{c['n']} (the others say 'NOT proven the closest'); time p50 "
+            f"{1e3 * c['time_p50']:.3f} ms")
+
+    if "impossible" not in args.skip:
+        print("impossible (reachable position, unreachable orientation):", flush=True)
+        bad = studies.impossible_orientation_targets(kin, args.unreachable_count, rng)
+        solver = make_solver("default", kin)
+
+        def default_solve(p, r, q):
+            return solver.solve(p, r, q, position_tolerance=SOLVE_TOL[0],
+                                orientation_tolerance=SOLVE_TOL[1], timeout=0.1).q
+        contenders = [("default (service default timeout 0.1 s)", default_solve)]
+        for t_out in (0.005, 0.05):
+            t = trac_ik(kin, SOLVE_TOL[0] / math.sqrt(3.0), t_out)
+            if not isinstance(t, str):
+                contenders.append((f"TRAC-IK (timeout {1e3 * t_out:g} ms)", t.solve))
+        proven = sum(1 for p, r in bad if solver.solve(p, r).reachable is False)
+        lines = ["| solver | n | median ms | p95 ms | max ms | wrongly 'solved' |",
+                 "|---|---|---|---|---|---|"]
+        for name, fn in contenders:
+            times, wrong = studies.time_to_failure(kin, fn, bad)
+            lines.append(f"| {name} | {len(times)} | {studies.ms(times, 50)} | "
+                         f"{studies.ms(times, 95)} | {1e3 * max(times):.3f} | {wrong} |")
+            print(f"  {name:40s} median {studies.ms(times, 50)} ms  p95 "
+                  f"{studies.ms(times, 95)} ms", flush=True)
+        extra.append("Time to an honest failure on impossible orientations (" + str(len(bad))
+                     + f" targets; the default proved {proven} of them unreachable, "
+                     "reachable=False):\n\n" + "\n".join(lines))
+
+    if "collision" not in args.skip:
+        print("collision (random set in a work cell: ignored, checked, avoided):", flush=True)
+        lines, note = studies.collision_study(kin, random_set[:args.collision_count])
+        print("\n".join("  " + line for line in lines), flush=True)
+        extra.append("Collision-aware solves (default solver, random set, cold from q = 0, "
+                     "50 ms, in ik_studies.BENCH_WORLD: table 0.2 m below the base, two "
+                     "pegs, one pole; 'reached the pose' = within 1 mm / 1 deg):\n\n"
+                     + "\n".join(lines) + "\n\n- " + note)
+
+    if "sensitivity" not in args.skip:
+        print("sensitivity (weighted_pinv on the random set):", flush=True)
+        sub = random_set[:args.sensitivity_count]
+        cols = studies.SENSITIVITY_COLUMNS
+        lines = ["| variant (step halving reset each iteration unless said) | "
+                 + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
+        for name, counts in studies.sensitivity(kin, sub):
+            pct = [studies.percent(k, len(sub)) for k in counts]
+            lines.append(f"| {name} | " + " | ".join(pct) + " |")
+            print(f"  {name:48s} " + " ".join(f"{v:>6s}" for v in pct), flush=True)
+        extra.append(f"Sensitivity of weighted_pinv (random set, first {len(sub)} targets, "
+                     "cold from q = 0, 1 mm and within limits, 500 iterations, 1 s):\n\n"
+                     + "\n".join(lines))
 
     rail_track: dict[str, Run] = {}
     rail_line = None
@@ -567,6 +716,15 @@ def main(argv: list[str] | None = None) -> None:
             notes.append(f"service round trip not measured: {service}")
             print("  " + service)
         else:
+            conc = service.pop("concurrent")
+            print(f"  while a long request runs: {conc['n']} ordinary requests, p50 "
+                  f"{conc['p50'] * 1e3:.3f} ms, p95 {conc['p95'] * 1e3:.3f} ms, max "
+                  f"{conc['max'] * 1e3:.3f} ms (long request: {conc['long']:.2f} s)")
+            extra.append(f"- service_concurrent: {conc['n']} ordinary requests sent one after "
+                         f"the other while a legal long request (heuristic, 5 s timeout) ran "
+                         f"({conc['long']:.2f} s in all): round trip p50 "
+                         f"{conc['p50'] * 1e3:.3f} ms, p95 {conc['p95'] * 1e3:.3f} ms, max "
+                         f"{conc['max'] * 1e3:.3f} ms")
             for ex_name, f in service.items():
                 print(f"  client {ex_name}: p50 {f['p50'] * 1e3:.3f} ms  p95 "
                       f"{f['p95'] * 1e3:.3f} ms  (solve p50 {f['solve_p50'] * 1e3:.3f} ms; "
@@ -601,7 +759,8 @@ def main(argv: list[str] | None = None) -> None:
         [f"Measured {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())} on {machine}; "
          f"benchmark wall time {elapsed:.0f} s; command: `ik_benchmark "
          f"{' '.join(argv if argv is not None else sys.argv[1:])}`", "", table(runs), ""]
-        + summary + ([""] + [f"- note: {n}" for n in notes] if notes else []))
+        + summary + [""] + [line for e in extra for line in (e, "")]
+        + [f"- note: {n}" for n in notes])
     print()
     print(text)
     if args.plots:

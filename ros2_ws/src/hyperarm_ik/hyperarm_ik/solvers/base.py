@@ -19,13 +19,16 @@ from ..errors import (InvalidOptionError, InvalidSeedError, InvalidTargetError,
 from ..kinematics import Kinematics, rotation_angle
 
 __all__ = ["IKResult", "Solver", "task_error", "DEFAULT_POSITION_TOLERANCE",
-           "DEFAULT_ORIENTATION_TOLERANCE", "DEFAULT_TIMEOUT", "OUT_OF_REACH"]
+           "DEFAULT_ORIENTATION_TOLERANCE", "DEFAULT_TIMEOUT", "OUT_OF_REACH",
+           "ORIENTATION_OUT_OF_REACH", "COLLISION_MODES"]
 
 DEFAULT_POSITION_TOLERANCE = 1e-4   # m
 DEFAULT_ORIENTATION_TOLERANCE = 1e-3  # rad
 DEFAULT_TIMEOUT = 0.1               # s
-OUT_OF_REACH = "out of reach"       # note prefix of a proven-unreachable target
+OUT_OF_REACH = "out of reach"       # note prefix of a proven-unreachable position
+ORIENTATION_OUT_OF_REACH = "orientation out of reach"  # ... of a proven-unreachable pose
 _EYE3 = np.eye(3)
+COLLISION_MODES = ("ignore", "check", "avoid")
 
 
 @dataclass
@@ -41,13 +44,23 @@ class IKResult:
     message: str
     violations: list[str] = field(default_factory=list)  # joints outside their limits
     reachable: bool | None = None  # False: proven out of reach; None: unknown
+    contacts: list[str] = field(default_factory=list)  # "link4 with table" (if checked)
 
 
 class Solver:
     """Base class: validates requests, times the solve and builds honest results.
 
     Subclasses implement ``_solve(p, R, q0, ...) -> (q, iterations, note)``.
+
+    Collisions: after :meth:`use_collision_model`, ``solve(..., collisions=...)`` checks the
+    returned joints ("check": a collision makes the result a failure naming the pair) or
+    also lets the solver avoid them ("avoid": the default solver's restarts and null-space
+    push; the other solvers only check). "ignore" (the default) does neither.
     """
+
+    collision = None  # a hyperarm_ik.collision.CollisionModel, or None
+    _mode = "ignore"
+    _held = False
 
     name = "base"
     #: the variants the solver applies to
@@ -69,11 +82,14 @@ class Solver:
               seed: np.ndarray | None = None, *, position_only: bool = False,
               position_tolerance: float = DEFAULT_POSITION_TOLERANCE,
               orientation_tolerance: float = DEFAULT_ORIENTATION_TOLERANCE,
-              timeout: float = DEFAULT_TIMEOUT) -> IKResult:
+              timeout: float = DEFAULT_TIMEOUT, collisions: str = "ignore",
+              held: bool = False) -> IKResult:
         """Solve for tool0 at (position, rotation). ``seed`` defaults to q = 0.
 
-        ``rotation`` may be None only with ``position_only``. Raises IKError subclasses on
-        malformed input; an unreachable target is a result with success False, not an error.
+        ``rotation`` may be None only with ``position_only``. ``collisions``: "ignore",
+        "check" or "avoid" (needs :meth:`use_collision_model`); ``held``: the block is in
+        the gripper. Raises IKError subclasses on malformed input; an unreachable target
+        is a result with success False, not an error.
         """
         t0 = time.perf_counter()
         p, r = self._check_target(position, rotation, position_only)
@@ -81,12 +97,30 @@ class Solver:
         _check_positive("position_tolerance", position_tolerance)
         _check_positive("orientation_tolerance", orientation_tolerance)
         _check_positive("timeout", timeout)
+        if collisions not in COLLISION_MODES:
+            raise InvalidOptionError(f"collisions must be one of {', '.join(COLLISION_MODES)}, "
+                                     f"got {collisions!r}")
+        if collisions != "ignore" and self.collision is None:
+            raise InvalidOptionError(f"collisions={collisions!r} needs a collision model "
+                                     f"(use_collision_model)")
         deadline = t0 + timeout
-        out = self._solve(p, r, q0, position_only, position_tolerance, orientation_tolerance,
-                          deadline)
-        return self._result(out[0], p, r, position_only, position_tolerance,
-                            orientation_tolerance, out[1], t0, out[2],
-                            out[3] if len(out) > 3 else None)
+        self._mode, self._held = collisions, bool(held)
+        try:
+            out = self._solve(p, r, q0, position_only, position_tolerance,
+                              orientation_tolerance, deadline)
+            return self._result(out[0], p, r, position_only, position_tolerance,
+                                orientation_tolerance, out[1], t0, out[2],
+                                out[3] if len(out) > 3 else None)
+        finally:
+            self._mode, self._held = "ignore", False
+
+    def use_collision_model(self, model) -> None:
+        """Check (and, for the default solver, avoid) collisions with ``model`` (a
+        :class:`hyperarm_ik.collision.CollisionModel` on the same kinematics) in the
+        requests that ask for it; None switches it off."""
+        if model is not None and model.model.nq != self.kin.nq:
+            raise InvalidOptionError("the collision model is of another robot variant")
+        self.collision = model
 
     def _solve(self, p: np.ndarray, r: np.ndarray, q0: np.ndarray, position_only: bool,
                ptol: float, otol: float, deadline: float) -> tuple:
@@ -169,7 +203,9 @@ class Solver:
             violations = kin.limit_violations(q)
         ok_p = perr <= ptol
         ok_o = position_only or oerr <= otol
-        success = ok_p and ok_o and not violations
+        contacts = [] if self._mode == "ignore" else [
+            str(c) for c in self.collision.check(q, self._held)]
+        success = ok_p and ok_o and not violations and not contacts
         if success:
             msg = f"{self.name}: solved in {iterations} iterations"
         else:
@@ -180,13 +216,16 @@ class Solver:
                 why.append(f"orientation error {oerr:.3g} rad > {otol:.3g} rad")
             if violations:
                 why.append(f"outside joint limits: {', '.join(violations)}")
+            if contacts:
+                why.append(f"in collision: {', '.join(contacts)}")
             msg = f"{self.name}: not solved ({'; '.join(why)})"
         if note:
             msg += f"; {note}"
         return IKResult(q=q, success=success, position_error=perr, orientation_error=oerr,
                         iterations=iterations, solve_time=time.perf_counter() - t0,
-                        message=msg, violations=violations,
-                        reachable=False if note.startswith(OUT_OF_REACH) else None)
+                        message=msg, violations=violations, contacts=contacts,
+                        reachable=False if note.startswith(
+                            (OUT_OF_REACH, ORIENTATION_OUT_OF_REACH)) else None)
 
 
 def _check_positive(name: str, value: float) -> None:

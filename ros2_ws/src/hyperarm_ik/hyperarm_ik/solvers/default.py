@@ -34,16 +34,29 @@ target's azimuth (an exact one-joint move); off for the rail variant, where it d
 off.
 
 Restarts: an attempt stops when it stalls (error not reduced by 1 % over ``stall``
-iterations) or after ``max_iterations``; the next starts from uniform random joints, until the
-timeout. The best configuration seen is returned, with success computed from it.
-Unreachable: a target farther from the shoulder than the sum of the link lengths (plus the
-rail's travel) is out of reach for certain; the solver then returns at once with the
-position-only best effort of a short attempt and says so.
+iterations) or after ``max_iterations``; the next starts from uniform random joints drawn
+from a generator seeded by the request itself (target, seed, flags, tolerances, and the
+solver's ``seed``), so the same request always gets the same answer. The search ends at
+success, at the timeout, after ``max_attempts`` (0: no limit), or when it stalls:
+``stall_attempts`` attempts ended at the best error (within 1 %), or ``stall_restarts``
+restarts in a row did not improve it by 1 % (a probably unreachable target: said so, not
+proven). The best configuration seen is returned, with success computed from it.
+Unreachable (proven, :mod:`hyperarm_ik.workspace`): a target beyond the tool's reach bound
+gets at once the configuration stretched towards it, with its distance ratio to the bound;
+a pose whose wrist point is beyond the wrist's reach bound (an orientation that no
+configuration reaches there) gets at once the best position-only configuration found.
+Collisions (``collisions="avoid"``, with a collision model): an attempt that reaches the
+pose in collision is pushed apart along the deepest contact's distance gradient projected
+into the task's null space (``push_steps`` x ``push_step`` rad, LM after each), then the
+search restarts from collision-free random joints, up to ``collision_attempts`` colliding
+solutions; the answer names the pair if none is free.
 Parameters are documented in docs/ik.md; units: m, rad, s (orientation_scale m/rad).
 """
 from __future__ import annotations
 
+import hashlib
 import math
+import struct
 import time
 
 import eigenpy
@@ -52,7 +65,8 @@ import pinocchio as pin
 from pinocchio import log3
 
 from ..errors import InvalidOptionError
-from .base import OUT_OF_REACH, Solver
+from ..workspace import ReachBounds
+from .base import ORIENTATION_OUT_OF_REACH, OUT_OF_REACH, Solver
 
 __all__ = ["DefaultSolver"]
 
@@ -61,6 +75,8 @@ START_TABLE_SIZE = 65536  # configurations in the cold-start table of the fixed 
 TABLE_CELL = 0.1         # m, edge of the position cubes the table is binned in
 TABLE_RNG_SEED = 20261122
 TABLE_POSTURE_WEIGHT = 0.01  # m^2/rad^2: among a cube's entries, prefer small |q|
+STALL_ATTEMPTS = 3       # attempts ending at the best error (+1 %) that stop the search
+STALL_RESTARTS = 16      # restarts in a row without a 1 % better error that stop it
 _TABLES: dict[tuple, dict] = {}  # start tables by (size, scale, kinematics and soft limits)
 
 
@@ -75,7 +91,11 @@ class DefaultSolver(Solver):
                  preferred: np.ndarray | None = None, preferred_gain: float = 0.0,
                  gain: float = 0.03, align_base: float | None = None,
                  align_distance: float = 0.1, start_table: int | None = None,
-                 seed: int = 0) -> None:
+                 seed: int = 0, stall_attempts: int = STALL_ATTEMPTS,
+                 stall_restarts: int = STALL_RESTARTS,
+                 max_attempts: int = 0, closest_ratio: float = 1.2,
+                 collision_attempts: int = 20, push_steps: int = 4,
+                 push_step: float = 0.15) -> None:
         super().__init__(kin, max_iterations)
         for name, v in (("orientation_scale", orientation_scale), ("max_step", max_step)):
             if not np.isfinite(v) or v <= 0.0:
@@ -90,6 +110,14 @@ class DefaultSolver(Solver):
         if start_table is not None and (isinstance(start_table, bool)
                                         or not isinstance(start_table, int) or start_table < 0):
             raise InvalidOptionError(f"start_table must be an integer >= 0, got {start_table!r}")
+        for name, v in (("stall_attempts", stall_attempts), ("max_attempts", max_attempts),
+                        ("stall_restarts", stall_restarts),
+                        ("collision_attempts", collision_attempts), ("push_steps", push_steps),
+                        ("seed", seed)):
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+                raise InvalidOptionError(f"{name} must be an integer >= 0, got {v!r}")
+        if not np.isfinite(closest_ratio) or closest_ratio < 1.0:
+            raise InvalidOptionError(f"closest_ratio must be >= 1, got {closest_ratio!r}")
         if not 0.0 <= limit_margin < 0.5:
             raise InvalidOptionError(f"limit_margin must be in [0, 0.5), got {limit_margin!r}")
         if preferred is not None:
@@ -113,7 +141,17 @@ class DefaultSolver(Solver):
         self._soft_hi = kin.upper - limit_margin * span
         self.limit_gain = float(limit_gain)
         self._lo, self._hi = kin.lower, kin.upper
-        self.rng = np.random.default_rng(seed)
+        self.seed = int(seed)
+        self.stall_attempts = int(stall_attempts)
+        self.stall_restarts = int(stall_restarts)
+        self.max_attempts = int(max_attempts)
+        self.closest_ratio = float(closest_ratio)
+        if not np.isfinite(push_step) or push_step <= 0.0:
+            raise InvalidOptionError(f"push_step must be > 0, got {push_step!r}")
+        self.collision_attempts = max(1, int(collision_attempts))
+        self.push_steps = int(push_steps)
+        self.push_step = float(push_step)
+        self.bounds = ReachBounds(kin)
         self._eye3 = np.eye(3)
         # S^-2, S = diag(1, 1, 1, s, s, s): the damping term of the unscaled system below
         self._sinv2 = np.diag([1.0, 1.0, 1.0] + [1.0 / (self.s * self.s)] * 3)
@@ -342,21 +380,106 @@ class DefaultSolver(Solver):
             q = qn
         return best_q, best_cost, max_iter, None
 
-    def _solve(self, p, r, q0, position_only, ptol, otol, deadline):
+    # --- collision avoidance -------------------------------------------------------------
+    def _collision_free(self, p, r, q, position_only, ptol, otol, deadline):
+        """(q itself if collision-free, else a collision-free solution found by pushing q
+        apart along the deepest contact's distance gradient projected into the task's null
+        space (then re-converging by LM), or None; iterations spent)."""
+        model, held = self.collision, self._held
+        if not model.in_collision(q, held):
+            return q, 0
         kin = self.kin
+        total = 0
+        rows = slice(0, 3) if position_only else slice(0, 6)
+        for _ in range(self.push_steps):
+            g = model.clearance_gradient(q, held)
+            if g is None:
+                return q, total
+            j = kin.jacobian(q)[rows]
+            dq = g[1] - np.linalg.pinv(j) @ (j @ g[1])  # null-space part of the gradient
+            n = float(np.linalg.norm(dq))
+            if n < 1e-9:
+                return None, total
+            q = np.minimum(np.maximum(q + dq * (self.push_step / n), self._lo), self._hi)
+            qa, cost, it, errs = self._attempt(p, r, q, position_only, ptol, otol, deadline,
+                                               self.max_iterations)
+            total += it
+            if not (errs is not None or (position_only and cost <= ptol)):
+                return None, total  # pushed off the solution manifold
+            if not model.in_collision(qa, held):
+                return qa, total
+            q = qa
+            if time.perf_counter() > deadline:
+                break
+        return None, total
+
+    def _free_start(self, rng: np.random.Generator, tries: int = 20) -> np.ndarray:
+        """A random restart that is itself collision-free (a free start more often ends
+        free), or the last draw after ``tries``."""
+        for _ in range(tries):
+            q = rng.uniform(self._soft_lo, self._soft_hi)
+            if not self.collision.in_collision(q, self._held):
+                return q
+        return q
+
+    # --- the request-seeded restart generator ------------------------------------------
+    def _request_rng(self, p, r, q0, position_only, ptol, otol) -> np.random.Generator:
+        """A generator seeded from the request itself (target, seed, flags, tolerances) and
+        the solver's ``seed``: the same request always draws the same restarts, whatever
+        was solved before (no state carried across calls)."""
+        h = hashlib.blake2b(digest_size=16)
+        for a in (p, r, q0):
+            h.update(np.ascontiguousarray(a, dtype=float).tobytes())
+        h.update(struct.pack("<?ddq", bool(position_only), float(ptol), float(otol),
+                             self.seed))
+        return np.random.default_rng(int.from_bytes(h.digest(), "little"))
+
+    # --- proven-unreachable targets -----------------------------------------------------
+    def _out_of_reach(self, p, r, q, verdict, ptol, otol, deadline):
+        """The closest configuration of a target beyond the reach bound: the chain
+        stretched towards it (exact where no limit binds), polished by a short
+        position-only attempt; the note says whether it is proven within
+        ``closest_ratio`` x the target's distance to the workspace."""
+        qb = self.bounds.closest_stretch(p, q)
+        perr = self.errors(qb, p, r)[0]
+        lb = verdict.excess
+        it = 0
+        if perr > lb * (1.0 + 1e-9):  # a limit bound the stretch: polish it
+            qa, _, it, _ = self._attempt(p, r, qb, True, ptol, otol, deadline, 30)
+            pa = self.errors(qa, p, r)[0]
+            if pa < perr:
+                qb, perr = qa, pa
+        head = f"{OUT_OF_REACH}: {verdict.reason}"
+        if perr <= self.closest_ratio * lb:
+            return qb, it, (f"{head}; returning the closest configuration: position error "
+                            f"{perr:.4f} m, {perr / lb:.3f} x the target's distance to the "
+                            f"workspace (at least {lb:.4f} m)")
+        return qb, it, (f"{head}; the returned configuration is NOT proven the closest: "
+                        f"position error {perr:.4f} m, while the workspace is at least "
+                        f"{lb:.4f} m away")
+
+    def _solve(self, p, r, q0, position_only, ptol, otol, deadline):
         q = q0
         lst = q.tolist()
         if not (min(lst) >= -self._rmin and max(lst) <= self._rmin):
             q = np.minimum(np.maximum(q0, self._lo), self._hi)
-        excess = kin.reach_excess(p)
-        if excess > 0.0:
-            qb, _, it, _ = self._attempt(p, r, q, True, ptol, otol, deadline, 15)
-            return qb, it, (f"{OUT_OF_REACH}: the target is {excess:.3f} m beyond the "
-                            f"{kin.reach:.3f} m reach of the arm; returning the closest "
-                            f"configuration found")
+        verdict = self.bounds.position(p) if position_only else self.bounds.pose(p, r)
+        if verdict.reason:
+            if verdict.reason.startswith("the target"):
+                return self._out_of_reach(p, r, q, verdict, ptol, otol, deadline)
+            start = self._cold_start(p, r, q, True)[0] if self._cells else q
+            qb, _, it, _ = self._attempt(p, r, start, True, ptol, otol, deadline,
+                                         self.max_iterations)
+            return qb, it, (f"{ORIENTATION_OUT_OF_REACH}: {verdict.reason}; returning the "
+                            f"best position-only configuration found")
         total = 0
         best_q, best_cost = q, np.inf
         attempts = 0
+        costs: list[float] = []  # final error of every attempt (stall test)
+        collided = 0  # attempts that reached the pose in collision (collisions="avoid")
+        colliding = None
+        since_better = 0  # attempts since the best error last improved by 1 %
+        rng = None
         decided = False  # the start of the first attempt was chosen by the table logic
         if self._cells:
             q, decided = self._cold_start(p, r, q, position_only)
@@ -369,11 +492,53 @@ class DefaultSolver(Solver):
                                                self.max_iterations)
             total += it
             if errs is not None or (position_only and cost <= ptol):
+                if self._mode == "avoid":
+                    free, it = self._collision_free(p, r, qa, position_only, ptol, otol,
+                                                    deadline)
+                    total += it
+                    if free is None:  # reaches the pose, but collides: restart
+                        colliding = qa
+                        collided += 1
+                        if collided >= self.collision_attempts or \
+                                time.perf_counter() > deadline:
+                            return colliding, total, (
+                                f"no collision-free configuration found in {attempts} "
+                                f"attempts ({collided} reached the pose in collision)")
+                        if rng is None:
+                            rng = self._request_rng(p, r, q0, position_only, ptol, otol)
+                        q = self._free_start(rng)
+                        continue
+                    if free is not qa:
+                        qa, errs = free, None
                 note = "" if attempts == 1 else f"{attempts} attempts"
                 return (qa, total, note) if errs is None else (qa, total, note, errs)
+            costs.append(cost)
+            since_better = 0 if cost < 0.99 * best_cost else since_better + 1
             if cost < best_cost:
                 best_q, best_cost = qa, cost
+            repeats = sum(1 for c in costs if c <= 1.01 * best_cost)
+            if colliding is not None:  # the pose is reachable: only collisions are in the way
+                repeats = since_better = 0
+            if self.stall_attempts and repeats >= self.stall_attempts:
+                return best_q, total, (f"search stalled: {repeats} of {attempts} attempts "
+                                       f"ended at the same smallest error (within 1 %), so "
+                                       f"the target is probably unreachable (not proven); "
+                                       f"best approximate solution returned")
+            if self.stall_restarts and since_better >= self.stall_restarts:
+                return best_q, total, (f"search stalled: {since_better} restarts did not "
+                                       f"improve the best error by 1 % ({attempts} attempts),"
+                                       f" so the target is probably unreachable (not proven); "
+                                       f"best approximate solution returned")
+            if self.max_attempts and attempts >= self.max_attempts:
+                return (best_q if colliding is None else colliding), total, (
+                    f"gave up after {attempts} attempts (max_attempts); best approximate "
+                    f"solution returned")
             if time.perf_counter() > deadline:
+                if colliding is not None:
+                    return colliding, total, (f"timeout after {attempts} attempts: no "
+                                              f"collision-free configuration found")
                 return best_q, total, (f"timeout after {attempts} attempts: best "
                                        f"approximate solution returned")
-            q = self.rng.uniform(self._soft_lo, self._soft_hi)
+            if rng is None:
+                rng = self._request_rng(p, r, q0, position_only, ptol, otol)
+            q = rng.uniform(self._soft_lo, self._soft_hi)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InvalidOptionError
 from .pinv import StepHalvingSolver, weighted_pinv_step
 
 __all__ = ["WeightedPinvSolver"]
@@ -28,9 +29,13 @@ class WeightedPinvSolver(StepHalvingSolver):
 
     name = "weighted_pinv"
 
-    def __init__(self, kin, max_iterations: int = 500, k_w: float = 1000.0) -> None:
+    def __init__(self, kin, max_iterations: int = 500, k_w: float = 1000.0,
+                 step_rule: str = "reset") -> None:
         super().__init__(kin, max_iterations)
+        if not np.isfinite(k_w) or k_w < 0.0:
+            raise InvalidOptionError(f"k_w must be >= 0, got {k_w!r}")
         self.k_w = float(k_w)
+        self._set_step_rule(step_rule)
         self._mid = 0.5 * (kin.lower + kin.upper)
 
     def _direction(self, q, j, e):

@@ -1,0 +1,227 @@
+"""Per-servo torque calibration from static poses under gravity (no ROS).
+
+A servo reports ``tau_measured = scale * tau_true + offset`` (torque-constant error,
+zero-current offset). At rest and without contact, tau_true is the gravity torque of the
+model (links + payload), so poses with different gravity loads identify, joint by joint,
+``scale`` and ``offset`` by least squares. A joint whose gravity torque hardly varies over
+the poses (joint1 turns about the vertical: none) keeps ``scale`` 1 and gets its offset
+only (``identified: false`` in the file). Friction biases one static sample; the
+calibration executable averages each pose approached from both sides.
+
+File (YAML, written by :func:`save_calibration`, read by :func:`load_calibration`)::
+
+    schema_version: 1
+    kind: hyperarm_torque_calibration
+    joints:
+      joint2: {scale: 1.08, offset: -0.012, identified: true, rms: 0.004, samples: 24}
+Units: N·m.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+import yaml
+
+from .errors import CalibrationError
+
+__all__ = ["JointCalibration", "TorqueCalibration", "fit_calibration", "save_calibration",
+           "load_calibration", "MIN_SPREAD", "SCHEMA_VERSION", "KIND"]
+
+SCHEMA_VERSION = 1
+KIND = "hyperarm_torque_calibration"
+MIN_SPREAD = 0.05      # N·m: std of a joint's gravity torque over the poses to fit its scale
+SCALE_RANGE = (0.5, 2.0)
+
+
+@dataclass(frozen=True)
+class JointCalibration:
+    scale: float = 1.0
+    offset: float = 0.0
+    identified: bool = False
+    rms: float = 0.0
+    samples: int = 0
+
+    def __post_init__(self) -> None:
+        if not (SCALE_RANGE[0] <= self.scale <= SCALE_RANGE[1]):
+            raise CalibrationError(f"scale {self.scale!r} outside {SCALE_RANGE}")
+        if not math.isfinite(self.offset) or abs(self.offset) > 5.0:
+            raise CalibrationError(f"offset {self.offset!r} N·m not finite or beyond 5 N·m")
+
+
+@dataclass(frozen=True)
+class TorqueCalibration:
+    """Calibration of named joints; joints not listed are taken as exact."""
+
+    joints: Mapping[str, JointCalibration]
+
+    def arrays(self, names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+        """(scale, offset) in the order of ``names`` (cached per order)."""
+        key = tuple(names)
+        cache = self.__dict__.setdefault("_cache", {})
+        if key not in cache:
+            exact = JointCalibration()
+            cal = [self.joints.get(n, exact) for n in names]
+            cache[key] = (np.array([c.scale for c in cal]), np.array([c.offset for c in cal]))
+        return cache[key]
+
+    def correct(self, names: Sequence[str], tau_measured: np.ndarray) -> np.ndarray:
+        """True torques from measured ones: (tau_measured - offset) / scale."""
+        s, b = self.arrays(names)
+        return (np.asarray(tau_measured, dtype=float) - b) / s
+
+    def command(self, names: Sequence[str], tau: np.ndarray) -> np.ndarray:
+        """What to command for a true torque ``tau`` (the servo applies scale x command)."""
+        s, _ = self.arrays(names)
+        return np.asarray(tau, dtype=float) / s
+
+
+def fit_calibration(names: Sequence[str], tau_model: np.ndarray, tau_measured: np.ndarray,
+                    min_spread: float = MIN_SPREAD) -> TorqueCalibration:
+    """Fit scale/offset per joint from P static poses: ``tau_model`` and ``tau_measured``
+    are (P, n) in N·m. Needs at least 3 poses."""
+    tm = np.asarray(tau_model, dtype=float)
+    tr = np.asarray(tau_measured, dtype=float)
+    if tm.ndim != 2 or tm.shape != tr.shape or tm.shape[1] != len(names):
+        raise CalibrationError(f"expected two (poses, {len(names)}) arrays, got {tm.shape} "
+                               f"and {tr.shape}")
+    if tm.shape[0] < 3:
+        raise CalibrationError(f"need at least 3 poses, got {tm.shape[0]}")
+    if not (np.all(np.isfinite(tm)) and np.all(np.isfinite(tr))):
+        raise CalibrationError("non-finite torques in the calibration data")
+    out = {}
+    for i, name in enumerate(names):
+        x, y = tm[:, i], tr[:, i]
+        if float(np.std(x)) >= min_spread:
+            a = np.c_[x, np.ones_like(x)]
+            (scale, offset), *_ = np.linalg.lstsq(a, y, rcond=None)
+            identified = True
+            if not SCALE_RANGE[0] <= scale <= SCALE_RANGE[1]:
+                raise CalibrationError(f"{name}: fitted scale {scale:.3g} outside "
+                                       f"{SCALE_RANGE}: wrong model or data")
+        else:
+            scale, offset, identified = 1.0, float(np.mean(y - x)), False
+        rms = float(np.sqrt(np.mean((scale * x + offset - y) ** 2)))
+        out[name] = JointCalibration(scale=float(scale), offset=float(offset),
+                                     identified=identified, rms=rms, samples=int(len(x)))
+    return TorqueCalibration(out)
+
+
+def save_calibration(cal: TorqueCalibration, path: str | Path) -> None:
+    data = {"schema_version": SCHEMA_VERSION, "kind": KIND,
+            "joints": {n: {"scale": round(c.scale, 6), "offset": round(c.offset, 6),
+                           "identified": c.identified, "rms": round(c.rms, 6),
+                           "samples": c.samples} for n, c in cal.joints.items()}}
+    Path(path).write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
+
+
+def load_calibration(path: str | Path, known: Sequence[str] | None = None) -> TorqueCalibration:
+    """Read and validate a calibration file; ``known`` = the joints it may name."""
+    p = Path(path)
+    try:
+        data = yaml.safe_load(p.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise CalibrationError(f"cannot read calibration {p}: {exc.strerror}") from exc
+    except yaml.YAMLError as exc:
+        raise CalibrationError(f"{p}: not valid YAML: {exc}") from exc
+    if not isinstance(data, Mapping) or data.get("kind") != KIND:
+        raise CalibrationError(f"{p}: not a torque calibration (kind: {KIND})")
+    if data.get("schema_version") != SCHEMA_VERSION:
+        raise CalibrationError(f"{p}: schema_version must be {SCHEMA_VERSION}")
+    joints = data.get("joints")
+    if not isinstance(joints, Mapping):
+        raise CalibrationError(f"{p}: joints: expected a mapping")
+    out = {}
+    for name, raw in joints.items():
+        if known is not None and name not in known:
+            raise CalibrationError(f"{p}: joints.{name}: not an arm joint ({', '.join(known)})")
+        if not isinstance(raw, Mapping):
+            raise CalibrationError(f"{p}: joints.{name}: expected a mapping")
+        try:
+            vals = {k: raw[k] for k in ("scale", "offset")}
+            if any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in vals.values()):
+                raise CalibrationError("scale and offset must be numbers")
+            out[name] = JointCalibration(scale=float(vals["scale"]), offset=float(vals["offset"]),
+                                         identified=bool(raw.get("identified", True)),
+                                         rms=float(raw.get("rms", 0.0)),
+                                         samples=int(raw.get("samples", 0)))
+        except KeyError as exc:
+            raise CalibrationError(f"{p}: joints.{name}: missing {exc.args[0]}") from exc
+        except CalibrationError as exc:
+            raise CalibrationError(f"{p}: joints.{name}: {exc}") from exc
+    return TorqueCalibration(out)
+
+
+def calibration_poses(lower: np.ndarray, upper: np.ndarray, q0: np.ndarray, n: int,
+                      spread: float = 0.6, seed: int = 0) -> np.ndarray:
+    """``n`` arm postures around ``q0`` (rad): each joint but the first moved by up to
+    ``spread`` rad (uniform, fixed ``seed``), kept 0.2 rad inside the limits. Joint1 (a
+    vertical axis) stays: it changes no gravity torque. The caller checks them (e.g. the
+    tool's height) before use."""
+    if n < 3:
+        raise CalibrationError(f"need at least 3 poses, got {n}")
+    rng = np.random.default_rng(seed)
+    q0 = np.asarray(q0, dtype=float)
+    out = np.repeat(q0[None, :], n, axis=0)
+    out[:, 1:] += rng.uniform(-spread, spread, (n, len(q0) - 1))
+    return np.clip(out, lower + 0.2, upper - 0.2)
+
+
+class CalibrationRun:
+    """Sequencing of a calibration (no ROS): for each pose, approach it from above and
+    from below (``approach`` rad, friction acts both ways), wait until still, average the
+    efforts for ``average`` s, and use the mean of both approaches. ``step`` is called on
+    every joint state and returns the arm goal to command (or None when done)."""
+
+    def __init__(self, poses: np.ndarray, approach: float = 0.05, settle: float = 0.5,
+                 average: float = 0.5, tolerance: float = 0.003, timeout: float = 10.0) -> None:
+        self.poses = np.asarray(poses, dtype=float)
+        self.approach, self.settle, self.average = approach, settle, average
+        self.tolerance, self.timeout = tolerance, timeout
+        self.samples: list[list[np.ndarray]] = [[] for _ in range(2 * len(self.poses))]
+        self.q_at: list[np.ndarray] = []
+        self._k = 0            # index over (pose, side, phase)
+        self._phase_start: float | None = None
+        self._reached: float | None = None
+        self.done = False
+
+    def _target(self) -> np.ndarray:
+        pose, side, phase = self._k // 4, (self._k // 2) % 2, self._k % 2
+        q = self.poses[pose].copy()
+        if phase == 0:     # the approach point, beyond the pose on this side
+            q[1:] += self.approach if side == 0 else -self.approach
+        return q
+
+    def step(self, now: float, q: np.ndarray, effort: np.ndarray) -> np.ndarray | None:
+        if self.done:
+            return None
+        target = self._target()
+        if self._phase_start is None:
+            self._phase_start = now
+        if now - self._phase_start > self.timeout:
+            raise CalibrationError(f"pose {self._k // 4 + 1} not reached within "
+                                   f"{self.timeout:g} s (|error| "
+                                   f"{np.abs(q - target).max():.4f} rad)")
+        if np.abs(q - target).max() <= self.tolerance:
+            if self._reached is None:
+                self._reached = now
+            if self._k % 2 == 1 and now - self._reached >= self.settle:
+                self.samples[self._k // 2].append(np.asarray(effort, dtype=float))
+            if self._k % 2 == 0 or now - self._reached >= self.settle + self.average:
+                if self._k % 4 == 3:
+                    self.q_at.append(np.asarray(q, dtype=float))
+                self._k += 1
+                self._phase_start, self._reached = None, None
+                if self._k >= 4 * len(self.poses):
+                    self.done = True
+                    return None
+                return self._target()
+        return target
+
+    def efforts(self) -> np.ndarray:
+        """(P, n) mean efforts per pose, both approaches averaged."""
+        means = [np.mean(s, axis=0) for s in self.samples]
+        return np.array([(means[2 * i] + means[2 * i + 1]) / 2 for i in range(len(self.poses))])

@@ -1,0 +1,277 @@
+"""The force node's logic without ROS: modes, passive rules, goals, the per-cycle output.
+
+:class:`ForceController` owns the law, the wrench estimator and the calibration. The node
+feeds it joint states, goals and service calls, and turns what it returns into messages:
+
+- ``DISABLED`` (start): nothing is published on joint_command;
+- ``ACTIVE``: every joint state gives one arm command (``torque`` or ``position`` output);
+- ``PASSIVE``: a fault made it stop (stale joint states, a bad goal, a joint near its
+  limit); latched until ``enable(True)`` again.
+
+Entering DISABLED or PASSIVE from ACTIVE returns an :class:`Event` with ``hold=True``: the
+node then calls the driver's ``hold`` once, so the arm is never left limp and no stale
+effort keeps pushing. Each event is logged once and shown in the diagnostics.
+Units: SI; time stamps in s (the node's clock).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import Enum
+from typing import Sequence
+
+import numpy as np
+import pinocchio as pin
+
+from .calibration import TorqueCalibration
+from .errors import ForceConfigError, InvalidGoalError, StateError
+from .law import OUTPUTS, Command, HybridGoal, HybridLaw, Payload, make_goal
+from .wrench import WrenchEstimate, WrenchEstimator, to_tool
+
+__all__ = ["Mode", "Event", "Output", "ControllerConfig", "ForceController"]
+
+
+class Mode(str, Enum):
+    DISABLED = "disabled"
+    ACTIVE = "active"
+    PASSIVE = "passive"
+
+
+@dataclass(frozen=True)
+class Event:
+    """Something to log once (``level`` 'info' or 'warn') and show in the diagnostics."""
+
+    kind: str          # enabled, disabled, stale, bad_goal, near_limit, compliance, tare
+    level: str
+    message: str
+    hold: bool = False  # the node calls the driver's hold service once
+
+
+@dataclass
+class Output:
+    """One cycle: the arm command (None unless ACTIVE) and the wrench estimate."""
+
+    names: list[str]
+    positions: list[float] | None
+    efforts: list[float] | None
+    wrench_root: np.ndarray
+    wrench_tool: np.ndarray
+    command: Command | None = None
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """output: 'torque' or 'position'; stale_timeout: s without joint states before going
+    passive; limit_guard: rad from a joint limit at which it goes passive;
+    default_stiffness: K of the hold goal at enable and of position axes a goal leaves at 0
+    [N/m x3, N·m/rad x3]."""
+
+    output: str = "position"
+    stale_timeout: float = 0.1
+    limit_guard: float = 0.02
+    default_stiffness: tuple[float, ...] = (800.0, 800.0, 800.0, 20.0, 20.0, 20.0)
+    max_dt: float = 0.05
+
+    def __post_init__(self) -> None:
+        if self.output not in OUTPUTS:
+            raise ForceConfigError(f"output {self.output!r}: one of {', '.join(OUTPUTS)}")
+        for name, lo, hi in (("stale_timeout", 0.01, 10.0), ("limit_guard", 0.0, 0.5),
+                             ("max_dt", 1e-3, 1.0)):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and lo <= v <= hi):
+                raise ForceConfigError(f"{name}: {v!r} not within {lo:g}..{hi:g}")
+        k = np.asarray(self.default_stiffness, dtype=float)
+        if k.shape != (6,) or not np.all(np.isfinite(k)) or np.any(k <= 0.0):
+            raise ForceConfigError(f"default_stiffness: 6 values > 0, got {k.tolist()}")
+
+
+@dataclass
+class _Stats:
+    cycles: int = 0
+    last_event: str = "none"
+    wrench_limited: int = 0
+    joint_limited: int = 0
+    rate_limited: int = 0
+
+
+class ForceController:
+    """See the module doc. ``names``: the chain's joints (``law.kin.joint_names``)."""
+
+    def __init__(self, law: HybridLaw, estimator: WrenchEstimator | None = None,
+                 calibration: TorqueCalibration | None = None,
+                 config: ControllerConfig | None = None) -> None:
+        self.law = law
+        self.kin = law.kin
+        self.config = config if config is not None else ControllerConfig()
+        self.estimator = estimator if estimator is not None else WrenchEstimator(law.na)
+        self.calibration = calibration if calibration is not None else TorqueCalibration({})
+        self.names = list(self.kin.joint_names)
+        self.arm_names = list(law.arm_names)
+        self.mode = Mode.DISABLED
+        self.reason = "not enabled yet"
+        self.compliance = False
+        self.goal: HybridGoal | None = None
+        self.stats = _Stats()
+        self._last_state: float | None = None
+        self._last_cycle: float | None = None
+        self._q: np.ndarray | None = None
+        self.last_estimate: WrenchEstimate | None = None
+        self._last_rotation = np.eye(3)
+        self._default_k = np.asarray(self.config.default_stiffness, dtype=float)
+        self._base_id = self.kin.model.getFrameId(self.kin.desc.base_frame)
+
+    # -- modes ----------------------------------------------------------------------------
+    def enable(self, on: bool, now: float) -> Event:
+        """Enable from the present pose (hold goal there), or disable. Raises ForceError
+        when it cannot enable (no or stale joint states, a joint near its limit)."""
+        if not on:
+            return self._stop(Mode.DISABLED, "disabled", "info", "disabled on request")
+        if self._q is None or self._last_state is None:
+            raise StateError("no joint_states received yet")
+        if now - self._last_state > self.config.stale_timeout:
+            raise StateError(f"joint_states are stale ({now - self._last_state:.3f} s old)")
+        near = self.law.near_limit(self._q, self.config.limit_guard)
+        if near:
+            raise StateError(f"joints near their limits: {', '.join(near)}")
+        self.law.reset(self._q)
+        self.estimator.reset()
+        self.goal = self.law.hold_goal(self._q, self._default_k)
+        self.mode, self.reason = Mode.ACTIVE, "enabled"
+        self._last_cycle = None
+        return self._event(Event("enabled", "info", f"enabled ({self.config.output} output), "
+                                 "holding the present pose"))
+
+    def set_compliance(self, on: bool) -> Event:
+        self.compliance = bool(on)
+        if on and self._q is not None:
+            self.law.set_compliance_posture(self._q)
+        return self._event(Event("compliance", "info",
+                                 f"whole-arm compliance {'on' if on else 'off'}"))
+
+    def _stop(self, mode: Mode, kind: str, level: str, message: str) -> Event:
+        was_active = self.mode is Mode.ACTIVE
+        self.mode, self.reason = mode, message
+        return self._event(Event(kind, level, message, hold=was_active))
+
+    def _event(self, e: Event) -> Event:
+        self.stats.last_event = f"{e.kind}: {e.message}"
+        return e
+
+    # -- inputs ---------------------------------------------------------------------------
+    def set_payload(self, mass: float, com: Sequence[float]) -> None:
+        self.law.payload = Payload(float(mass), tuple(float(c) for c in com))  # type: ignore
+
+    def on_goal(self, frame: str, position, quaternion_xyzw, stiffness, force_axes,
+                wrench) -> tuple[HybridGoal | None, Event | None]:
+        """A goal: accepted while ACTIVE (the law follows it from now on). A bad one is
+        refused whole and, while ACTIVE, makes the controller passive (the arm holds).
+        While not active a goal is ignored (returns None, None)."""
+        if self.mode is not Mode.ACTIVE:
+            return None, None
+        try:
+            k = np.asarray(stiffness, dtype=float)
+            s = np.asarray(force_axes, dtype=bool)
+            if k.shape == (6,) and s.shape == (6,):
+                k = np.where(~s & (k == 0.0), self._default_k, k)
+            goal = make_goal(self.kin, self.law.config, frame, position, quaternion_xyzw, k, s,
+                             wrench)
+        except InvalidGoalError as exc:
+            return None, self._stop(Mode.PASSIVE, "bad_goal", "warn",
+                                    f"goal refused, holding: {exc}")
+        self.goal = goal
+        return goal, None
+
+    def check_stale(self, now: float) -> Event | None:
+        """Passive when ACTIVE and no joint state came for ``stale_timeout`` s."""
+        if self.mode is not Mode.ACTIVE or self._last_state is None:
+            return None
+        age = now - self._last_state
+        if age > self.config.stale_timeout:
+            return self._stop(Mode.PASSIVE, "stale", "warn",
+                              f"joint_states stale ({age:.3f} s > "
+                              f"{self.config.stale_timeout:g} s): passive, holding")
+        return None
+
+    def tare(self) -> str:
+        """Capture the estimator's bias at the present state (no contact expected)."""
+        if self._q is None:
+            raise StateError("no joint_states received yet")
+        bias = self.estimator.tare()
+        self._event(Event("tare", "info", "tared"))
+        return "tared: bias " + ", ".join(f"{b:+.3f}" for b in bias) + " N·m"
+
+    def step(self, now: float, q, dq, effort,
+             stamp: float = 0.0) -> tuple[Output, Event | None]:
+        """One cycle on a full joint state (chain order; efforts of the arm joints used by
+        the estimate) received at ``now``, measured at ``stamp`` (0: unknown). Staleness
+        counts from the older of the two, so a backlog of old states is stale too. Returns
+        the output (a command only while ACTIVE) and an event when a joint near its limit
+        made it passive."""
+        q = np.asarray(q, dtype=float)
+        dq = np.asarray(dq, dtype=float) if len(dq) else np.zeros_like(q)
+        if q.shape != (len(self.names),) or dq.shape != q.shape or not \
+                math.isfinite(float(q.sum() + dq.sum())):
+            raise StateError("joint state: wrong length or non-finite values")
+        self._q = q
+        self._last_state = stamp if stamp > 0.0 else now
+        event = None
+        cmd = None
+        if self.mode is Mode.ACTIVE:
+            near = self.law.near_limit(q, self.config.limit_guard)
+            if near:
+                event = self._stop(Mode.PASSIVE, "near_limit", "warn",
+                                   f"{', '.join(near)} within {self.config.limit_guard:g} rad "
+                                   "of a limit: passive, holding")
+            else:
+                dt = self.config.max_dt if self._last_cycle is None else \
+                    min(max(now - self._last_cycle, 1e-3), self.config.max_dt)
+                self._last_cycle = now
+                assert self.goal is not None
+                cmd = self.law.step(q, dq, self.goal, dt, self.compliance, self.config.output)
+                self._count(cmd)
+        est, r = self._estimate(q, effort, cmd)
+        self.last_estimate, self._last_rotation = est, r
+        w_tool, _ = to_tool(est.wrench, r)
+        positions = efforts = None
+        if cmd is not None:
+            cal = self.calibration
+            if self.config.output == "torque":
+                efforts = cal.command(self.arm_names, cmd.tau).tolist()
+            else:
+                positions = cmd.q_cmd.tolist()
+                efforts = cal.command(self.arm_names, cmd.effort_limit).tolist()
+        return Output(self.arm_names, positions, efforts, est.wrench, w_tool, cmd), event
+
+    def _estimate(self, q: np.ndarray, effort,
+                  cmd: Command | None) -> tuple[WrenchEstimate, np.ndarray]:
+        if cmd is not None:            # the law's kinematics and gravity at this q
+            j, r, g = cmd.jacobian, cmd.rotation, cmd.gravity
+        else:
+            arm = self.law.arm
+            _, r, j_full = self.kin.pose_jacobian_view(q)
+            r = r.copy()
+            j = j_full[:, arm].copy()
+            g = self.law.gravity.torques(q, self.law.payload, j_full, r)[arm]
+        e = np.asarray(effort, dtype=float)
+        tau = self.calibration.correct(self.arm_names, e) if e.shape == g.shape else g
+        return self.estimator.update(j, tau, g), r
+
+    def covariance_tool(self) -> np.ndarray | None:
+        """Covariance (6, 6) of the last estimate in tool0 axes (N², N²·m², N²·m²)."""
+        if self.last_estimate is None:
+            return None
+        return to_tool(self.last_estimate.wrench, self._last_rotation,
+                       self.last_estimate.covariance)[1]
+
+    def base_rotation(self) -> np.ndarray:
+        """Rotation of base_link in the root frame at the last joint state."""
+        pin.framesForwardKinematics(self.kin.model, self.kin.data, self._q)
+        return self.kin.data.oMf[self._base_id].rotation.copy()
+
+    def _count(self, cmd: Command) -> None:
+        s = self.stats
+        s.cycles += 1
+        s.wrench_limited += cmd.wrench_scale < 1.0
+        s.joint_limited += cmd.joint_scale < 1.0
+        s.rate_limited += bool(cmd.rate_limited)
+

@@ -1,0 +1,538 @@
+"""The hybrid position/force control law of Danko & Oh (eqs. 6-8), as a lab would run it.
+
+No ROS. Units: m, rad, s, kg, N, N·m. Vectors of 6 are [x, y, z, rx, ry, rz]: linear
+rows first, in the axes of the goal's frame (the model's root frame, ``base_link`` or
+``world``), about tool0's origin (pinocchio's LOCAL_WORLD_ALIGNED). Joint vectors are in
+the description's ``kinematic_joint_names`` order (rail first on ``rail_arm``); the rail is
+position-controlled and never gets a torque: every torque vector here has one entry per
+*arm* joint (``HybridLaw.arm_names``).
+
+Per cycle, with e = [p0 - p; log3(R0 R^T)] and the tool twist v = J dq (goal axes):
+
+    F      = K e - D v + S F_d                 (eq. 6 plus feed-forward and damping)
+    F      <- F * min(1, f_max/|F_lin|, m_max/|F_ang|)   (scaled: direction kept)
+    tau    = g(q) + J^T F + N tau_0 - d_j dq   (eqs. 7-8 read as T = J^T F_int, docs/force.md)
+
+with S the diagonal selection of force-controlled axes, K the goal's diagonal stiffness,
+g the gravity torque of every link plus the payload (pinocchio), N = I - J^+ J the null-space
+projector (damped J^+), tau_0 a posture spring towards ``posture`` plus a repulsion from
+the joint limits. The non-gravity part is then scaled (one factor, direction kept) into the
+per-joint limits (stall torque x ``torque_margin``), and the change per cycle is limited to
+``torque_rate`` x dt.
+
+Two outputs of the same law:
+
+- ``torque``: the torques themselves (effort-only joint_command: current mode);
+- ``position``: the paper's pseudo-goal for position servos of known stiffness k_s:
+  q_cmd moves so that the servo torques k_s (q_cmd - q) make the law's wrench at the
+  tool (:meth:`HybridLaw._pseudo_goal`), sent with a current limit
+  |g| + |k_s (q_cmd - q)| + ``effort_headroom`` (current-based position). Servos whose
+  integral action does not hold gravity (``servo_holds_gravity`` false) get g / k_s added
+  to q_cmd.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import pinocchio as pin
+
+from hyperarm_description.model import RobotDescription
+
+from ..kinematics import Kinematics
+from .errors import ForceConfigError, InvalidGoalError, StateError
+
+__all__ = ["Payload", "LawConfig", "HybridGoal", "Command", "GravityModel", "HybridLaw",
+           "OUTPUTS", "make_goal", "pose_error", "scale_wrench", "scale_into_limits",
+           "rate_limit", "QUATERNION_TOLERANCE"]
+
+OUTPUTS = ("torque", "position")
+QUATERNION_TOLERANCE = 1e-3    # |norm - 1| accepted for a goal's quaternion
+GRAVITY = 9.81                 # m/s², pinocchio's default model gravity (-z)
+
+
+def _finite(value, where: str, shape: tuple[int, ...] | None = None,
+            error: type[Exception] = ForceConfigError) -> np.ndarray:
+    a = np.asarray(value, dtype=float)
+    if shape is not None and a.shape != shape:
+        raise error(f"{where}: expected shape {shape}, got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise error(f"{where}: must be finite, got {a.tolist()}")
+    return a
+
+
+def _check(value: float, where: str, lo: float, hi: float = math.inf) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ForceConfigError(f"{where}: expected a number, got {value!r}")
+    v = float(value)
+    if not (math.isfinite(v) or v == math.inf == hi) or not lo <= v <= hi:
+        raise ForceConfigError(f"{where}: {v!r} not within {lo:g}..{hi:g}")
+    return v
+
+
+@dataclass(frozen=True)
+class Payload:
+    """A held payload: mass (kg) at ``com`` (m, in tool0)."""
+
+    mass: float = 0.0
+    com: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        _check(self.mass, "payload.mass", 0.0, 10.0)
+        object.__setattr__(self, "com", tuple(_finite(self.com, "payload.com", (3,)).tolist()))
+
+
+@dataclass(frozen=True)
+class LawConfig:
+    """Gains and limits of :class:`HybridLaw` (SI). Validated on construction.
+
+    damping: Cartesian damping on the tool twist [N·s/m x3, N·m·s/rad x3].
+    position_stiffness: the least stiffness of position-controlled axes in the
+      ``position`` output [N/m x3, N·m/rad x3] (tracking, not a force: see docs/force.md).
+    joint_damping: N·m·s/rad on every arm joint's velocity.
+    posture: preferred arm joint angles (rad) of the null-space term (None: all 0).
+    posture_stiffness: N·m/rad of the null-space posture spring.
+    limit_margin / limit_stiffness: within ``limit_margin`` rad of a limit a spring of
+      ``limit_stiffness`` N·m/rad (in the null space) pushes away from it.
+    torque_margin: fraction of each servo's stall torque the controller may command.
+    torque_rate: N·m/s, the largest change of a joint torque (per cycle: x dt); in the
+      ``position`` output the pseudo-goal moves by at most torque_rate x dt / k_s.
+    max_force / max_moment: Cartesian wrench limits (N, N·m), applied by scaling.
+    singular_damping: lambda of the damped pseudo-inverses (m).
+    servo_stiffness: N·m/rad of the servos' position loop (``position`` output).
+    servo_holds_gravity: the servos' integral action holds gravity in position mode.
+    effort_headroom: N·m above |tau| for the ``position`` output's current limit.
+    position_filter / force_filter: 0..1, per-cycle gain of the pseudo-goal's update on
+      the position / force-controlled axes (``position`` output).
+    compliance_stiffness / compliance_effort: whole-arm compliance: every joint a spring of
+      this stiffness (N·m/rad) towards the posture at its start, non-gravity torque at most
+      ``compliance_effort`` N·m per joint.
+    max_linear_stiffness / max_angular_stiffness: goals with a larger K are refused.
+    workspace_margin: m beyond the arm's reach bound a goal may lie (else refused).
+    max_speed / max_angular_speed: m/s, rad/s at which the law's reference follows the
+      goal's X0 (a goal step is tracked as a ramp).
+    """
+
+    damping: tuple[float, ...] = (8.0, 8.0, 8.0, 0.05, 0.05, 0.05)
+    position_stiffness: tuple[float, ...] = (3000.0, 3000.0, 3000.0, 100.0, 100.0, 100.0)
+    joint_damping: float = 0.02
+    posture: tuple[float, ...] | None = None
+    posture_stiffness: float = 0.3
+    limit_margin: float = 0.2
+    limit_stiffness: float = 3.0
+    torque_margin: float = 0.8
+    torque_rate: float = 100.0
+    max_force: float = 30.0
+    max_moment: float = 3.0
+    singular_damping: float = 0.02
+    servo_stiffness: float = 20.0
+    servo_holds_gravity: bool = True
+    effort_headroom: float = 1.0
+    position_filter: float = 0.2
+    force_filter: float = 0.5
+    compliance_stiffness: float = 0.2
+    compliance_effort: float = 0.4
+    max_linear_stiffness: float = 5000.0
+    max_angular_stiffness: float = 100.0
+    workspace_margin: float = 0.02
+    max_speed: float = 0.1
+    max_angular_speed: float = 0.5
+
+    def __post_init__(self) -> None:
+        d = _finite(self.damping, "damping", (6,))
+        if np.any(d < 0.0):
+            raise ForceConfigError(f"damping: must be >= 0, got {d.tolist()}")
+        object.__setattr__(self, "damping", tuple(d.tolist()))
+        k = _finite(self.position_stiffness, "position_stiffness", (6,))
+        if np.any(k <= 0.0):
+            raise ForceConfigError(f"position_stiffness: must be > 0, got {k.tolist()}")
+        object.__setattr__(self, "position_stiffness", tuple(k.tolist()))
+        if self.posture is not None:
+            object.__setattr__(self, "posture",
+                               tuple(_finite(self.posture, "posture").reshape(-1).tolist()))
+        for name, lo, hi in (("joint_damping", 0.0, 10.0), ("posture_stiffness", 0.0, 100.0),
+                             ("limit_margin", 0.0, 1.0), ("limit_stiffness", 0.0, 1000.0),
+                             ("torque_margin", 0.05, 1.0), ("torque_rate", 1e-3, 1e6),
+                             ("max_force", 0.0, 1000.0), ("max_moment", 0.0, 100.0),
+                             ("singular_damping", 1e-6, 1.0),
+                             ("servo_stiffness", 0.1, 1e5), ("effort_headroom", 0.0, 10.0),
+                             ("position_filter", 1e-3, 1.0), ("force_filter", 1e-3, 1.0),
+                             ("compliance_stiffness", 0.0, 100.0),
+                             ("compliance_effort", 0.0, 100.0),
+                             ("max_linear_stiffness", 0.0, 1e6),
+                             ("max_angular_stiffness", 0.0, 1e4),
+                             ("workspace_margin", 0.0, 10.0), ("max_speed", 1e-3, 2.0),
+                             ("max_angular_speed", 1e-3, 10.0)):
+            _check(getattr(self, name), name, lo, hi)
+        if not isinstance(self.servo_holds_gravity, bool):
+            raise ForceConfigError(f"servo_holds_gravity: expected a bool, got "
+                                   f"{self.servo_holds_gravity!r}")
+
+
+@dataclass(frozen=True)
+class HybridGoal:
+    """A validated goal (see :func:`make_goal`). Root frame, m, rad, N, N·m."""
+
+    position: np.ndarray            # (3,) X0 position
+    rotation: np.ndarray            # (3, 3) X0 orientation
+    stiffness: np.ndarray           # (6,) K, goal axes
+    force_axes: np.ndarray          # (6,) bool, S
+    wrench: np.ndarray              # (6,) F_d, goal axes (zero on position axes)
+    frame: str = ""
+
+
+def make_goal(kin: Kinematics, config: LawConfig, frame: str, position: Sequence[float],
+              quaternion_xyzw: Sequence[float], stiffness: Sequence[float],
+              force_axes: Sequence[bool], wrench: Sequence[float]) -> HybridGoal:
+    """Check a goal whole and build it; raises :class:`InvalidGoalError` saying why.
+
+    Refused: a frame other than the root frame, non-finite numbers, a quaternion whose norm
+    is not 1 (+-QUATERNION_TOLERANCE), a negative stiffness or one above the configured
+    maxima, a pose beyond the reach bound by more than ``workspace_margin``, a feed-forward
+    wrench beyond the wrench limits.
+    """
+    if frame != kin.root_frame:
+        shown = repr(frame) if frame else "empty"
+        raise InvalidGoalError(f"goal frame is {shown}; goals are taken in {kin.root_frame!r}")
+    p = _finite(position, "goal position", (3,), InvalidGoalError)
+    quat = _finite(quaternion_xyzw, "goal orientation", (4,), InvalidGoalError)
+    norm = float(np.linalg.norm(quat))
+    if abs(norm - 1.0) > QUATERNION_TOLERANCE:
+        raise InvalidGoalError(f"goal quaternion norm is {norm:.6g}, not 1 "
+                               f"(+-{QUATERNION_TOLERANCE:g})")
+    x, y, z, w = quat / norm
+    rot = pin.Quaternion(w, x, y, z).toRotationMatrix()
+    k = _finite(stiffness, "goal stiffness", (6,), InvalidGoalError)
+    if np.any(k < 0.0):
+        raise InvalidGoalError(f"goal stiffness must be >= 0, got {k.tolist()}")
+    if np.any(k[:3] > config.max_linear_stiffness) or np.any(k[3:] > config.max_angular_stiffness):
+        raise InvalidGoalError(
+            f"goal stiffness {k.tolist()} above the maxima {config.max_linear_stiffness:g} N/m, "
+            f"{config.max_angular_stiffness:g} N·m/rad")
+    s = np.asarray(force_axes)
+    if s.shape != (6,):
+        raise InvalidGoalError(f"force_controlled: expected 6 flags, got {s.shape}")
+    s = s.astype(bool)
+    f = _finite(wrench, "goal wrench", (6,), InvalidGoalError)
+    f = np.where(s, f, 0.0)
+    if np.linalg.norm(f[:3]) > config.max_force or np.linalg.norm(f[3:]) > config.max_moment:
+        raise InvalidGoalError(f"goal wrench {f.tolist()} beyond the limits "
+                               f"{config.max_force:g} N, {config.max_moment:g} N·m")
+    excess = kin.reach_excess(p)
+    if excess > config.workspace_margin:
+        raise InvalidGoalError(f"goal position {p.tolist()} is {excess:.3f} m beyond the arm's "
+                               f"reach")
+    return HybridGoal(position=p, rotation=rot, stiffness=k, force_axes=s, wrench=f,
+                      frame=frame)
+
+
+def pose_error(p0: np.ndarray, r0: np.ndarray, p: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """[p0 - p; log3(R0 R^T)] (m, rad; root axes): X0 - X of eq. 6."""
+    return np.concatenate((p0 - p, pin.log3(r0 @ r.T)))
+
+
+def scale_wrench(f: np.ndarray, max_force: float, max_moment: float) -> tuple[np.ndarray, float]:
+    """``f`` scaled by one factor so that |force| <= max_force and |moment| <= max_moment
+    (the direction of the 6-D wrench is kept). Returns (wrench, factor in [0, 1])."""
+    s = 1.0
+    fl, fa = f[:3], f[3:]
+    nf, nm = math.sqrt(float(fl @ fl)), math.sqrt(float(fa @ fa))
+    if nf > max_force:
+        s = min(s, max_force / nf)
+    if nm > max_moment:
+        s = min(s, max_moment / nm)
+    return f * s, s
+
+
+def scale_into_limits(base: np.ndarray, delta: np.ndarray,
+                      limit: np.ndarray) -> tuple[np.ndarray, float]:
+    """base + s * delta with the largest s in [0, 1] keeping every |entry| <= limit.
+
+    ``base`` (gravity) is clipped into the limits first if it alone exceeds them. Returns
+    (torques, s)."""
+    b = np.minimum(np.maximum(base, -limit), limit)
+    t = b + delta
+    over = np.abs(t) > limit
+    if not over.any():
+        return t, 1.0
+    d = delta[over]
+    bound = np.sign(d) * limit[over]
+    s = float(np.clip(np.min((bound - b[over]) / d), 0.0, 1.0))
+    return np.clip(b + s * delta, -limit, limit), s
+
+
+def _cap(v: np.ndarray, bound: float) -> tuple[np.ndarray, bool]:
+    """``v`` scaled down to norm ``bound`` if longer."""
+    n = math.sqrt(float(v @ v))
+    return (v * (bound / n), True) if n > bound else (v, False)
+
+
+def rate_limit(target: np.ndarray, previous: np.ndarray,
+               max_step: float) -> tuple[np.ndarray, bool]:
+    """``target`` with each entry at most ``max_step`` from ``previous``; and whether any
+    entry was limited."""
+    step = target - previous
+    limited = bool((np.abs(step) > max_step).any())
+    return previous + np.minimum(np.maximum(step, -max_step), max_step), limited
+
+
+class GravityModel:
+    """Gravity torques of every link (pinocchio, the description's masses) + a payload."""
+
+    def __init__(self, kin: Kinematics) -> None:
+        self.kin = kin
+        self.model = kin.model
+        self.data = self.model.createData()
+        self.g = -np.asarray(self.model.gravity.linear, dtype=float)   # (0, 0, 9.81) up
+        self.tool_id = kin.tool_id
+
+    def torques(self, q: np.ndarray, payload: Payload, j_tool: np.ndarray | None = None,
+                rotation: np.ndarray | None = None) -> np.ndarray:
+        """Torques (N·m; N on the rail) that hold the chain still at ``q``: links and payload.
+
+        ``j_tool`` / ``rotation``: tool0's Jacobian (LWA) and rotation at q, if known."""
+        tau = pin.computeGeneralizedGravity(self.model, self.data, q).copy()
+        if payload.mass > 0.0:
+            if j_tool is None or rotation is None:
+                j_tool = pin.computeFrameJacobian(self.model, self.data, q, self.tool_id,
+                                                  pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+                rotation = self.data.oMf[self.tool_id].rotation
+            tau += payload_jacobian(j_tool, rotation, payload.com).T @ (payload.mass * self.g)
+        return tau
+
+
+def payload_jacobian(j_tool: np.ndarray, rotation: np.ndarray, com) -> np.ndarray:
+    """3 x n linear Jacobian of the point ``com`` (m, tool0) from tool0's LWA Jacobian:
+    v_point = v + w x r = J_v - [r]x J_w, r = R com."""
+    r = rotation @ np.asarray(com, dtype=float)
+    skew = np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
+    return j_tool[:3] - skew @ j_tool[3:]
+
+
+@dataclass
+class Command:
+    """One cycle's output. Torques/positions per arm joint (``HybridLaw.arm_names``)."""
+
+    tau: np.ndarray                 # N·m, total (gravity included): the 'torque' output
+    gravity: np.ndarray             # N·m, gravity part
+    q_cmd: np.ndarray               # rad, the 'position' output's pseudo-goal
+    effort_limit: np.ndarray        # N·m (> 0), the 'position' output's current limit
+    wrench: np.ndarray              # (6,) commanded wrench after the limit, root axes
+    error: np.ndarray               # (6,) X0 - X, root axes
+    wrench_scale: float = 1.0       # < 1: the Cartesian wrench limit acted
+    joint_scale: float = 1.0        # < 1: the joint torque limits acted
+    rate_limited: bool = False
+    jacobian: np.ndarray | None = None   # (6, na) arm Jacobian at q (LWA)
+    rotation: np.ndarray | None = None   # tool0's rotation at q
+
+
+class HybridLaw:
+    """The controller's state and per-cycle law. Build once; :meth:`reset` at enable."""
+
+    def __init__(self, kin: Kinematics | None = None, config: LawConfig | None = None,
+                 desc: RobotDescription | None = None) -> None:
+        self.kin = kin if kin is not None else Kinematics(desc)
+        self.config = config if config is not None else LawConfig()
+        self.gravity = GravityModel(self.kin)
+        desc = self.kin.desc
+        self.arm_names = list(desc.arm_joint_names)
+        self.arm = np.array([n in self.arm_names for n in self.kin.joint_names])
+        self.na = int(self.arm.sum())
+        self.limit = np.array([j.effort for j in desc.joints]) * self.config.torque_margin
+        self.lower = self.kin.lower[self.arm]
+        self.upper = self.kin.upper[self.arm]
+        if self.config.posture is None:
+            self.posture = np.zeros(self.na)
+        else:
+            self.posture = np.asarray(self.config.posture, dtype=float)
+            if self.posture.shape != (self.na,):
+                raise ForceConfigError(f"posture: expected {self.na} arm joint angles, got "
+                                       f"{self.posture.shape[0]}")
+            if np.any(self.posture < self.lower) or np.any(self.posture > self.upper):
+                raise ForceConfigError("posture: outside the joint limits")
+        self.payload = Payload()
+        self._ref_p: np.ndarray | None = None
+        self._ref_r: np.ndarray | None = None
+        self._tau_prev = np.zeros(self.na)
+        self._q_cmd = np.zeros(self.na)
+        self._compliance_posture = self.posture.copy()
+        self._d = np.asarray(self.config.damping)
+        self._k_pos = np.asarray(self.config.position_stiffness)
+        self._eye6 = np.eye(6)
+        self._diag6 = np.diag_indices(6)
+        self._gains_for: HybridGoal | None = None
+        self._gains = (np.zeros(6), np.zeros(6), np.zeros(6, dtype=bool))
+        self._eye_n = np.eye(self.na)
+
+    # -- state ---------------------------------------------------------------------------
+    def _state(self, q, dq) -> tuple[np.ndarray, np.ndarray]:
+        q = np.asarray(q, dtype=float).reshape(-1)
+        dq = np.asarray(dq, dtype=float).reshape(-1)
+        if q.shape != (self.kin.nq,) or dq.shape != (self.kin.nq,):
+            raise StateError(f"expected {self.kin.nq} joint positions and velocities "
+                             f"({', '.join(self.kin.joint_names)}), got {q.shape[0]} and "
+                             f"{dq.shape[0]}")
+        if not math.isfinite(float(q.sum() + dq.sum())):   # NaN/inf anywhere
+            raise StateError("non-finite joint positions or velocities")
+        return q, dq
+
+    def hold_goal(self, q, stiffness: Sequence[float]) -> HybridGoal:
+        """A goal at the present pose of ``q``: every axis position-controlled with
+        ``stiffness`` (6 values, N/m and N·m/rad)."""
+        q = np.asarray(q, dtype=float)
+        p, r = self.kin.pose_view(self._state(q, np.zeros_like(q))[0])
+        k = _finite(stiffness, "stiffness", (6,))
+        return HybridGoal(position=p.copy(), rotation=r.copy(), stiffness=k,
+                          force_axes=np.zeros(6, dtype=bool), wrench=np.zeros(6),
+                          frame=self.kin.root_frame)
+
+    def reset(self, q) -> None:
+        """Start from the present pose: the previous torque is the gravity torque at ``q``
+        (no drop, no jump), the pseudo-goal is ``q`` itself, the compliance posture too."""
+        q, _ = self._state(q, np.zeros_like(np.asarray(q, dtype=float)))
+        self._tau_prev = self.gravity.torques(q, self.payload)[self.arm]
+        self._q_cmd = q[self.arm].copy()
+        self._compliance_posture = q[self.arm].copy()
+        self._ref_p = self._ref_r = None
+
+    def set_compliance_posture(self, q) -> None:
+        """Joint angles (chain order) the compliance springs pull towards."""
+        q, _ = self._state(q, np.zeros_like(np.asarray(q, dtype=float)))
+        self._compliance_posture = q[self.arm].copy()
+
+    # -- the law -------------------------------------------------------------------------
+    def step(self, q, dq, goal: HybridGoal, dt: float, compliance: bool = False,
+             output: str = "torque") -> Command:
+        """One control cycle at joint state (``q`` rad/m, ``dq``) with period ``dt`` (s)."""
+        q, dq = self._state(q, dq)
+        if not (dt > 0.0 and math.isfinite(dt)):
+            raise StateError(f"dt must be > 0 s, got {dt!r}")
+        cfg = self.config
+        arm = self.arm
+        p, r, j_full = self.kin.pose_jacobian_view(q)
+        p, r = p.copy(), r.copy()
+        j = j_full[:, arm]
+        g = self.gravity.torques(q, self.payload, j_full, r)[arm]
+        qa, dqa = q[arm], dq[arm]
+        ref_p, ref_r = self._reference(goal, p, r, dt)
+        err = pose_error(ref_p, ref_r, p, r)
+        twist = j @ dqa
+        # damped pseudo-inverse and null-space projector N = I - J+ J
+        jjt = j @ j.T
+        jjt[self._diag6] += cfg.singular_damping ** 2
+        jjt_inv = np.linalg.inv(jjt)
+        null = self._eye_n - j.T @ (jjt_inv @ j)
+        tau0 = cfg.posture_stiffness * (self.posture - qa) + self._limit_push(qa)
+        limit = self.limit
+        if compliance:
+            limit = np.minimum(limit, np.abs(g) + cfg.compliance_effort)
+        if output == "position":
+            return self._pseudo_goal(goal, qa, j, r, jjt_inv, null, g, err, twist, tau0, limit,
+                                     compliance, dt)
+        f = goal.stiffness * err - self._d * twist + goal.wrench
+        f, wscale = scale_wrench(f, cfg.max_force, cfg.max_moment)
+        delta = j.T @ f + null @ tau0 - cfg.joint_damping * dqa
+        if compliance:
+            delta += cfg.compliance_stiffness * (self._compliance_posture - qa)
+        tau, jscale = scale_into_limits(g, delta, limit)
+        tau, limited = rate_limit(tau, self._tau_prev, cfg.torque_rate * dt)
+        tau = np.minimum(np.maximum(tau, -limit), limit)
+        self._tau_prev = tau
+        return Command(tau=tau, gravity=g, q_cmd=qa.copy(), effort_limit=np.abs(tau),
+                       wrench=f, error=err, wrench_scale=wscale, joint_scale=jscale,
+                       rate_limited=limited, jacobian=j, rotation=r)
+
+    def _goal_gains(self, goal: HybridGoal) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per axis, for the pseudo-goal: the stiffness (position axes at least
+        ``position_stiffness``) and the update gain; cached per goal."""
+        if self._gains_for is not goal:
+            s = goal.force_axes
+            k = np.where(s, np.maximum(goal.stiffness, 1e-3),
+                         np.maximum(goal.stiffness, self._k_pos))
+            gain = np.where(s, self.config.force_filter, self.config.position_filter)
+            self._gains_for, self._gains = goal, (k, gain, s)
+        return self._gains
+
+    def _pseudo_goal(self, goal, qa, j, r, jjt_inv, null, g, err, twist, tau0, limit,
+                     compliance, dt) -> Command:
+        """The 'position' output: pseudo-goal q_cmd and current limit (see docs/force.md).
+
+        The servos exert tau_s = k_s (q_cmd - q) above gravity, i.e. the wrench
+        F_s = (J J^T)^-1 J tau_s at the tool. Each cycle the pseudo-goal moves by
+        J^+ gamma (K + K_arm)^-1 (F - F_s), K_arm = k_s (J J^T)^-1 the arm's own stiffness
+        at the tool: in free space (F_s ~ 0) the tool approaches X0 at the rate
+        gamma K/(K + K_arm), in contact the servo force approaches F at the rate
+        gamma K_arm/(K + K_arm): stable for any K, and at rest F_s = F exactly (the
+        paper's pseudo-goal, eqs. 6-8). Position axes use at least ``position_stiffness``
+        (they track X0)."""
+        cfg = self.config
+        ks = cfg.servo_stiffness
+        k, gain, s = self._goal_gains(goal)
+        # force axes: the law's wrench, limited; position axes: tracking (their force is
+        # bounded by the joints' current limits, not by the wrench limit)
+        f_law, wscale = scale_wrench(goal.stiffness * err - self._d * twist + goal.wrench,
+                                     cfg.max_force, cfg.max_moment)
+        f = np.where(s, f_law, k * err - self._d * twist)
+        f_s = jjt_inv @ (j @ (ks * (self._q_cmd - qa)))
+        a = ks * jjt_inv
+        a[self._diag6] += k
+        dx = gain * np.linalg.solve(a, f - f_s)
+        # the pseudo-goal moves at max_speed / max_angular_speed at most (a force axis
+        # with K = 0 and F_d would otherwise accelerate the tool in free space)
+        dx[:3], _ = _cap(dx[:3], cfg.max_speed * dt)
+        dx[3:], _ = _cap(dx[3:], cfg.max_angular_speed * dt)
+        step = j.T @ (jjt_inv @ dx) + null @ ((cfg.position_filter / ks) * tau0)
+        if compliance:
+            step += (cfg.position_filter * cfg.compliance_stiffness / ks) * (
+                self._compliance_posture - self._q_cmd)
+        # torque-rate limit: at a given q the servo torque changes by k_s * step
+        max_step = cfg.torque_rate * dt / ks
+        step = np.minimum(np.maximum(step, -max_step), max_step)
+        self._q_cmd = np.minimum(np.maximum(self._q_cmd + step, self.lower), self.upper)
+        # the current limit covers gravity and the pressing torque without letting one
+        # cancel the other: if a contact vanishes the joint still holds its own weight
+        push = ks * (self._q_cmd - qa)
+        effort = np.minimum(np.maximum(np.abs(g) + np.abs(push) + cfg.effort_headroom, 0.05),
+                            limit)
+        if cfg.servo_holds_gravity:
+            q_out = self._q_cmd.copy()
+        else:
+            q_out = np.minimum(np.maximum(self._q_cmd + g / ks, self.lower), self.upper)
+        tau = np.minimum(np.maximum(g + push, -limit), limit)   # what the servos exert
+        self._tau_prev = tau
+        return Command(tau=tau, gravity=g, q_cmd=q_out, effort_limit=effort, wrench=f,
+                       error=err, wrench_scale=wscale, jacobian=j, rotation=r)
+
+    def _reference(self, goal: HybridGoal, p: np.ndarray, r: np.ndarray,
+                   dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """The pose the law pulls towards: it follows the goal's X0 at ``max_speed`` m/s and
+        ``max_angular_speed`` rad/s at most (a goal step becomes a ramp), starting from the
+        present pose at :meth:`reset`."""
+        if self._ref_p is None:
+            self._ref_p, self._ref_r = p.copy(), r.copy()
+        d = goal.position - self._ref_p
+        n = math.sqrt(float(d @ d))
+        step = self.config.max_speed * dt
+        self._ref_p = goal.position.copy() if n <= step else self._ref_p + d * (step / n)
+        w = pin.log3(goal.rotation @ self._ref_r.T)
+        a = math.sqrt(float(w @ w))
+        step = self.config.max_angular_speed * dt
+        self._ref_r = goal.rotation.copy() if a <= step else pin.exp3(w * (step / a)) @ self._ref_r
+        return self._ref_p, self._ref_r
+
+    def _limit_push(self, qa: np.ndarray) -> np.ndarray:
+        """Spring away from the joint limits within ``limit_margin`` (N·m)."""
+        m, k = self.config.limit_margin, self.config.limit_stiffness
+        low = np.maximum(self.lower + m - qa, 0.0)
+        high = np.maximum(qa - (self.upper - m), 0.0)
+        return k * (low - high)
+
+    def near_limit(self, q, margin: float) -> list[str]:
+        """Arm joints within ``margin`` rad of a limit at chain positions ``q``."""
+        qa = np.asarray(q, dtype=float)[self.arm]
+        near = (qa < self.lower + margin) | (qa > self.upper - margin)
+        if not near.any():
+            return []
+        return [n for n, b in zip(self.arm_names, near) if b]

@@ -1,0 +1,222 @@
+"""The runner's :class:`~hyperarm_tasks.runner.Robot` over ROS topics and services.
+
+Used by the task node (it owns the node; this class only subscribes, publishes, calls and
+converts). Everything it reads is cached by the node's executor threads; the runner reads
+the caches from the action's execute thread.
+
+- ``joint_states`` -> positions/efforts by name; ``joint_command`` <- streamed goals.
+- ``detections`` (camera_link) -> :class:`DetectionBuffer` (root frame).
+- ``ee_wrench`` -> wrench; ``hybrid_force/enable`` + ``hybrid_goal`` for force control.
+- ``/diagnostics`` -> driver refusals: torque off, a hardware error, the rail not homed.
+- ``hold`` (and ``rail/hold``), ``rail/home`` services.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from typing import Mapping, Sequence
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import WrenchStamped
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_srvs.srv import SetBool, Trigger
+
+from hyperarm_description import contract
+from hyperarm_description.joints import JointStateCache, JointStateError
+from hyperarm_description.model import RobotDescription
+from hyperarm_description.qos import qos_for
+from hyperarm_interfaces.msg import Detections, HybridGoal
+
+from .perception import DetectionBuffer, camera_pose, matrix_to_quat, quat_to_matrix
+from .runner import HybridCommand
+
+__all__ = ["RosRobot", "pose_to_matrix"]
+
+SERVICE_TIMEOUT = 3.0   # s
+
+
+def pose_to_matrix(pose) -> np.ndarray:
+    out = np.eye(4)
+    o = pose.orientation
+    out[:3, :3] = quat_to_matrix(o.x, o.y, o.z, o.w)
+    out[:3, 3] = (pose.position.x, pose.position.y, pose.position.z)
+    return out
+
+
+class RosRobot:
+    def __init__(self, node: Node, desc: RobotDescription) -> None:
+        self.node, self.desc = node, desc
+        self.detections = DetectionBuffer(camera_pose(desc))
+        self._lock = threading.Lock()
+        self._cache = JointStateCache()
+        self._wrench: np.ndarray | None = None
+        self._wrench_time = 0.0
+        self._diag: dict[str, dict[str, str]] = {}   # joint (or "rail") -> key/values
+        self.goal_handle = None
+        self.given: dict[str, np.ndarray] = {}
+        group = ReentrantCallbackGroup()
+        sub = node.create_subscription
+        sub(JointState, contract.JOINT_STATES, self._on_states, qos_for(contract.JOINT_STATES),
+            callback_group=group)
+        sub(Detections, contract.DETECTIONS, self._on_detections, qos_for(contract.DETECTIONS),
+            callback_group=group)
+        sub(WrenchStamped, contract.EE_WRENCH, self._on_wrench, qos_for(contract.EE_WRENCH),
+            callback_group=group)
+        sub(DiagnosticArray, contract.DIAGNOSTICS, self._on_diagnostics,
+            qos_for(contract.DIAGNOSTICS), callback_group=group)
+        self._cmd = node.create_publisher(JointState, contract.JOINT_COMMAND,
+                                          qos_for(contract.JOINT_COMMAND))
+        self._hybrid = node.create_publisher(HybridGoal, contract.HYBRID_GOAL,
+                                             qos_for(contract.HYBRID_GOAL))
+        cli = node.create_client
+        self._hold = cli(Trigger, contract.HOLD, callback_group=group)
+        self._rail_hold = cli(Trigger, contract.RAIL_HOLD, callback_group=group)
+        self._rail_home = cli(Trigger, contract.RAIL_HOME, callback_group=group)
+        self._force = cli(SetBool, contract.HYBRID_ENABLE, callback_group=group)
+
+    # --- subscriptions (executor threads) ----------------------------------------------
+    def _on_states(self, msg: JointState) -> None:
+        try:
+            with self._lock:
+                self._cache.update(msg.name, msg.position, msg.velocity, msg.effort)
+        except JointStateError as exc:
+            self.node.get_logger().warn(f"joint_states ignored: {exc}", throttle_duration_sec=5.0)
+
+    def _on_detections(self, msg: Detections) -> None:
+        if msg.header.frame_id and msg.header.frame_id != self.desc.camera.frame:
+            self.node.get_logger().warn(f"detections in {msg.header.frame_id!r} ignored: "
+                                        f"expected {self.desc.camera.frame!r}",
+                                        throttle_duration_sec=5.0)
+            return
+        try:
+            poses = [pose_to_matrix(p) for p in msg.poses]
+        except ValueError as exc:
+            self.node.get_logger().warn(f"detections ignored: {exc}", throttle_duration_sec=5.0)
+            return
+        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        self.detections.add(stamp, list(msg.names), poses)
+
+    def _on_wrench(self, msg: WrenchStamped) -> None:
+        f, t = msg.wrench.force, msg.wrench.torque
+        with self._lock:
+            self._wrench = np.array([f.x, f.y, f.z, t.x, t.y, t.z])
+            self._wrench_time = time.monotonic()
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        with self._lock:
+            for st in msg.status:
+                joint = st.name.rsplit(": ", 1)[-1]
+                if joint in self.desc.all_joint_names or joint == "rail":
+                    self._diag[joint] = {kv.key: kv.value for kv in st.values}
+
+    # --- Robot interface (execute thread) --------------------------------------------------
+    def now(self) -> float:
+        return self.node.get_clock().now().nanoseconds * 1e-9
+
+    def sleep(self, seconds: float) -> None:
+        time.sleep(seconds)
+
+    def cancel_requested(self) -> bool:
+        h = self.goal_handle
+        return (h is not None and h.is_cancel_requested) or not self.node.context.ok()
+
+    def joint_positions(self) -> dict[str, float]:
+        with self._lock:
+            return dict(self._cache.position)
+
+    def joint_efforts(self) -> dict[str, float]:
+        with self._lock:
+            return dict(self._cache.effort)
+
+    def command(self, positions: Mapping[str, float],
+                efforts: Mapping[str, float] | None = None) -> None:
+        msg = JointState()
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.name = list(positions)
+        msg.position = [float(positions[n]) for n in msg.name]
+        if efforts:
+            msg.effort = [float(efforts.get(n, 0.0)) for n in msg.name]
+        self._cmd.publish(msg)
+
+    def _call(self, client, request, what: str) -> str | None:
+        if not client.wait_for_service(timeout_sec=SERVICE_TIMEOUT):
+            return f"{what}: service {client.srv_name} not available"
+        future = client.call_async(request)
+        deadline = time.monotonic() + SERVICE_TIMEOUT
+        while not future.done():
+            if time.monotonic() > deadline or not self.node.context.ok():
+                return f"{what}: no answer from {client.srv_name}"
+            time.sleep(0.005)
+        res = future.result()
+        return None if res.success else f"{what}: {res.message}"
+
+    def hold(self) -> str | None:
+        reasons = [self._call(self._hold, Trigger.Request(), "hold")]
+        if self.desc.rail and self._rail_hold.service_is_ready():
+            reasons.append(self._call(self._rail_hold, Trigger.Request(), "rail/hold"))
+        bad = [r for r in reasons if r]
+        return "; ".join(bad) if bad else None
+
+    def fault(self, joints: Sequence[str]) -> str | None:
+        with self._lock:
+            diag = {j: dict(self._diag.get(j, {})) for j in joints}
+            rail = dict(self._diag.get("rail", {}))
+        for j, kv in diag.items():
+            if kv.get("hardware_error", "none") not in ("none", ""):
+                return f"{j} is in hardware error ({kv['hardware_error']}): reboot it"
+            if kv.get("torque") == "off":
+                return f"torque is off on {j}"
+        if self.desc.rail and self.desc.rail.name in joints and rail.get("homed") == "false":
+            return "the rail is not homed (rail/home first)"
+        return None
+
+    def given_object(self, name: str):
+        return self.given.get(name)
+
+    def wrench(self):
+        with self._lock:
+            if self._wrench is None or time.monotonic() - self._wrench_time > 0.5:
+                return None
+            return self._wrench.copy()
+
+    def force_available(self) -> bool:
+        return self._force.service_is_ready()
+
+    def set_force_control(self, enabled: bool) -> str | None:
+        return self._call(self._force, SetBool.Request(data=enabled),
+                          "enable force control" if enabled else "disable force control")
+
+    def send_hybrid(self, goal: HybridCommand) -> None:
+        msg = HybridGoal()
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.header.frame_id = self.desc.root_frame
+        msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = map(float, goal.xyz)
+        q = matrix_to_quat(goal.rotation)
+        o = msg.pose.orientation
+        o.x, o.y, o.z, o.w = q
+        msg.stiffness = [float(v) for v in goal.stiffness]
+        msg.force_controlled = [bool(v) for v in goal.force_axes]
+        w = [float(v) for v in goal.wrench]
+        msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z = w[:3]
+        msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z = w[3:]
+        self._hybrid.publish(msg)
+
+    def home_rail(self) -> str | None:
+        return self._call(self._rail_home, Trigger.Request(), "rail/home")
+
+    def rail_homed(self) -> bool | None:
+        with self._lock:
+            homed = self._diag.get("rail", {}).get("homed")
+        return None if homed is None else homed == "true"
+
+    def log(self, level: str, message: str) -> None:
+        logger = self.node.get_logger()
+        if level == "error":
+            logger.error(message)
+        elif level == "warn":
+            logger.warn(message)
+        else:
+            logger.info(message)

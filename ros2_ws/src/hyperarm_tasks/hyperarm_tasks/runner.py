@@ -1,0 +1,464 @@
+"""Runs a task's steps against a robot interface (no ROS): the sequencing, motion
+streaming, detections, grasp monitoring, retries, cancel and failure handling.
+
+The task node implements :class:`Robot` over ROS topics and services; tests implement it
+over the mock's simulation directly. Units: m, rad, s, N, N·m. Poses are 4x4 matrices in
+the robot's root frame.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Mapping, Protocol, Sequence
+
+import numpy as np
+import pinocchio as pin
+
+from hyperarm_ik.kinematics import Kinematics
+from hyperarm_ik.solvers import make_solver
+
+from .errors import Cancelled, StepFailed
+from .perception import DOWN, DetectionBuffer, Estimate
+from .sequence import Task
+from .steps import STEP_TYPES, PoseSpec, Step
+
+__all__ = ["Robot", "HybridCommand", "Feedback", "RunResult", "RunnerParams", "Runner"]
+
+
+@dataclass(frozen=True)
+class HybridCommand:
+    """A hybrid position/force goal for the force node (HybridGoal, root frame):
+    ``xyz``/``rotation`` the pseudo-goal pose of tool0, ``stiffness`` (N/m x3, N·m/rad x3),
+    ``force_axes`` (x y z rx ry rz force-controlled), ``wrench`` (N, N·m)."""
+
+    xyz: np.ndarray
+    rotation: np.ndarray
+    stiffness: tuple[float, ...]
+    force_axes: tuple[bool, ...]
+    wrench: tuple[float, ...]
+
+
+class Robot(Protocol):
+    """What the runner needs from the robot. Every method returns promptly."""
+
+    detections: DetectionBuffer
+
+    def now(self) -> float: ...                       # s, the clock detections are stamped on
+    def sleep(self, seconds: float) -> None: ...
+    def cancel_requested(self) -> bool: ...
+    def joint_positions(self) -> dict[str, float]: ...
+    def joint_efforts(self) -> dict[str, float]: ...
+    def command(self, positions: Mapping[str, float],
+                efforts: Mapping[str, float] | None = None) -> None: ...
+    def hold(self) -> str | None: ...                 # None = done, else the reason
+    def fault(self, joints: Sequence[str]) -> str | None: ...   # a driver's refusal reason
+    def given_object(self, name: str) -> np.ndarray | None: ...  # pose from the goal
+    def wrench(self) -> np.ndarray | None: ...        # (6,) at tool0, N and N·m, or None
+    def force_available(self) -> bool: ...
+    def set_force_control(self, enabled: bool) -> str | None: ...
+    def send_hybrid(self, goal: HybridCommand) -> None: ...
+    def home_rail(self) -> str | None: ...
+    def rail_homed(self) -> bool | None: ...
+    def log(self, level: str, message: str) -> None: ...   # "info", "warn", "error"
+
+
+@dataclass
+class Feedback:
+    step: str = ""
+    phase: str = ""
+    index: int = 0
+    count: int = 0
+    progress: float = 0.0               # 0..1 over the whole task
+    step_progress: float = 0.0          # 0..1 within the step
+    waypoint: np.ndarray = field(default_factory=lambda: np.zeros(3))   # m, tool0 target
+    force: float = 0.0                  # N, measured force along z at tool (0 if unknown)
+    depth: float = 0.0                  # m, insertion depth (force_insert)
+
+
+@dataclass
+class RunResult:
+    success: bool
+    message: str
+    failure_kind: str = ""
+    step_names: list[str] = field(default_factory=list)
+    step_durations: list[float] = field(default_factory=list)
+    total_time: float = 0.0
+    metrics: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class RunnerParams:
+    """Tunables (the node's parameters)."""
+
+    command_rate: float = 50.0          # Hz, joint goals streamed
+    detection_frames: int = 5           # frames averaged per estimate
+    detection_max_age: float = 1.0      # s, older sightings are stale
+    detection_timeout: float = 3.0      # s, waiting for fresh sightings
+    detection_outlier: float = 0.01     # m, from the median
+    solver: str = ""                    # IK solver ("" = default)
+    joint_tolerance: float = 0.01       # rad, joint-space goal reached
+    grasp_min_position: float = 0.05    # rad, gripper closed further = nothing held
+    grasp_min_effort_ratio: float = 0.5  # |effort| >= ratio * commanded effort = holding
+
+    def __post_init__(self) -> None:
+        if not 1.0 <= self.command_rate <= 500.0:
+            raise ValueError(f"command_rate {self.command_rate} not within 1..500 Hz")
+        if self.detection_frames < 1:
+            raise ValueError("detection_frames must be >= 1")
+        for name in ("detection_max_age", "detection_timeout", "detection_outlier",
+                     "joint_tolerance", "grasp_min_position"):
+            if not getattr(self, name) > 0.0:
+                raise ValueError(f"{name} must be > 0")
+
+
+def min_jerk(tau: float) -> float:
+    """Min-jerk time scaling s(tau) on [0, 1] (peak rate 1.875)."""
+    t = min(max(tau, 0.0), 1.0)
+    return t * t * t * (10.0 - 15.0 * t + 6.0 * t * t)
+
+
+class Runner:
+    """Runs one task. ``on_feedback`` is called at every streamed command."""
+
+    def __init__(self, robot: Robot, kin: Kinematics, task: Task,
+                 params: RunnerParams | None = None,
+                 on_feedback: Callable[[Feedback], None] | None = None) -> None:
+        self.robot, self.kin, self.task = robot, kin, task
+        self.params = params or RunnerParams()
+        self.period = 1.0 / self.params.command_rate
+        self.desc = kin.desc
+        self.solver = make_solver(self.params.solver, kin)
+        self.on_feedback = on_feedback or (lambda fb: None)
+        self.fb = Feedback(count=len(task.steps))
+        self.step: Step | None = None
+        self.attempt = 0                    # retries of the current step so far
+        self.holding: float | None = None   # grip effort while a grasp is held
+        self.tool_target: np.ndarray | None = None   # last commanded tool0 pose
+        self.q_target: np.ndarray | None = None      # last commanded chain joints
+        self.force_on = False
+        self.metrics: dict[str, float] = {}
+
+    # --- state ---------------------------------------------------------------------------
+    @property
+    def chain(self) -> list[str]:
+        return self.kin.joint_names
+
+    def q_measured(self) -> np.ndarray:
+        pos = self.robot.joint_positions()
+        missing = [n for n in self.chain if n not in pos]
+        if missing:
+            raise StepFailed("driver", f"driver not ready: no joint_states for "
+                                       f"{', '.join(missing)}")
+        return np.array([pos[n] for n in self.chain])
+
+    def tool_measured(self) -> np.ndarray:
+        return self.kin.forward(self.q_measured())
+
+    def tool_reference(self) -> np.ndarray:
+        """The last commanded tool pose, else the measured one."""
+        return self.tool_target.copy() if self.tool_target is not None else self.tool_measured()
+
+    # --- the loop's heartbeat --------------------------------------------------------------
+    def feedback(self, phase: str, step_progress: float, waypoint=None, depth: float = 0.0):
+        fb = self.fb
+        fb.phase, fb.step_progress = phase, float(min(max(step_progress, 0.0), 1.0))
+        fb.progress = (fb.index + fb.step_progress) / max(fb.count, 1)
+        if waypoint is not None:
+            fb.waypoint = np.asarray(waypoint, dtype=float)[:3].copy()
+        w = self.robot.wrench()
+        fb.force = float(w[2]) if w is not None else 0.0
+        fb.depth = depth
+        self.on_feedback(fb)
+
+    def tick(self, joints: Sequence[str] = ()) -> None:
+        """Sleep one period; raise Cancelled, or StepFailed for a driver fault on
+        ``joints`` or a lost grasp."""
+        self.robot.sleep(self.period)
+        if self.robot.cancel_requested():
+            raise Cancelled(f"cancelled during {self.step.name if self.step else '?'}")
+        if joints:
+            reason = self.robot.fault(joints)
+            if reason:
+                raise StepFailed("driver", f"driver refused: {reason}")
+        if self.holding is not None:
+            self.check_holding()
+
+    def check_holding(self) -> None:
+        g = self.desc.gripper.name
+        pos = self.robot.joint_positions().get(g, 0.0)
+        eff = abs(self.robot.joint_efforts().get(g, 0.0))
+        p = self.params
+        if pos < p.grasp_min_position or eff < p.grasp_min_effort_ratio * self.holding:
+            self.holding = None
+            raise StepFailed("grasp_lost", f"grasp lost: gripper at {pos:.3f} rad (empty below "
+                             f"{p.grasp_min_position:g}), effort {eff:.2f} N·m")
+
+    # --- objects and poses -----------------------------------------------------------------
+    def detect(self, name: str, timeout: float | None = None,
+               since: float | None = None, frames: int | None = None) -> Estimate:
+        """Averaged fresh sightings of ``name`` (taken after ``since``, if given: the object
+        has moved), waited for up to ``timeout`` s."""
+        p = self.params
+        timeout = p.detection_timeout if timeout is None else timeout
+        t0 = self.robot.now()
+        while True:
+            n = frames or p.detection_frames
+            est = self.robot.detections.estimate(name, self.robot.now(), n,
+                                                 max(p.detection_max_age, 0.15 * n),
+                                                 p.detection_outlier, since)
+            if est is not None:
+                return est
+            if self.robot.now() - t0 > timeout:
+                newest = self.robot.detections.newest(name)
+                if newest is None:
+                    raise StepFailed("detection", f"object {name!r} not seen by the camera "
+                                                  f"in {timeout:g} s")
+                age = self.robot.now() - newest.stamp
+                raise StepFailed("detection", f"detections of {name!r} are stale: the newest "
+                                 f"is {age:.1f} s old (max {p.detection_max_age:g} s), waited "
+                                 f"{timeout:g} s")
+            self.tick()
+
+    def object_pose(self, name: str) -> np.ndarray:
+        given = self.robot.given_object(name)
+        if given is not None:
+            return np.asarray(given, dtype=float)
+        return self.detect(name).pose
+
+    def resolve(self, spec: PoseSpec) -> np.ndarray:
+        """The 4x4 tool0 target of ``spec`` in the root frame."""
+        if spec.relative_to == "tool":
+            base = self.tool_reference()
+        elif spec.relative_to in self.task.frames:
+            base = np.eye(4)
+            base[:3, 3] = self.task.frames[spec.relative_to]
+        elif spec.relative_to == self.desc.root_frame:
+            base = np.eye(4)
+        else:
+            base = self.object_pose(spec.relative_to)
+        out = np.eye(4)
+        out[:3, 3] = base[:3, 3] + np.asarray(spec.offset)
+        out[:3, :3] = DOWN if spec.orientation == "down" else self.tool_reference()[:3, :3]
+        return out
+
+    # --- IK and motion ---------------------------------------------------------------------
+    def ik(self, pose: np.ndarray, seed: np.ndarray):
+        return self.solver.solve(pose[:3, 3], pose[:3, :3], seed, position_tolerance=1e-4,
+                                 orientation_tolerance=1e-3, timeout=0.1)
+
+    def plan_line(self, target: np.ndarray, spacing: float, allow_fallback: bool,
+                  label: str) -> tuple[list[np.ndarray], np.ndarray]:
+        """Joint waypoints along a straight tool line to ``target`` (IK at every
+        interpolated point); on an intermediate failure, a joint-space line if allowed."""
+        start = self.tool_reference()
+        q = self.q_target if self.q_target is not None else self.q_measured()
+        a, b = start[:3, 3], target[:3, 3]
+        n = max(1, int(math.ceil(float(np.linalg.norm(b - a)) / spacing)))
+        qs = [q.copy()]
+        turn = pin.log3(target[:3, :3] @ start[:3, :3].T)   # orientation: slerp on the way
+        for k in range(1, n + 1):
+            pose = target.copy()
+            pose[:3, 3] = a + (b - a) * k / n
+            pose[:3, :3] = pin.exp3(turn * k / n) @ start[:3, :3]
+            res = self.ik(pose, qs[-1])
+            if not res.success:
+                final = self.ik(target, qs[-1] if k == n else q)
+                where = (f"IK failed for {label} at waypoint {k}/{n} "
+                         f"({', '.join(f'{v:.3f}' for v in pose[:3, 3])}) m: {res.message}")
+                if k < n and final.success and allow_fallback:
+                    self.robot.log("warn", f"{where}; falling back to a joint-space move")
+                    return [q, final.q], target
+                raise StepFailed("ik", where)
+            qs.append(res.q)
+        return qs, target
+
+    def stream(self, qs: list[np.ndarray], duration: float, phase: str,
+               efforts: Mapping[str, float] | None = None, waypoints=None) -> None:
+        """Stream the joint path ``qs`` over ``duration`` s (min-jerk in path parameter)."""
+        names = self.chain
+        m = len(qs) - 1
+        t0 = self.robot.now()
+        while True:
+            t = self.robot.now() - t0
+            s = min_jerk(t / duration) if duration > 0 else 1.0
+            x = s * m
+            i = min(int(x), m - 1) if m > 0 else 0
+            q = qs[i] + (qs[min(i + 1, m)] - qs[i]) * (x - i) if m > 0 else qs[0]
+            self.send(names, q, efforts)
+            wp = None
+            if waypoints is not None:
+                wp = waypoints[0] + (waypoints[1] - waypoints[0]) * s
+            self.feedback(phase, 0.9 * s, wp)
+            if t >= duration:
+                return
+            self.tick(names)
+
+    def send(self, names: Sequence[str], q: np.ndarray,
+             efforts: Mapping[str, float] | None = None) -> None:
+        if self.force_on:
+            raise RuntimeError("joint_command while force control is enabled")  # a bug
+        self.robot.command(dict(zip(names, (float(v) for v in q))), efforts)
+        self.q_target = np.asarray(q, dtype=float).copy()
+
+    def path_duration(self, qs: list[np.ndarray], length: float, speed: float) -> float:
+        vmax = np.array([0.5 * (self.desc.rail.velocity if self.desc.rail and n == self.desc.rail.name
+                                else self._vel(n)) for n in self.chain])
+        dq = np.abs(np.diff(np.array(qs), axis=0)).sum(axis=0) if len(qs) > 1 else np.zeros(1)
+        joint_t = float(np.max(dq / vmax)) if len(qs) > 1 else 0.0
+        return 1.875 * max(length / speed, joint_t, 0.2)
+
+    def _vel(self, name: str) -> float:
+        for j in self.desc.joints:
+            if j.name == name:
+                return j.velocity
+        return 1.0
+
+    def move_line(self, target: np.ndarray, speed: float, spacing: float, tolerance: float,
+                  timeout: float, allow_fallback: bool, label: str,
+                  efforts: Mapping[str, float] | None = None) -> None:
+        """Cartesian straight line to ``target`` at ``speed`` (peak), then settle within
+        ``tolerance`` (m, measured tool position) or fail after ``timeout``."""
+        t_start = self.robot.now()
+        start = self.tool_reference()
+        qs, target = self.plan_line(target, spacing, allow_fallback, label)
+        length = float(np.linalg.norm(target[:3, 3] - start[:3, 3]))
+        duration = self.path_duration(qs, length, speed)
+        if duration > timeout:
+            raise StepFailed("timeout", f"{label}: the move needs {duration:.1f} s at "
+                             f"{speed:g} m/s, more than the step's timeout {timeout:g} s")
+        self.stream(qs, duration, "moving", efforts, (start[:3, 3], target[:3, 3]))
+        self.tool_target = target.copy()
+        self.settle(target, tolerance, t_start + timeout, label)
+
+    def settle(self, target: np.ndarray, tolerance: float, deadline: float, label: str) -> None:
+        while True:
+            err = float(np.linalg.norm(self.tool_measured()[:3, 3] - target[:3, 3]))
+            if err <= tolerance:
+                return
+            if self.robot.now() > deadline:
+                reason = self.robot.fault(self.chain)
+                raise StepFailed("driver" if reason else "timeout",
+                                 f"{label}: tool did not reach its target (still "
+                                 f"{err * 1000:.1f} mm away, tolerance {tolerance * 1000:.1f} mm)"
+                                 + (f": {reason}" if reason else ""))
+            self.feedback("settling", 0.95, target[:3, 3])
+            self.tick(self.chain)
+
+    def move_joint_goal(self, goal: Mapping[str, float], tolerance: float, timeout: float,
+                        efforts: Mapping[str, float] | None = None, phase: str = "moving",
+                        settle_on_stop: bool = False) -> None:
+        """Command ``goal`` (by name) until every joint is within ``tolerance`` (or, with
+        ``settle_on_stop``, has stopped moving); StepFailed after ``timeout``."""
+        names = list(goal)
+        reason = self.robot.fault(names)
+        if reason:
+            raise StepFailed("driver", f"driver refused: {reason}")
+        t0 = self.robot.now()
+        last, still_since = None, None
+        while True:
+            self.robot.command(goal, efforts)
+            pos = self.robot.joint_positions()
+            missing = [n for n in names if n not in pos]
+            if missing:
+                err = math.inf
+            else:
+                err = max(abs(pos[n] - v) for n, v in goal.items())
+            if err <= tolerance:
+                break
+            if settle_on_stop and not missing:
+                now = np.array([pos[n] for n in names])
+                if last is not None and np.max(np.abs(now - last)) < 2e-4:
+                    still_since = still_since or self.robot.now()
+                    if self.robot.now() - still_since > 0.3:
+                        break
+                else:
+                    still_since = None
+                last = now
+            elapsed = self.robot.now() - t0
+            if elapsed > timeout:
+                why = (f"no joint_states for {', '.join(missing)}" if missing else
+                       self.robot.fault(names) or f"still {err:.3f} away (tolerance {tolerance:g})")
+                raise StepFailed("driver" if missing or self.robot.fault(names) else "timeout",
+                                 f"joints did not reach the goal in {timeout:g} s ({why})")
+            self.feedback(phase, min(elapsed / timeout, 0.99))
+            self.tick(names)
+        chain_goal = [goal.get(n) for n in self.chain]
+        if all(v is not None for v in chain_goal):
+            self.q_target = np.array(chain_goal, dtype=float)
+            self.tool_target = self.kin.forward(self.q_target)
+
+    # --- force control ---------------------------------------------------------------------
+    def force_off(self) -> None:
+        if self.force_on:
+            reason = self.robot.set_force_control(False)
+            self.force_on = False
+            if reason:
+                self.robot.log("error", f"could not disable force control: {reason}")
+
+    # --- the task --------------------------------------------------------------------------
+    def run(self) -> RunResult:
+        steps = self.task.steps
+        result = RunResult(False, "")
+        t_task = self.robot.now()
+        retries: dict[int, int] = {}
+        i = 0
+        while i < len(steps):
+            step = steps[i]
+            self.step, self.attempt = step, retries.get(i, 0)
+            self.fb.step, self.fb.index = step.name, i
+            self.feedback("start", 0.0)
+            self.robot.log("info", f"step {i + 1}/{len(steps)} {step.name} ({step.type})"
+                           + (f", retry {self.attempt}" if self.attempt else ""))
+            t0 = self.robot.now()
+            try:
+                STEP_TYPES[step.type].run(step, self)
+            except StepFailed as exc:
+                r = step.retry
+                used = retries.get(i, 0)
+                if used < r.attempts and (not r.on or exc.kind in r.on):
+                    retries[i] = used + 1
+                    self.force_off()
+                    self.robot.log("warn", f"step {step.name} failed ({exc}); retry "
+                                   f"{used + 1}/{r.attempts} from {steps[r.from_index].name}")
+                    result.step_names.append(step.name)
+                    result.step_durations.append(self.robot.now() - t0)
+                    i = r.from_index
+                    continue
+                self.safe_stop()
+                result.step_names.append(step.name)
+                result.step_durations.append(self.robot.now() - t0)
+                result.message = f"step '{step.name}' ({step.type}) failed: {exc}"
+                result.failure_kind = exc.kind
+                break
+            except Cancelled:
+                self.safe_stop()
+                result.message = f"cancelled during {step.name}"
+                result.failure_kind = "cancelled"
+                break
+            except BaseException:
+                self.safe_stop()
+                raise
+            result.step_names.append(step.name)
+            result.step_durations.append(self.robot.now() - t0)
+            i += 1
+        else:
+            result.success = True
+            result.message = f"task {self.task.name!r} done"
+            self.fb.index, self.fb.step = len(steps) - 1, steps[-1].name
+            self.feedback("done", 1.0)
+        result.total_time = self.robot.now() - t_task
+        self.metrics["retries"] = float(sum(retries.values()))
+        result.metrics = dict(self.metrics)
+        return result
+
+    def safe_stop(self) -> None:
+        """Force control off, then hold where the arm is."""
+        self.force_off()
+        reason = self.robot.hold()
+        if reason:
+            self.robot.log("error", f"hold failed: {reason}")
+        if self.holding is not None:
+            # a hold commands the present position: the fingers would stop squeezing and
+            # drop the block; keep closing them at the grip effort
+            g = self.desc.gripper
+            self.robot.command({g.name: g.lower}, {g.name: self.holding})

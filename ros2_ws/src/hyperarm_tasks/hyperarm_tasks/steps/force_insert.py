@@ -1,0 +1,246 @@
+"""``force_insert``: press the held block down onto a peg while dithering in x-y (a spiral
+or concentric circles up to ``dither.radius``), until it is ``depth`` down the peg or the
+step's timeout (Danko & Oh, Section IV: hybrid force control, the hole finds the peg).
+
+With the force node running (``hybrid_force/enable``), force control is enabled and the
+step streams HybridGoal: z force-controlled at ``force`` downward, x-y position-controlled
+along the dither; force control is disabled again before the step returns (the contract's
+rule: joint_command only while it is off). Without the force node the step presses with a
+position pseudo-goal through joint_command: the tool is commanded ``press`` below the
+contact height, and the servos' finite stiffness turns the shortfall into the pressing
+force (logged once per run).
+
+Contact and depth. The press stalls on the peg's top: the measured tool (FK of
+joint_states) stops above the commanded one (the servos deflect); that height is the
+contact height. The block is down the peg when the command is the full ``press`` below the
+contact height (more than ``depth``) and nothing holds the tool up any more (deflection
+below ``contact_threshold``); the camera then confirms that the block is on the peg's axis
+(within ``align_tolerance``), not down beside it. Encoders do not see the arm's
+repeatability error, so heights are judged by deflection, not by absolute tool height.
+The depth reported is the measured drop below the contact height. Retries (``retry``)
+rotate and reverse the pattern.
+
+    - name: insert
+      type: force_insert
+      target: {relative_to: destination_peg, offset: [0, 0, 1.5 cm]}
+      depth: 5 mm
+      dither: {pattern: spiral, radius: 1.5 cm, pitch: 2 mm, speed: 4 cm/s}
+      timeout: 30 s
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import StepFailed
+from . import BuildContext, PoseSpec, Step, StepType, pose_schema, quantity, register
+
+
+STALL_WINDOW = 0.15   # s: the tool stalled if it moved down less than STALL_MOTION in it
+STALL_MOTION = 3e-4   # m  (while the command went down more than twice that)
+CONTACT_WINDOW = 0.01  # m: a stall counts as contact only this close above the nominal top
+
+
+@dataclass(frozen=True)
+class ForceInsert(Step):
+    target: PoseSpec = PoseSpec("tool")
+    depth: float = 0.005            # m down the peg = success
+    press: float = 0.015            # m, pseudo-goal below the contact height (no force node)
+    force: float = 3.0              # N downward (force node)
+    stiffness: float = 300.0        # N/m on z (force node)
+    descent_speed: float = 0.02     # m/s
+    pattern: str = "spiral"
+    radius: float = 0.015           # m
+    pitch: float = 0.002            # m of radius per turn
+    dither_speed: float = 0.04      # m/s along the pattern
+    contact_threshold: float = 0.0015  # m, measured above commanded = stalled on the top
+    align_tolerance: float = 0.012  # m, camera: block to peg axis when down (beside: > 2 cm)
+
+
+def build(raw: dict, ctx: BuildContext, index: int) -> ForceInsert:
+    d = raw.get("dither", {})
+    step = _build(raw, ctx, index, d)
+    if step.press <= step.depth:
+        raise ctx.FieldError(("press",), f"press ({step.press * 1000:.1f} mm) must exceed depth "
+                             f"({step.depth * 1000:.1f} mm): the block is pressed that far")
+    return step
+
+
+def _build(raw: dict, ctx: BuildContext, index: int, d: dict) -> ForceInsert:
+    return ForceInsert(
+        **ctx.common(raw, index, 30.0), target=ctx.pose(raw, "target"),
+        depth=ctx.si(raw, "depth", "length", 0.005, positive=True),
+        press=ctx.si(raw, "press", "length", 0.015, positive=True),
+        force=ctx.si(raw, "force", "force", 3.0, positive=True),
+        stiffness=ctx.si(raw, "stiffness", "stiffness", 300.0, positive=True),
+        descent_speed=ctx.si(raw, "descent_speed", "speed", 0.02, positive=True),
+        pattern=d.get("pattern", "spiral"),
+        radius=ctx.si(d, "radius", "length", 0.015, nonneg=True, path=("dither",)),
+        pitch=ctx.si(d, "pitch", "length", 0.002, positive=True, path=("dither",)),
+        dither_speed=ctx.si(d, "speed", "speed", 0.04, positive=True, path=("dither",)),
+        contact_threshold=ctx.si(raw, "contact_threshold", "length", 0.0015, positive=True),
+        align_tolerance=ctx.si(raw, "align_tolerance", "length", 0.012, positive=True))
+
+
+class Dither:
+    """x-y offset (m) along the pattern; ``advance(dt)`` moves ``speed`` x dt along it."""
+
+    def __init__(self, step: ForceInsert, attempt: int) -> None:
+        self.step = step
+        self.theta = 0.0
+        self.phase = 2.39996 * attempt              # golden angle: a new pattern per retry
+        self.sign = -1.0 if attempt % 2 else 1.0
+
+    def radius(self) -> float:
+        s = self.step
+        turns = self.theta / (2.0 * math.pi)
+        r = s.pitch * (turns if s.pattern == "spiral" else math.floor(turns) + 1.0)
+        return min(r, s.radius)
+
+    def advance(self, dt: float) -> np.ndarray:
+        r = max(self.radius(), 0.5 * self.step.pitch)
+        self.theta += self.step.dither_speed * dt / r
+        return self.offset()
+
+    def offset(self) -> np.ndarray:
+        r, a = self.radius(), self.sign * self.theta + self.phase
+        return np.array([r * math.cos(a), r * math.sin(a), 0.0])
+
+    @property
+    def turns(self) -> float:
+        return self.theta / (2.0 * math.pi)
+
+
+def _check_on_axis(step: ForceInsert, runner) -> None:
+    """The camera: the block's hole must be on the peg's axis (not down beside the peg)."""
+    if step.target.relative_to not in runner.task.objects or "block" not in runner.task.objects:
+        return
+    # images taken now that the block is down (it moved along the dither before), more of
+    # them than usual: block and peg are each seen with ~2 mm of noise per image
+    frames = 2 * runner.params.detection_frames
+    block = runner.detect("block", since=runner.robot.now(), frames=frames).xyz
+    given = runner.robot.given_object(step.target.relative_to)
+    peg = (given[:3, 3] if given is not None else
+           runner.detect(step.target.relative_to, frames=frames).xyz)
+    off = float(np.hypot(*(block[:2] - peg[:2])))
+    if off > step.align_tolerance:
+        raise StepFailed("insertion", f"the block went down {off * 1000:.0f} mm off the axis "
+                         f"of {step.target.relative_to} (beside it, not on it)")
+
+
+def run(step: ForceInsert, runner) -> None:
+    robot = runner.robot
+    if runner.holding is None:
+        robot.log("warn", f"{step.name}: no grasp is held (inserting anyway)")
+    target = runner.resolve(step.target)
+    start = runner.tool_reference()
+    z_contact = float(target[2, 3])
+    z_bottom = z_contact - step.press
+    use_force = robot.force_available()
+    if use_force:
+        reason = robot.set_force_control(True)
+        if reason:
+            raise StepFailed("driver", f"force control could not be enabled: {reason}")
+        runner.force_on = True
+    elif not runner.metrics.get("pressing_fallback_logged"):
+        robot.log("warn", f"{step.name}: no force node (hybrid_force/enable not available): "
+                          f"pressing with a position pseudo-goal {step.press * 1000:.0f} mm "
+                          "below the contact height through joint_command")
+        runner.metrics["pressing_fallback_logged"] = 1.0
+    dither = Dither(step, runner.attempt)
+    q = runner.q_target if runner.q_target is not None else runner.q_measured()
+    t0 = robot.now()
+    last = t0
+    z_cmd = float(start[2, 3])
+    z_ref, t_contact, best, dithering = None, None, 0.0, False
+    done_ticks = 0
+    history: deque[tuple[float, float, float]] = deque()
+    try:
+        while True:
+            now = robot.now()
+            dt, last = now - last, now
+            if dithering and done_ticks == 0:
+                off = dither.advance(dt)    # frozen while the depth is being confirmed
+            elif not dithering:
+                off = np.zeros(3)
+            z_cmd = max(z_bottom, z_cmd - step.descent_speed * dt)
+            goal = target.copy()
+            goal[:3, 3] = target[:3, 3] + off
+            goal[2, 3] = z_cmd
+            if use_force:
+                from ..runner import HybridCommand
+                robot.send_hybrid(HybridCommand(goal[:3, 3], goal[:3, :3],
+                                                (2000.0, 2000.0, step.stiffness, 50.0, 50.0, 50.0),
+                                                (False, False, True, False, False, False),
+                                                (0.0, 0.0, -step.force, 0.0, 0.0, 0.0)))
+            else:
+                res = runner.ik(goal, q)
+                if not res.success:
+                    raise StepFailed("ik", f"IK failed for {step.name} at the dither point "
+                                     f"({', '.join(f'{v:.3f}' for v in goal[:3, 3])}) m: "
+                                     f"{res.message}")
+                q = res.q
+                runner.send(runner.chain, q)
+                runner.tool_target = goal.copy()
+            z_meas = float(runner.tool_measured()[2, 3])
+            lag = z_meas - z_cmd
+            history.append((now, z_meas, z_cmd))
+            while history and now - history[0][0] > STALL_WINDOW:
+                history.popleft()
+            old_t, old_meas, old_cmd = history[0]
+            stalled = (now - old_t >= 0.8 * STALL_WINDOW and old_meas - z_meas < STALL_MOTION
+                       and old_cmd - z_cmd > 2.0 * STALL_MOTION)
+            near = z_cmd < z_contact + CONTACT_WINDOW     # contact is only expected here
+            if z_ref is None and near and lag > step.contact_threshold and stalled:
+                z_ref, t_contact = z_meas, now           # stalled on the peg's top
+                z_bottom = z_ref - step.press            # press relative to the contact
+            if not dithering and (z_ref is not None or z_cmd <= z_bottom):
+                dithering = True
+                t_contact = t_contact or now
+            # Down the peg: commanded the full press below the contact height and nothing
+            # holds the tool up (no vertical deflection). The encoders cannot see the arm's
+            # repeatability error, but the deflection is the contact itself.
+            depth = (z_ref if z_ref is not None else z_contact) - z_meas
+            ok = z_cmd <= z_bottom + 1e-4 and lag < step.contact_threshold
+            if lag < step.contact_threshold:     # depths while held up do not count
+                best = max(best, depth)
+            done_ticks = done_ticks + 1 if ok else 0
+            runner.feedback("dithering" if dithering else "descending",
+                            min((now - t0) / step.timeout, 0.99), goal[:3, 3], depth)
+            if done_ticks >= 10:
+                _check_on_axis(step, runner)
+                runner.metrics["insertion_time"] = now - (t_contact or t0)
+                runner.metrics["insertion_depth"] = depth
+                runner.metrics["dither_turns"] = dither.turns
+                runner.metrics["insertion_attempts"] = runner.attempt + 1.0
+                robot.log("info", f"{step.name}: {depth * 1000:.1f} mm down the peg after "
+                          f"{now - t0:.1f} s ({dither.turns:.1f} dither turns, radius "
+                          f"{dither.radius() * 1000:.1f} mm)")
+                return
+            if now - t0 > step.timeout:
+                runner.metrics["insertion_attempts"] = runner.attempt + 1.0
+                raise StepFailed("insertion", f"insertion not achieved in {step.timeout:g} s "
+                                 f"(best depth {best * 1000:.1f} mm of {step.depth * 1000:.1f} "
+                                 f"mm, {dither.turns:.1f} dither turns up to "
+                                 f"{dither.radius() * 1000:.1f} mm)")
+            runner.tick(runner.chain if not use_force else ())
+    finally:
+        if use_force:
+            runner.force_off()
+            runner.q_target = runner.q_measured()
+            runner.tool_target = runner.kin.forward(runner.q_target)
+
+
+register(StepType(
+    "force_insert",
+    {"target": pose_schema(), "depth": quantity("length"), "press": quantity("length"),
+     "force": quantity("force"), "stiffness": quantity("stiffness"),
+     "descent_speed": quantity("speed"), "contact_threshold": quantity("length"),
+     "align_tolerance": quantity("length"),
+     "dither": {"type": "object", "additionalProperties": False, "properties": {
+         "pattern": {"enum": ["spiral", "circle"]}, "radius": quantity("length"),
+         "pitch": quantity("length"), "speed": quantity("speed")}}},
+    ("target",), build, run, "pressing insertion with an x-y dither"))

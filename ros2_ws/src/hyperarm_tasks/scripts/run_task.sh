@@ -1,0 +1,166 @@
+#!/usr/bin/env bash
+# run_task.sh: start the hyperarm stack, run one task from the shell, stop everything.
+#
+#   run_task.sh [options] TASK [TASK...]     e.g. run_task.sh block_transfer
+#
+# Several tasks run one after the other on the same stack (e.g. block_transfer
+# block_transfer_back: there and back), stopping at the first failure.
+# Starts the drivers (the mock by default) and the task node as separate processes, waits
+# until they are ready (joint_states and the run_task action: no fixed sleeps), sends the
+# goal, prints a line per step and the result, and exits 0 on success, 1 on failure (with
+# the reason), 2 on bad use. Every process it started is stopped (SIGINT, then SIGKILL after
+# 10 s) on success, failure, Ctrl-C or SIGTERM; Ctrl-C cancels the task first (the arm
+# holds). Installed as lib/hyperarm_tasks/run_task.sh; also runnable from the repository.
+#
+# Options:
+#   --variant V          arm (default) or rail_arm
+#   --hardware PARAMS    real drivers (dynamixel_driver; pmac_rail_driver on rail_arm) with
+#                        this ROS parameters file instead of the mock
+#   --workcell FILE      the mock's work-cell YAML (default: its packaged one)
+#   --seed N             the mock's imperfection and camera seeds (a copy of the work cell)
+#   --record FILE        record the run to FILE (MCAP: joint_states, joint_command,
+#                        hybrid_goal, ee_wrench, detections, task feedback)
+#   --tasks-dir DIR      user task files (searched before the packaged ones)
+#   --timeout S          task timeout (default 300)
+#   --logs DIR           keep the nodes' logs there (default: a temporary directory)
+#   -h, --help           this text
+set -uo pipefail
+
+usage() { sed -n '2,/^set -uo/p' "${BASH_SOURCE[0]}" | sed '$d; s/^# \{0,1\}//'; }
+
+variant=arm hardware="" workcell="" seed="" record="" tasks_dir="" timeout=300 logs="" tasks=()
+while [ $# -gt 0 ]; do
+  case "$1" in
+    -h|--help) usage; exit 0 ;;
+    --variant) variant="${2:?--variant needs a value}"; shift 2 ;;
+    --hardware) hardware="${2:?--hardware needs a parameters file}"; shift 2 ;;
+    --workcell) workcell="${2:?--workcell needs a file}"; shift 2 ;;
+    --seed) seed="${2:?--seed needs a number}"; shift 2 ;;
+    --record) record="${2:?--record needs a file}"; shift 2 ;;
+    --tasks-dir) tasks_dir="${2:?--tasks-dir needs a directory}"; shift 2 ;;
+    --timeout) timeout="${2:?--timeout needs seconds}"; shift 2 ;;
+    --logs) logs="${2:?--logs needs a directory}"; shift 2 ;;
+    -*) echo "run_task.sh: unknown option $1 (see --help)" >&2; exit 2 ;;
+    *) tasks+=("$1"); shift ;;
+  esac
+done
+[ "${#tasks[@]}" -gt 0 ] || { echo "run_task.sh: which task? (see --help)" >&2; exit 2; }
+case "$variant" in arm|rail_arm) ;; *) echo "run_task.sh: --variant arm or rail_arm" >&2; exit 2 ;; esac
+[ -z "$hardware" ] || [ -f "$hardware" ] || { echo "run_task.sh: $hardware: no such file" >&2; exit 2; }
+[ -z "$seed" ] || [[ "$seed" =~ ^[0-9]+$ ]] || { echo "run_task.sh: --seed must be an integer" >&2; exit 2; }
+
+# The workspace: sourced already (installed use), else this repository's.
+here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
+if ! python3 -c "import hyperarm_tasks" >/dev/null 2>&1; then
+  root="$(cd "$here/../../../.." 2>/dev/null && pwd)"
+  if [ -f "$root/scripts/env.sh" ]; then
+    set +u
+    # shellcheck disable=SC1091
+    source "$root/scripts/env.sh"
+    set -u
+  else
+    echo "run_task.sh: hyperarm is not on the path: source the workspace (scripts/env.sh)" >&2
+    exit 2
+  fi
+fi
+exe() {  # path of an installed executable, as `ros2 run` finds it
+  local prefix
+  prefix="$(python3 -c "from ament_index_python.packages import get_package_prefix as g; print(g('$1'))" 2>/dev/null)" \
+    || { echo "run_task.sh: package $1 not found (make setup)" >&2; exit 2; }
+  echo "$prefix/lib/$1/$2"
+}
+
+if [ -n "$logs" ]; then mkdir -p "$logs"; else logs="$(mktemp -d -t hyperarm-run.XXXXXX)"; fi
+: > "$logs/pids"   # "name pid" of every process started (tests check they are gone)
+pids=() names=()
+stopping=0
+cleanup() {
+  [ "$stopping" = 1 ] && return
+  stopping=1
+  trap '' INT TERM          # a second Ctrl-C while stopping changes nothing
+  local i pid
+  for pid in "${pids[@]}"; do kill -INT "$pid" 2>/dev/null; done
+  for i in "${!pids[@]}"; do
+    pid="${pids[$i]}"
+    if ! timeout 10 tail --pid="$pid" -f /dev/null 2>/dev/null; then
+      echo "run_task.sh: ${names[$i]} (pid $pid) did not stop on SIGINT; killing it" >&2
+      kill -KILL "$pid" 2>/dev/null
+    fi
+    wait "$pid" 2>/dev/null
+  done
+}
+trap cleanup EXIT
+
+start() {  # start NAME EXECUTABLE ARGS...: its own session, so a terminal Ctrl-C reaches
+  local name="$1"; shift       # only this script and run_task, which cancels first
+  setsid "$@" >"$logs/$name.log" 2>&1 < /dev/null &
+  pids+=($!); names+=("$name")
+  echo "$name $!" >> "$logs/pids"
+}
+
+ros=(-p "variant:=$variant")
+if [ -n "$hardware" ]; then
+  start dynamixel_driver "$(exe hyperarm_driver dynamixel_driver)" --ros-args --params-file "$hardware" "${ros[@]}"
+  if [ "$variant" = rail_arm ]; then
+    start pmac_rail_driver "$(exe hyperarm_driver pmac_rail_driver)" --ros-args --params-file "$hardware" "${ros[@]}"
+  fi
+else
+  mock=("${ros[@]}")
+  if [ -n "$seed" ]; then
+    src="${workcell:-$(python3 -c "from ament_index_python.packages import get_package_share_directory as g; print(g('hyperarm_driver'))")/config/workcell.yaml}"
+    workcell="$logs/workcell-seed$seed.yaml"
+    python3 - "$src" "$workcell" "$seed" <<'PY' || exit 2
+import sys, yaml
+src, dst, seed = sys.argv[1], sys.argv[2], int(sys.argv[3])
+cell = yaml.safe_load(open(src))
+cell.setdefault("imperfections", {})["seed"] = seed
+cell.setdefault("camera", {})["seed"] = seed + 1000
+yaml.safe_dump(cell, open(dst, "w"), sort_keys=False)
+PY
+  fi
+  [ -z "$workcell" ] || mock+=(-p "workcell_file:=$workcell")
+  start mock_driver "$(exe hyperarm_driver mock_driver)" --ros-args "${mock[@]}"
+fi
+task_args=("${ros[@]}")
+[ -z "$tasks_dir" ] || task_args+=(-p "tasks_dir:=$tasks_dir")
+start task_node "$(exe hyperarm_tasks task_node)" --ros-args "${task_args[@]}"
+if [ -n "$record" ]; then
+  start task_recorder "$(exe hyperarm_tasks task_recorder)" --ros-args -p "output:=$record"
+fi
+
+where="the mock"
+[ -z "$hardware" ] || where="the hardware (drivers with $hardware)"
+echo "run_task.sh: ${tasks[*]} on $where ($variant), logs in $logs"
+# run_task in the background so that SIGTERM/SIGINT to this script are handled at once:
+# they are forwarded to run_task, which cancels the task before everything is stopped.
+client=""
+interrupted=0
+forward() { interrupted=1; [ -z "$client" ] || kill -"$1" "$client" 2>/dev/null; }
+trap 'forward INT' INT
+trap 'forward TERM' TERM
+rc=0
+n=0
+for task in "${tasks[@]}"; do
+  n=$((n + 1))
+  [ "${#tasks[@]}" -eq 1 ] || echo "== task $n/${#tasks[@]}: $task"
+  "$(exe hyperarm_tasks run_task)" "$task" --timeout "$timeout" --wait-ready 60 &
+  client=$!
+  while :; do
+    wait "$client"; rc=$?
+    kill -0 "$client" 2>/dev/null || break   # wait returns early when a trap ran
+  done
+  client=""
+  [ "$rc" -eq 0 ] && [ "$interrupted" = 0 ] || break
+done
+[ "$interrupted" = 0 ] || [ "$rc" -ne 0 ] || rc=130
+for i in "${!pids[@]}"; do
+  if ! kill -0 "${pids[$i]}" 2>/dev/null; then
+    echo "run_task.sh: ${names[$i]} exited early; its log ($logs/${names[$i]}.log) ends:" >&2
+    tail -5 "$logs/${names[$i]}.log" >&2
+  fi
+done
+if [ -n "$record" ]; then
+  cleanup   # finish the recording before saying where it is
+  [ -f "$record" ] && echo "run_task.sh: recording in $record"
+fi
+exit "$rc"

@@ -1,0 +1,210 @@
+"""End-to-end through the installed executables: run_task.sh starts mock_driver, task_node
+(and task_recorder) as processes over real DDS (the test's own ROS_DOMAIN_ID) and runs the
+shipped block_transfer; real time, so each test takes tens of seconds."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from sensor_msgs.msg import JointState
+
+from hyperarm_description import contract
+from hyperarm_description.qos import qos_for
+
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]
+
+
+def _script(executable) -> str:
+    return os.path.join(os.path.dirname(executable("hyperarm_tasks", "run_task")), "run_task.sh")
+
+
+def _alive(logs: Path) -> list[str]:
+    out = []
+    for line in (logs / "pids").read_text().split("\n"):
+        if line.strip():
+            name, pid = line.split()
+            try:
+                os.kill(int(pid), 0)
+                out.append(f"{name} ({pid})")
+            except ProcessLookupError:
+                pass
+    return out
+
+
+def _run(script, args, ros_domain, timeout):
+    env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain), PYTHONUNBUFFERED="1")
+    return subprocess.run([script, *args], env=env, capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def test_two_cycles_there_and_back_recorded_and_plotted(executable, ros_domain, tmp_path):
+    logs, rec = tmp_path / "logs", tmp_path / "run.mcap"
+    done = _run(_script(executable), ["--seed", "21", "--logs", str(logs), "--record", str(rec),
+                                      "block_transfer", "block_transfer_back"], ros_domain, 170)
+    out = done.stdout + done.stderr
+    assert done.returncode == 0, out
+    assert out.count("run_task: succeeded") == 2, out
+    for step in ("[8/12] insert (force_insert)", "[12/12] ready_end"):
+        assert step in out
+    assert _alive(logs) == []
+    from hyperarm_tasks.recording import read_recording
+    topics = {t for t, _, _ in read_recording(rec)}
+    assert {"/hyperarm/joint_states", "/hyperarm/joint_command", "/hyperarm/detections",
+            "/hyperarm/run_task/_action/feedback"} <= topics
+    plots = subprocess.run([executable("hyperarm_tasks", "plot_task"), str(rec), "--out",
+                            str(tmp_path / "png")], capture_output=True, text=True, timeout=120)
+    assert plots.returncode == 0, plots.stderr
+    for name in ("tool_path.png", "joints.png", "insertion.png"):
+        assert (tmp_path / "png" / name).stat().st_size > 10_000
+
+
+def test_unreachable_destination_fails_with_the_waypoint(executable, ros_domain, tmp_path):
+    from ament_index_python.packages import get_package_share_directory
+    cell = yaml.safe_load(open(Path(get_package_share_directory("hyperarm_driver"))
+                               / "config" / "workcell.yaml"))
+    cell["world"]["pegs"]["destination"]["xy"] = [0.9, -0.6]
+    cell["imperfections"]["seed"] = 3
+    path = tmp_path / "far.yaml"
+    path.write_text(yaml.safe_dump(cell))
+    logs = tmp_path / "logs"
+    done = _run(_script(executable), ["--workcell", str(path), "--logs", str(logs),
+                                      "block_transfer"], ros_domain, 120)
+    out = done.stdout + done.stderr
+    assert done.returncode == 1, out
+    assert "step 'above_destination' (move_to) failed: IK failed for above_destination" in out
+    assert "waypoint" in out
+    assert _alive(logs) == []
+
+
+def test_sigint_twice_mid_task_cancels_and_leaves_no_process(executable, ros_domain, tmp_path):
+    logs = tmp_path / "logs"
+    env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain), PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([_script(executable), "--logs", str(logs), "block_transfer"],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, start_new_session=True)
+    lines = []
+    deadline = time.monotonic() + 90
+    for line in proc.stdout:
+        lines.append(line)
+        if "[2/12] above_source" in line or time.monotonic() > deadline:
+            break
+    proc.send_signal(signal.SIGINT)
+    time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)         # a quick second Ctrl-C
+    rest, _ = proc.communicate(timeout=60)
+    out = "".join(lines) + rest
+    assert proc.returncode != 0, out
+    assert "cancelling the task" in out and "cancelled during above_source" in out, out
+    assert "Traceback" not in out and "Segmentation" not in out
+    assert _alive(logs) == []
+    assert "cancel requested for task 'block_transfer' during above_source" in \
+        (logs / "task_node.log").read_text()
+
+
+def test_cancel_mid_insertion_holds_with_force_off(launch, rclpy_context, executor, wait_for,
+                                                   ros_domain, executable, tmp_path):
+    import rclpy
+    from ament_index_python.packages import get_package_share_directory
+    cell = yaml.safe_load(open(Path(get_package_share_directory("hyperarm_driver"))
+                               / "config" / "workcell.yaml"))
+    cell["world"]["block"]["hole_radius"] = 0.00805    # 0.05 mm: the insertion goes on
+    cell["imperfections"]["seed"] = 5
+    (tmp_path / "tight.yaml").write_text(yaml.safe_dump(cell))
+    launch("hyperarm_driver", "mock_driver", params={"workcell_file": str(tmp_path / "tight.yaml")})
+    task = launch("hyperarm_tasks", "task_node")
+    node = rclpy.create_node("probe", namespace=contract.DEFAULT_NAMESPACE, context=rclpy_context)
+    states, commands = [], []
+    node.create_subscription(JointState, contract.JOINT_STATES,
+                             lambda m: states.append((time.monotonic(), m)),
+                             qos_for(contract.JOINT_STATES))
+    node.create_subscription(JointState, contract.JOINT_COMMAND,
+                             lambda m: commands.append(time.monotonic()),
+                             qos_for(contract.JOINT_COMMAND))
+    executor.add_node(node)
+    env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain), PYTHONUNBUFFERED="1")
+    client = subprocess.Popen([executable("hyperarm_tasks", "run_task"), "block_transfer",
+                               "--wait-ready", "60"], env=env, stdout=subprocess.PIPE,
+                              stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    lines = []
+    for line in client.stdout:
+        lines.append(line)
+        if "dithering" in line:
+            break
+    time.sleep(1.0)                                   # well inside the insertion
+    client.send_signal(signal.SIGINT)
+    rest, _ = client.communicate(timeout=30)
+    out = "".join(lines) + rest
+    assert client.returncode == 1, out
+    assert "canceled: cancelled during insert" in out, out
+    t_done = time.monotonic()
+    time.sleep(1.5)
+    assert not [t for t in commands if t > t_done], "joint_command after the cancel"
+    recent = [m for t, m in states if t > t_done + 0.5]
+    assert len(recent) > 10, (len(states), states[-1][0] - t_done, len(commands))
+    q = np.array([m.position for m in recent])
+    assert np.ptp(q, axis=0).max() < 2e-3, "the arm moved after the cancel: not holding"
+    log = task.output()
+    assert "cancel requested for task 'block_transfer' during insert" in log
+    assert "cancelled during insert (force control off, holding)" in log
+
+
+def test_refused_rail_command_fails_with_the_drivers_reason(executable, ros_domain, tmp_path):
+    (tmp_path / "tasks").mkdir()
+    (tmp_path / "tasks" / "rail_out.yaml").write_text(
+        "schema_version: 1\nsteps:\n  - {name: rail_out, type: move_joints, "
+        "joints: {rail: 0.3 m}, tolerance: 0.002, timeout: 5 s}\n")
+    logs = tmp_path / "logs"
+    done = _run(_script(executable), ["--variant", "rail_arm", "--tasks-dir",
+                                      str(tmp_path / "tasks"), "--logs", str(logs), "rail_out"],
+                ros_domain, 90)
+    out = done.stdout + done.stderr
+    assert done.returncode == 1, out
+    assert "step 'rail_out' (move_joints) failed: driver refused: the rail is not homed" in out
+    assert _alive(logs) == []
+
+
+def test_second_goal_is_rejected_with_a_reason(launch, ros_domain, executable, wait_for):
+    launch("hyperarm_driver", "mock_driver")
+    node = launch("hyperarm_tasks", "task_node")
+    env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain), PYTHONUNBUFFERED="1")
+    first = subprocess.Popen([executable("hyperarm_tasks", "run_task"), "block_transfer",
+                              "--wait-ready", "60"], env=env, stdout=subprocess.PIPE,
+                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    for line in first.stdout:
+        if "[2/12]" in line:
+            break
+    second = subprocess.run([executable("hyperarm_tasks", "run_task"), "ready"], env=env,
+                            capture_output=True, text=True, timeout=60)
+    assert second.returncode == 1
+    assert "goal rejected" in second.stdout + second.stderr
+    assert "task 'ready' rejected: task 'block_transfer' is running (one goal at a time)" in \
+        node.output()
+    first.send_signal(signal.SIGINT)
+    rest, _ = first.communicate(timeout=30)
+    assert "cancelled during above_source" in rest
+
+
+def test_hardware_mode_runs_on_the_dynamixel_driver(launch, executable, ros_domain, tmp_path,
+                                                    wait_for):
+    """--hardware PARAMS: the real Dynamixel driver (on its bus emulator) instead of the mock."""
+    link = tmp_path / "ttyDXL"
+    launch("hyperarm_driver", "dxl_emulator", "--link", str(link))
+    wait_for(link.exists, 20.0, what="the emulator's pty")
+    params = tmp_path / "hw.yaml"
+    params.write_text(f"/**:\n  ros__parameters:\n    port: {link}\n    torque_on_start: true\n")
+    logs = tmp_path / "logs"
+    done = _run(_script(executable), ["--hardware", str(params), "--logs", str(logs),
+                                      "rest", "ready"], ros_domain, 120)
+    out = done.stdout + done.stderr
+    assert done.returncode == 0, out
+    assert f"run_task.sh: rest ready on the hardware (drivers with {params}) (arm)" in out
+    assert out.count("run_task: succeeded") == 2
+    assert [line.split()[0] for line in (logs / "pids").read_text().splitlines()] == \
+        ["dynamixel_driver", "task_node"]
+    assert _alive(logs) == []

@@ -1,0 +1,162 @@
+"""Core tests of the runner on the mock's simulation (no rclpy): the block transfer and each
+way it fails, cancel, retries. Simulated time, so each run takes a few seconds."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from hyperarm_description import load_description
+from hyperarm_driver.mock.config import load_mock_config
+from hyperarm_driver.mock.joint_sim import JointSim
+from hyperarm_ik.kinematics import Kinematics
+from hyperarm_tasks.runner import Runner
+from hyperarm_tasks.sequence import load_task
+from hyperarm_tasks.testing import SimRobot
+
+pytestmark = [pytest.mark.core, pytest.mark.slow]
+
+
+@pytest.fixture(scope="module")
+def desc():
+    return load_description()
+
+
+@pytest.fixture(scope="module")
+def kin(desc):
+    return Kinematics(desc)
+
+
+def cell(seed: int, **world):
+    base = load_mock_config()
+    w = base.world
+    if "hole_radius" in world:
+        w = dataclasses.replace(w, block=dataclasses.replace(w.block,
+                                                             hole_radius=world["hole_radius"]))
+    if "destination" in world:
+        w = dataclasses.replace(w, pegs=tuple(
+            dataclasses.replace(p, xy=world["destination"]) if p.name == "destination" else p
+            for p in w.pegs))
+    return dataclasses.replace(
+        base, world=w,
+        imperfections=dataclasses.replace(base.imperfections, seed=seed),
+        camera=dataclasses.replace(base.camera, seed=seed))
+
+
+def run(desc, kin, cfg, task="block_transfer", **robot_kw):
+    sim = JointSim(desc, cfg)
+    robot = SimRobot(sim, **robot_kw)
+    return Runner(robot, kin, load_task(task, desc)).run(), sim, robot
+
+
+@pytest.mark.parametrize("seed", [11, 12])
+def test_block_transfer_moves_the_block_onto_the_destination(desc, kin, seed):
+    result, sim, robot = run(desc, kin, cell(seed))
+    assert result.success, result.message
+    assert sim.world.on_peg("destination")
+    names = [s.name for s in load_task("block_transfer", desc).steps]
+    assert result.step_names[-5:] == names[-5:]          # a retry repeats a few steps
+    assert set(result.step_names) == set(names)
+    assert result.metrics["insertion_depth"] >= 0.005
+    assert robot.held == 0
+
+
+def test_block_absent_is_reported(desc, kin):
+    sim = JointSim(desc, cell(3))
+    robot = SimRobot(sim)
+    real = robot.detections.add
+    robot.detections.add = lambda stamp, names, poses: real(
+        stamp, *zip(*[(n, p) for n, p in zip(names, poses) if n != "block"]))
+    result = Runner(robot, kin, load_task("block_transfer", desc)).run()
+    assert not result.success
+    assert result.failure_kind == "detection"
+    assert "object 'block' not seen by the camera" in result.message
+    assert "down_to_block" in result.message
+    assert robot.held == 1          # safe stop: hold
+
+
+def test_camera_dropout_is_stale_detections(desc, kin):
+    sim = JointSim(desc, cell(4))
+    robot = SimRobot(sim)
+    robot.sleep(1.0)
+    robot.camera_on = False
+    result = Runner(robot, kin, load_task("block_transfer", desc)).run()
+    assert not result.success and result.failure_kind == "detection"
+    assert "detections of 'source_peg' are stale" in result.message
+
+
+def test_unreachable_destination_names_the_waypoint(desc, kin):
+    result, sim, _ = run(desc, kin, cell(5, destination=(0.9, -0.6)))
+    assert not result.success and result.failure_kind == "ik"
+    assert "above_destination" in result.message and "IK failed" in result.message
+    assert "waypoint" in result.message
+
+
+def test_tiny_clearance_fails_the_insertion_with_best_depth(desc, kin):
+    result, sim, robot = run(desc, kin, cell(6, hole_radius=0.008 + 0.00005))
+    assert not result.success and result.failure_kind == "insertion"
+    assert "insertion not achieved in 20 s (best depth" in result.message
+    assert result.step_names.count("insert") == 2      # retried once with a new pattern
+    assert not sim.world.on_peg("destination")
+
+
+def test_cancel_mid_insertion_holds(desc, kin):
+    # the insertion starts ~21 s into the task (simulated): cancel inside it
+    result, sim, robot = run(desc, kin, cell(7, hole_radius=0.008 + 0.00005), cancel_at=24.0)
+    assert not result.success
+    assert result.message == "cancelled during insert"
+    assert robot.held == 1
+    t_cancel = sim.time
+    n = len(robot.commands)
+    robot.sleep(0.5)
+    assert len(robot.commands) == n and t_cancel >= 24.0   # nothing commanded after
+
+
+def test_ready_and_rest(desc, kin):
+    result, sim, _ = run(desc, kin, cell(1), task="rest")
+    assert result.success, result.message
+    assert sim.position[1] == pytest.approx(np.pi / 2, abs=0.02)
+    result, sim, _ = run(desc, kin, cell(1), task="ready")
+    assert result.success, result.message
+
+
+def test_grasp_missed_is_retried_then_reported(desc, kin):
+    sim = JointSim(desc, cell(8))
+    robot = SimRobot(sim)
+    wrong = np.eye(4)
+    wrong[:3, 3] = (0.35, 0.16, -0.185)          # 4 cm beside the block: nothing to grasp
+    robot.given["block"] = wrong
+    result = Runner(robot, kin, load_task("block_transfer", desc)).run()
+    assert not result.success and result.failure_kind == "grasp"
+    assert "step 'close' (gripper) failed: grasp missed" in result.message
+    assert result.step_names.count("close") == 2             # re-detect and re-grasp once
+    assert sim.world.on_peg("source")
+
+
+def test_grasp_lost_while_carrying(desc, kin):
+    sim = JointSim(desc, cell(9))
+    robot = SimRobot(sim)
+    # the gripper servo overloads during the lift (about 14 s in): it drops its torque
+    robot.at_time.append((14.5, lambda s: s.inject_error("gripper", "overload")))
+    result = Runner(robot, kin, load_task("block_transfer", desc)).run()
+    assert not result.success
+    assert any("grasp lost" in m for _lvl, m in robot.logs), robot.logs
+    # the retry (re-detect and re-grasp) cannot open a gripper in fault: the driver's reason
+    assert result.failure_kind == "driver"
+    assert result.message == ("step 'open' (gripper) failed: driver refused: hardware error "
+                              "gripper: overload")
+
+
+def test_torque_off_and_joint_fault_fail_with_the_drivers_reason(desc, kin):
+    sim = JointSim(desc, cell(1))
+    sim.set_torque(False)
+    robot = SimRobot(sim)
+    result = Runner(robot, kin, load_task("rest", desc)).run()
+    assert not result.success and result.failure_kind == "driver"
+    assert "driver refused: torque off on gripper" in result.message
+    sim = JointSim(desc, cell(1))
+    sim.inject_error("joint5", "overload")
+    result = Runner(SimRobot(sim), kin, load_task("ready", desc)).run()
+    assert not result.success and result.failure_kind == "driver"
+    assert "hardware error joint5: overload" in result.message
