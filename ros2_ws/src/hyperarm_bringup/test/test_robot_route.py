@@ -65,9 +65,10 @@ ROSDEP_OF = {"numpy": "python3-numpy", "yaml": "python3-yaml", "pinocchio": "pin
              "eigenpy": "pinocchio", "coal": "coal", "dynamixel_sdk": "dynamixel_sdk",
              "serial": "python3-serial", "pytest": "python3-pytest",
              "hypothesis": "python3-hypothesis", "launch": "launch",
-             "launch_ros": "launch_ros"}
-PIP_OF = {"dls_pmaclib": "dls-pmaclib", "viser": "viser"}
-BENCH_ONLY = {"matplotlib", "ikpy", "pytracik"}  # requirements-bench.txt, never at run time
+             "launch_ros": "launch_ros", "jsonschema": "python3-jsonschema",
+             "matplotlib": "python3-matplotlib"}
+PIP_OF = {"dls_pmaclib": "dls-pmaclib", "mcap": "mcap", "mcap_ros2": "mcap-ros2-support"}
+BENCH_ONLY = {"ikpy", "pytracik"}  # requirements-bench.txt, never at run time
 
 
 def _imports(source: Path) -> set[str]:
