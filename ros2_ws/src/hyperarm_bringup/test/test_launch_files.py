@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-pytestmark = pytest.mark.core
+pytestmark = pytest.mark.e2e  # runs the installed executables (--help)
 
 PKG = Path(__file__).resolve().parents[1]
 SRC = PKG.parent

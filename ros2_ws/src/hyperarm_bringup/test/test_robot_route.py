@@ -67,9 +67,8 @@ ROSDEP_OF = {"numpy": "python3-numpy", "yaml": "python3-yaml", "pinocchio": "pin
              "hypothesis": "python3-hypothesis", "launch": "launch",
              "launch_ros": "launch_ros", "jsonschema": "python3-jsonschema",
              "matplotlib": "python3-matplotlib"}
-PIP_OF = {"dls_pmaclib": "dls-pmaclib", "viser": "viser", "mcap": "mcap",
-          "mcap_ros2": "mcap-ros2-support"}
-BENCH_ONLY = {"matplotlib", "ikpy", "pytracik"}  # requirements-bench.txt, never at run time
+PIP_OF = {"dls_pmaclib": "dls-pmaclib", "mcap": "mcap", "mcap_ros2": "mcap-ros2-support"}
+BENCH_ONLY = {"ikpy", "pytracik"}  # requirements-bench.txt, never at run time
 
 
 def _imports(source: Path) -> set[str]:
