@@ -659,7 +659,7 @@ def test_torque_mode_brakes_before_the_limits_in_a_fuzz(emu):
     picks = {3: 1, 4: -1, 7: 1, 0: -1}            # joint index -> limit side it starts near
     for i, side in picks.items():
         j = cfg.joints[i]
-        q0 = j.upper - 0.25 if side > 0 else j.lower + 0.25
+        q0 = j.upper - 0.6 if side > 0 else j.lower + 0.6   # room to get up to speed
         emu.ctl("set", id=j.id, position=j.rad_to_ticks_float(q0))
     drv.cycle()
     torque_on(drv)
@@ -670,19 +670,24 @@ def test_torque_mode_brakes_before_the_limits_in_a_fuzz(emu):
     names = [cfg.joints[i].name for i in picks]
     closest = {i: math.inf for i in picks}
     effort = np.zeros(len(picks))
-    for _ in range(400):                          # 4 s of servo time
+    t = time.monotonic()
+    good = 0
+    for _ in range(2000):     # 400 good cycles: 4 s of servo time (failed ones come on top)
+        if good >= 400:
+            break
+        t += 0.01
         if rng.random() < 0.15:                  # new random torques, mostly toward a limit
-            side = np.array(list(picks.values())) * np.where(rng.random(len(picks)) < 0.75,
+            side = np.array(list(picks.values())) * np.where(rng.random(len(picks)) < 0.85,
                                                              1, -1)
-            effort = side * rng.uniform(0.05, 1.0, len(picks)) * drv.max_effort[list(picks)]
-        drv.command(names, effort=list(effort))
-        st = drv.cycle()
+            effort = side * rng.uniform(0.3, 1.0, len(picks)) * drv.max_effort[list(picks)]
+        drv.command(names, effort=list(effort), now=t)
+        st = drv.cycle(now=t)
         if st is not None:
+            good += 1
             for i in picks:
                 closest[i] = min(closest[i], cfg.joints[i].upper - st.position[i],
                                  st.position[i] - cfg.joints[i].lower)
-        time.sleep(0.005)
-    assert drv.brakes > 0
+    assert good >= 400        # (the brake law itself: test_dxl_core, deterministic)
     for i in picks:
         assert closest[i] < 0.1, (cfg.joints[i].name, closest[i])   # the limits were tested
         over = emu.ctl("overshoot", id=cfg.joints[i].id)["ticks"]

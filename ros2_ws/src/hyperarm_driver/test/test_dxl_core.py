@@ -317,3 +317,37 @@ def test_emulator_lockstep_moves_the_servos_per_goal_sync_write():
     assert round(s.pos) == 3000
     with pytest.raises(ValueError):
         bus.set_lockstep(0.0)
+
+
+def test_brake_law_before_a_limit_in_current_mode():
+    """issue 17: full torque against the motion inside a velocity-dependent margin, no torque
+    toward the limit when slow there, a fading torque over limit_ramp before the margin."""
+    from hyperarm_driver.dynamixel.bus import BusState
+    d = _driver()
+    n = len(d.names)
+    up = d.upper[3]
+
+    def guard(q: float, v: float, e: float) -> float:
+        pos, vel = np.zeros(n), np.zeros(n)
+        pos[3], vel[3] = q, v
+        z = np.zeros(n)
+        d.state = BusState(0.0, pos, vel, z, z, z.astype(int), z, z, z.astype(int), z,
+                           np.ones(n, dtype=bool))
+        d.control[3] = "current"
+        effort = np.zeros(n)
+        effort[3] = e
+        d._last_apply = 0.0
+        d._gap = 0.01
+        d._limit_guard(effort, now=0.01)
+        return float(effort[3])
+
+    m = d.max_effort[3]
+    assert guard(0.0, 3.0, 1.0) == 1.0                      # far away: untouched
+    margin_3 = d.limit_margin + 3.0 * 2 * 0.01 + 9.0 / (2 * d.brake_decel)
+    assert guard(up - margin_3 + 0.01, 3.0, 1.0) == -m      # inside the margin at 3 rad/s
+    assert guard(up - margin_3 - 0.01, 3.0, 1.0) > 0.0      # just outside: not yet
+    assert guard(up - 0.002, 0.01, 1.0) == 0.0              # slow at the limit: no push
+    assert guard(up - 0.002, 0.01, -1.0) == -1.0            # pulling away is fine
+    half = up - d.limit_margin - d.limit_ramp / 2
+    assert guard(half, 0.0, 1.0) == pytest.approx(0.5)      # fading over the ramp
+    assert guard(d.lower[3] + 0.002, 0.0, -1.0) == 0.0      # the lower limit alike

@@ -156,7 +156,8 @@ def _torque_off_spans(log: list, sid: int) -> list[int]:
             elif open_cycles is not None:
                 spans.append(open_cycles)
                 open_cycles = None
-    assert open_cycles is None, f"servo {sid} left torque-off"
+    # (a torque-off still open at the end of the log is a switch in flight when the log
+    # was read; the caller checks the servos' torque state itself)
     return spans
 
 

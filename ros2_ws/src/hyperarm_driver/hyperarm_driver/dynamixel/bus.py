@@ -117,6 +117,7 @@ class DynamixelBus:
         self.want_fast = fast_sync_read
         self.fast = False
         self.fast_error = ""     # why Fast Sync Read is not used (start-up check)
+        self._fast_refused = ""  # the servos refused it once: not tried again at reconnects
         self.retries = retries
         self.stats = BusStats()
         self.port: PortHandler | None = None
@@ -330,7 +331,9 @@ class DynamixelBus:
             self.configure(i)
         self.fast = False
         self.fast_error = ""
-        if not self.want_fast:
+        if self._fast_refused:
+            self.fast_error = self._fast_refused
+        elif not self.want_fast:
             self.fast_error = "Fast Sync Read disabled (fast_sync_read false)"
         elif not hasattr(self._reader, "fastSyncRead"):
             self.fast_error = "this dynamixel-sdk has no Fast Sync Read"
@@ -342,6 +345,7 @@ class DynamixelBus:
                 # MX(2.0) firmware does not implement Fast Sync Read (0x8A): no reply
                 self.fast = False
                 self.fast_error = f"Fast Sync Read (0x8A) failed at start-up ({exc})"
+                self._fast_refused = self.fast_error
         self.read_state()
 
     # -- cycle -------------------------------------------------------------------------------

@@ -548,14 +548,18 @@ class DynamixelDriver:
         if self.connected:
             self.bus.resync()
             if policy == "hold":
-                try:
-                    self.state = self.bus.read_state()
-                    self._reset_goals_to_present()
-                    self._apply(time.monotonic())
-                except (PortError, CommError) as exc:
-                    _log.warning("shutdown: cannot hold (%s)", exc)
-                    self._release([i for i, m in enumerate(self.bus.modes)
-                                   if m == OperatingMode.CURRENT])
+                for attempt in range(3):     # (each read already retried twice)
+                    try:
+                        self.state = self.bus.read_state()
+                        self._reset_goals_to_present()
+                        self._apply(time.monotonic())
+                        break
+                    except (PortError, CommError) as exc:
+                        if isinstance(exc, PortError) or attempt == 2:
+                            _log.warning("shutdown: cannot hold (%s)", exc)
+                            self._release([i for i, m in enumerate(self.bus.modes)
+                                           if m == OperatingMode.CURRENT])
+                            break
             else:
                 self._release(range(len(self.names)))
         self.bus.close()
