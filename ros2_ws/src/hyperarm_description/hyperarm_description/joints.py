@@ -74,3 +74,15 @@ def check_command(names: Sequence[str], values: Sequence[float], known: Iterable
     if bad:
         raise JointStateError(f"non-finite {label} for {bad}")
     return {n: float(v) for n, v in zip(names, values)}
+
+
+def velocity_problem(names: Sequence[str], velocity: Sequence[float]) -> str | None:
+    """What is wrong with a command's ``velocity`` array, or None. No driver commands
+    velocities, but a message is judged whole: a ``velocity`` that is not empty must have one
+    finite value per name, else the message is malformed and rejected like any other."""
+    if len(velocity) == 0:
+        return None
+    if len(velocity) != len(names):
+        return f"velocity: {len(velocity)} values for {len(names)} joint names"
+    bad = [n for n, v in zip(names, velocity) if not math.isfinite(float(v))]
+    return f"non-finite velocity for {bad}" if bad else None

@@ -45,3 +45,13 @@ def test_check_command_accepts_valid():
 def test_check_command_rejects(names, values, msg):
     with pytest.raises(JointStateError, match=msg):
         check_command(names, values, ["joint1", "joint2"])
+
+
+def test_velocity_problem_judges_the_whole_message():
+    from hyperarm_description.joints import velocity_problem
+
+    assert velocity_problem(["joint1"], []) is None                 # no velocities: fine
+    assert velocity_problem(["joint1", "rail"], [0.0, 1.5]) is None
+    assert "3 values for 1" in velocity_problem(["joint1"], [0.0, 0.0, 0.0])
+    assert "rail" in velocity_problem(["joint1", "rail"], [0.0, float("nan")])
+    assert "joint1" in velocity_problem(["joint1"], [float("inf")])

@@ -12,6 +12,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
 
 from hyperarm_description import contract
+from hyperarm_description.joints import velocity_problem
 from hyperarm_description.model import DescriptionError, load_description
 from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import run_node
@@ -148,6 +149,8 @@ class DynamixelDriverNode(Node):
 
     def _on_command(self, msg: JointState) -> None:
         try:
+            if (problem := velocity_problem(msg.name, msg.velocity)):
+                raise CommandError(problem, "velocity")
             report = self._drv.command(list(msg.name), list(msg.position), list(msg.effort))
         except CommandError as exc:
             self.rejected_commands += 1

@@ -30,7 +30,8 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
 
 from hyperarm_description import contract
-from hyperarm_description.joints import JointStateError
+from hyperarm_description.joints import JointStateError, velocity_problem
+from hyperarm_description.log_throttle import ReasonThrottle
 from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import declare_robot_description, run_node
 from hyperarm_interfaces.msg import Detections
@@ -97,6 +98,7 @@ class MockDriver(Node):
     def __init__(self, **kwargs) -> None:  # kwargs: rclpy Node options (context, overrides)
         kwargs.setdefault("namespace", contract.DEFAULT_NAMESPACE)
         super().__init__("mock_driver", **kwargs)
+        self._throttle = ReasonThrottle(1.0)
         desc = declare_robot_description(self)
         p = self._declare_parameters()
         try:
@@ -288,17 +290,20 @@ class MockDriver(Node):
     # -- commands and services --------------------------------------------------------------
     def _on_command(self, msg: JointState) -> None:
         try:
+            if (problem := velocity_problem(msg.name, msg.velocity)):
+                raise JointStateError(problem)
             with self._lock:
                 report = self._sim.command(list(msg.name), list(msg.position),
                                            list(msg.effort))
         except (JointStateError, MockError) as exc:
             if self._sim.rail in msg.name:
                 self._stats.rejected_setpoints += 1
-            self.get_logger().error(f"joint_command rejected: {exc}", throttle_duration_sec=1.0)
+            if (text := self._throttle.message(f"joint_command rejected: {exc}")):
+                self.get_logger().error(text)    # per reason: a new kind is never hidden
             return
-        if report.clamped:
-            self.get_logger().warn(f"joint_command clamped to limits: {list(report.clamped)}",
-                                   throttle_duration_sec=1.0)
+        if report.clamped and (text := self._throttle.message(
+                f"joint_command clamped to limits: {list(report.clamped)}")):
+            self.get_logger().warn(text)
 
     def _on_set_torque(self, req: SetBool.Request, res: SetBool.Response) -> SetBool.Response:
         def action(enable: bool) -> None:

@@ -14,6 +14,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
 
 from hyperarm_description import contract
+from hyperarm_description.joints import velocity_problem
 from hyperarm_description.model import DescriptionError, load_description
 from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import run_node
@@ -139,7 +140,8 @@ class PmacRailDriver(Node):
         if self._joint not in names:
             return                     # other drivers' joints
         try:
-            problem = check_command(names, msg.position, msg.effort, self._joint)
+            problem = (check_command(names, msg.position, msg.effort, self._joint)
+                       or velocity_problem(names, msg.velocity))
             if problem:
                 self._driver.reject(problem)
             self._driver.set_target(msg.position[names.index(self._joint)])

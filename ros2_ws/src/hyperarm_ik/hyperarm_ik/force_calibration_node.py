@@ -12,6 +12,7 @@ import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
+from hyperarm_description.log_throttle import ReasonThrottle
 from hyperarm_description import contract
 from hyperarm_description.joints import JointStateCache, JointStateError
 from hyperarm_description.params import NonEmpty, ParamSpec, Range, declare_parameters
@@ -44,6 +45,7 @@ class CalibrationNode(Node):
     def __init__(self, **kwargs) -> None:
         kwargs.setdefault("namespace", contract.DEFAULT_NAMESPACE)
         super().__init__("hybrid_force_calibrate", **kwargs)
+        self._log_throttle = ReasonThrottle(5.0)  # per reason, not per call site
         desc = declare_robot_description(self)
         self._p = declare_parameters(self, PARAMETERS)
         self._kin = Kinematics(desc)
@@ -64,7 +66,8 @@ class CalibrationNode(Node):
         try:
             self._cache.update(msg.name, msg.position, msg.velocity, msg.effort)
         except JointStateError as exc:
-            self.get_logger().warn(f"joint_states ignored: {exc}", throttle_duration_sec=5.0)
+            if (text := self._log_throttle.message(f"joint_states ignored: {exc}")):
+                self.get_logger().warn(text)
             return
         names = self._kin.joint_names
         if not self._cache.has(names) or not all(n in self._cache.effort for n in self._arm):

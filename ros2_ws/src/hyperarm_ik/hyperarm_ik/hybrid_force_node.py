@@ -18,6 +18,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
 
+from hyperarm_description.log_throttle import ReasonThrottle
 from hyperarm_description import contract
 from hyperarm_description.params import Range
 from hyperarm_description.joints import JointStateCache, JointStateError
@@ -42,6 +43,7 @@ class HybridForceNode(Node):
     def __init__(self, **kwargs) -> None:   # kwargs: rclpy Node options (context, overrides)
         kwargs.setdefault("namespace", contract.DEFAULT_NAMESPACE)
         super().__init__("hybrid_force", **kwargs)
+        self._log_throttle = ReasonThrottle(5.0)  # per reason, not per call site
         desc = declare_robot_description(self)
         p = self._declare()
         try:
@@ -137,7 +139,8 @@ class HybridForceNode(Node):
         try:
             self._cache.update(msg.name, msg.position, msg.velocity, msg.effort)
         except JointStateError as exc:
-            self.get_logger().warn(f"joint_states ignored: {exc}", throttle_duration_sec=5.0)
+            if (text := self._log_throttle.message(f"joint_states ignored: {exc}")):
+                self.get_logger().warn(text)
             return
         if any(n in self._ctl.arm_names for n in msg.name):
             self._state_time = self._now()          # staleness counts from the arrival
@@ -157,7 +160,8 @@ class HybridForceNode(Node):
         try:
             out, event = self._ctl.step(self._now(), q, dq, effort, self._state_time)
         except ForceError as exc:
-            self.get_logger().warn(f"control cycle skipped: {exc}", throttle_duration_sec=5.0)
+            if (text := self._log_throttle.message(f"control cycle skipped: {exc}")):
+                self.get_logger().warn(text)
             return
         self._compute_time = time.perf_counter() - t0
         if out.positions is not None or out.efforts is not None:
@@ -177,7 +181,8 @@ class HybridForceNode(Node):
             list(msg.force_controlled),
             [w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z])
         if goal is None and event is None:
-            self.get_logger().warn("hybrid_goal ignored: not enabled", throttle_duration_sec=5.0)
+            if (text := self._log_throttle.message("hybrid_goal ignored: not enabled")):
+                self.get_logger().warn(text)
         self._handle(event)
 
     def _check_stale(self) -> None:

@@ -24,6 +24,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
 
+from hyperarm_description.log_throttle import ReasonThrottle
 from hyperarm_description import contract
 from hyperarm_description.joints import JointStateCache, JointStateError
 from hyperarm_description.model import RobotDescription
@@ -49,6 +50,7 @@ def pose_to_matrix(pose) -> np.ndarray:
 class RosRobot:
     def __init__(self, node: Node, desc: RobotDescription) -> None:
         self.node, self.desc = node, desc
+        self._log_throttle = ReasonThrottle(5.0)  # per reason: a new kind is never hidden
         self.detections = DetectionBuffer(camera_pose(desc))
         self._lock = threading.Lock()
         self._cache = JointStateCache()
@@ -83,7 +85,8 @@ class RosRobot:
             with self._lock:
                 self._cache.update(msg.name, msg.position, msg.velocity, msg.effort)
         except JointStateError as exc:
-            self.node.get_logger().warn(f"joint_states ignored: {exc}", throttle_duration_sec=5.0)
+            if (text := self._log_throttle.message(f"joint_states ignored: {exc}")):
+                self.node.get_logger().warn(text)
 
     def _on_detections(self, msg: Detections) -> None:
         if msg.header.frame_id and msg.header.frame_id != self.desc.camera.frame:
@@ -94,7 +97,8 @@ class RosRobot:
         try:
             poses = [pose_to_matrix(p) for p in msg.poses]
         except ValueError as exc:
-            self.node.get_logger().warn(f"detections ignored: {exc}", throttle_duration_sec=5.0)
+            if (text := self._log_throttle.message(f"detections ignored: {exc}")):
+                self.node.get_logger().warn(text)
             return
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         self.detections.add(stamp, list(msg.names), poses)
