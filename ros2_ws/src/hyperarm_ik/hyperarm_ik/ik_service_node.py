@@ -22,6 +22,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from hyperarm_description import contract
+from hyperarm_description.log_throttle import ReasonThrottle
 from hyperarm_description.joints import JointStateError
 from hyperarm_description.model import VARIANTS, DescriptionError, load_description
 from hyperarm_description.params import OneOf, ParamSpec, Range, declare_parameters
