@@ -27,7 +27,7 @@ setup(
         "console_scripts": [
             "task_node = hyperarm_tasks.entry:task_node",
             "run_task = hyperarm_tasks.run_task:main",
-            "task_recorder = hyperarm_tasks.recorder_node:main",
+            "task_recorder = hyperarm_tasks.entry:task_recorder",
             "plot_task = hyperarm_tasks.plots:main",
             "soak_block_transfer = hyperarm_tasks.benchmarks.soak:main",
         ],
