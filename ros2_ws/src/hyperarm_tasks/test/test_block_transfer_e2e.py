@@ -85,9 +85,12 @@ def test_unreachable_destination_fails_with_the_waypoint(executable, ros_domain,
 def test_sigint_twice_mid_task_cancels_and_leaves_no_process(executable, ros_domain, tmp_path):
     logs = tmp_path / "logs"
     env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain), PYTHONUNBUFFERED="1")
+    # As from a user's shell: SIGINT not ignored. A shell started with SIGINT ignored (e.g.
+    # by a parent that ignores it) cannot trap it, so the Ctrl-C would never reach the task.
     proc = subprocess.Popen([_script(executable), "--logs", str(logs), "block_transfer"],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, start_new_session=True)
+                            text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     lines = []
     deadline = time.monotonic() + 90
     for line in proc.stdout:
