@@ -13,11 +13,12 @@ from hyperarm_description.qos import qos_for
 pytestmark = pytest.mark.e2e
 
 
-def test_a_new_kind_of_rejection_is_logged_at_once(launch, rclpy_context, executor, wait_for):
+def _mock_and_probe(launch, rclpy_context, executor, wait_for, name):
+    """The installed mock_driver, a joint_command publisher and the joint_states seen."""
     from rclpy.node import Node
 
     mock = launch("hyperarm_driver", "mock_driver")
-    node = Node("log_probe", namespace=contract.DEFAULT_NAMESPACE, context=rclpy_context)
+    node = Node(name, namespace=contract.DEFAULT_NAMESPACE, context=rclpy_context)
     executor.add_node(node)
     pub = node.create_publisher(JointState, contract.JOINT_COMMAND,
                                 qos_for(contract.JOINT_COMMAND))
@@ -26,6 +27,11 @@ def test_a_new_kind_of_rejection_is_logged_at_once(launch, rclpy_context, execut
                              qos_for(contract.JOINT_STATES))
     wait_for(lambda: states and pub.get_subscription_count() > 0, 30.0,
              what="mock up and subscribed")
+    return mock, pub, states
+
+
+def test_a_new_kind_of_rejection_is_logged_at_once(launch, rclpy_context, executor, wait_for):
+    mock, pub, _states = _mock_and_probe(launch, rclpy_context, executor, wait_for, "log_probe")
 
     def send(names, positions):
         pub.publish(JointState(name=names, position=positions))
@@ -44,17 +50,7 @@ def test_a_new_kind_of_rejection_is_logged_at_once(launch, rclpy_context, execut
 
 
 def test_a_bad_velocity_rejects_the_whole_command(launch, rclpy_context, executor, wait_for):
-    from rclpy.node import Node
-
-    mock = launch("hyperarm_driver", "mock_driver")
-    node = Node("vel_probe", namespace=contract.DEFAULT_NAMESPACE, context=rclpy_context)
-    executor.add_node(node)
-    pub = node.create_publisher(JointState, contract.JOINT_COMMAND,
-                                qos_for(contract.JOINT_COMMAND))
-    states: list[JointState] = []
-    node.create_subscription(JointState, contract.JOINT_STATES, states.append,
-                             qos_for(contract.JOINT_STATES))
-    wait_for(lambda: states and pub.get_subscription_count() > 0, 30.0, what="mock up")
+    mock, pub, states = _mock_and_probe(launch, rclpy_context, executor, wait_for, "vel_probe")
     start = states[-1].position[0]
     # one at a time: joint_command keeps only the newest message (depth 1)
     pub.publish(JointState(name=["joint1"], position=[start + 0.3], velocity=[float("nan")]))
