@@ -148,8 +148,10 @@ def launch(ros_domain: int, tmp_path: Path):
         full_env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain), PYTHONUNBUFFERED="1",
                         ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", **(env or {}))
         with open(log, "wb") as fh:
+            # cwd: the test's own directory (a node's relative output, e.g. the recorder's
+            # task.mcap, must not land in the repository)
             proc = subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, env=full_env,
-                                    start_new_session=True)
+                                    start_new_session=True, cwd=tmp_path)
         item = Launched(proc, log)
         started.append(item)
         return item

@@ -89,14 +89,27 @@ class HyperarmClient:
         return out
 
     def diagnostics(self, timeout: float) -> dict[str, Any]:
-        """name -> the newest DiagnosticStatus of every hyperarm component heard within
-        ``timeout``."""
+        """name -> the newest DiagnosticStatus of every hyperarm component on /diagnostics.
+
+        Listens until ``timeout`` s have passed since the last publisher of /diagnostics was
+        discovered (DDS discovery of a fresh process takes a moment and must not eat a
+        node's listening window), at most three times ``timeout`` in all.
+        """
         out: dict[str, Any] = {}
         sub = self.node.create_subscription(
             DiagnosticArray, contract.DIAGNOSTICS,
             lambda m: out.update({s.name: s for s in m.status}), qos_for(contract.DIAGNOSTICS))
-        self._spin_until(lambda: False, timeout)
-        self.node.destroy_subscription(sub)
+        start = time.monotonic()
+        deadline, known = start + timeout, 0
+        try:
+            while time.monotonic() < min(deadline, start + 3 * timeout):
+                rclpy.spin_once(self.node, timeout_sec=0.05)
+                count = self.node.count_publishers(contract.DIAGNOSTICS)
+                if count > known:
+                    deadline = time.monotonic() + timeout
+                known = count
+        finally:
+            self.node.destroy_subscription(sub)
         if not out:
             raise ClientError(f"no /diagnostics within {timeout:g} s: is a node running "
                               f"({_where()})?")

@@ -212,6 +212,13 @@ def run(step: ForceInsert, runner) -> None:
                             min((now - t0) / step.timeout, 0.99), goal[:3, 3], depth)
             if done_ticks >= 10:
                 _check_on_axis(step, runner)
+                if not use_force:
+                    # The peg holds the block where the hole found it: the servos deflect
+                    # the tool off the dither's last x-y. Later steps that keep x-y (down
+                    # the peg) start from the measured x-y, so no side load jams the block.
+                    found = goal.copy()
+                    found[:2, 3] = runner.tool_measured()[:2, 3]
+                    runner.tool_target = found
                 runner.metrics["insertion_time"] = now - (t_contact or t0)
                 runner.metrics["insertion_depth"] = depth
                 runner.metrics["dither_turns"] = dither.turns
