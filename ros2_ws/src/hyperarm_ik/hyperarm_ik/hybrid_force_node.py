@@ -224,13 +224,32 @@ class HybridForceNode(Node):
             self.get_logger().warn(event.message)
         else:
             self.get_logger().info(event.message)
-        if event.hold:
+        if event.hold and event.kind != "stale" and self._hold_arm_here():
+            pass
+        elif event.hold:
             if self._hold.service_is_ready():
                 self._hold.call_async(Trigger.Request())
             else:
                 self.get_logger().error(f"driver's {contract.HOLD} service not available: "
                                         "the arm keeps its last command")
         self._publish_diagnostics()
+
+    def _hold_arm_here(self) -> bool:
+        """Hold the ARM joints where they are (one position command) from fresh joint
+        states; False if they are not fresh. Not the driver's hold service: that holds every
+        joint where it is, the gripper too, whose fingers then stop squeezing a held block
+        (and, called asynchronously, it landed after the task's next commands)."""
+        names, c = self._ctl.arm_names, self._cache
+        fresh = (self._state_time is not None and c.has(names)
+                 and self._now() - self._state_time <= self._ctl.config.stale_timeout)
+        if not fresh:
+            return False
+        cmd = JointState()
+        cmd.header.stamp = self.get_clock().now().to_msg()
+        cmd.name = list(names)
+        cmd.position = [float(c.position[n]) for n in names]
+        self._cmd.publish(cmd)
+        return True
 
     def _publish_wrench(self, out: Output, stamp) -> None:
         msg = WrenchStamped()

@@ -31,14 +31,24 @@ def _commands_since(probe: ForceProbe, t: float) -> list:
         return [m for (tt, m) in probe.commands if tt > t]
 
 
+def _held_here(probe, since: float) -> list[tuple[float, object]]:
+    """The node's arm-only holds after ``since``: position commands without efforts, at the
+    present (measured) positions; not the driver's hold service, which would end the
+    gripper's squeeze on a held block."""
+    with probe.lock:
+        return [(t, m) for (t, m) in probe.commands if t > since and not list(m.effort)
+                and np.abs(np.array(m.position) - probe.q).max() < 1e-9]
+
+
 def _wait_mode(probe, wait_for, mode: str, timeout: float = 5.0):
     return wait_for(lambda: probe.mode() == mode, timeout, what=f"mode {mode}")
 
 
 def test_passive_rules_with_a_scripted_driver(launch, rclpy_context, executor, wait_for, kin):
-    """Enable from the present pose; each bad goal refused (passive, hold called once, no
-    more commands); stale joint_states passive within 0.2 s; a joint near its limit
-    passive; disable holds once; goals while disabled ignored."""
+    """Enable from the present pose; each bad goal refused (passive, the arm held once where
+    it is, no more commands); stale joint_states passive within 0.2 s (the driver's hold
+    called once); a joint near its limit passive; disable holds the arm once; goals while
+    disabled ignored."""
     proc = launch("hyperarm_ik", "hybrid_force", params={"diagnostics_period": 0.2})
     probe = ForceProbe(rclpy_context, executor, wait_for, driver=True)
     try:
@@ -61,7 +71,9 @@ def _passive_rules(probe, proc, wait_for, kin) -> None:
     res = probe.enable(True)
     assert res.success, res.message
     wait_for(lambda: len(probe.commands) > 5, 5.0, what="joint_command while enabled")
+    t_disable = time.monotonic()
     assert probe.enable(False).success
+    wait_for(lambda: _held_here(probe, t_disable), 5.0, what="disable holds the arm where it is")
     first = probe.commands[0][1]
     assert list(first.name) == list(contract.ARM_JOINTS)          # arm joints only
     # position output from the present pose: no jump
@@ -78,23 +90,24 @@ def _passive_rules(probe, proc, wait_for, kin) -> None:
         dict(position=[2.0, 0.0, 0.0], rotation=r, stiffness=STIFF),
     ]
     def refused(goal) -> bool:
-        """Send a bad goal: passive with the refusal, one hold, silence. False if the
-        probe itself was too starved to keep joint_states fresh (the node then rightly
-        went passive as stale first): the caller retries."""
+        """Send a bad goal: passive with the refusal, the arm held once where it is,
+        silence. False if the probe itself was too starved to keep joint_states fresh (the
+        node then rightly went passive as stale first): the caller retries."""
         assert probe.enable(True).success
         wait_for(lambda: probe.mode() == "active", 5.0, what="active")
-        holds = len(probe.hold_calls)
+        holds, t_goal = len(probe.hold_calls), time.monotonic()
         probe.send_goal(**goal)
         _wait_mode(probe, wait_for, "passive")
-        wait_for(lambda: len(probe.hold_calls) > holds, 5.0, what="a hold call")
-        t_passive = time.monotonic()
-        time.sleep(0.15)
         reason = probe.statuses[-1][1]["reason"]
         if "stale" in reason:
             return False
         assert "goal refused" in reason, reason
-        assert not _commands_since(probe, t_passive + 0.02), goal  # stopped publishing
-        assert len(probe.hold_calls) == holds + 1, goal            # hold called once
+        wait_for(lambda: _held_here(probe, t_goal), 5.0, what="the arm held where it is")
+        t_held = _held_here(probe, t_goal)[0][0]
+        time.sleep(0.15)
+        assert _commands_since(probe, t_held) == [], goal         # then stopped publishing
+        assert len(_held_here(probe, t_goal)) == 1, goal          # held once
+        assert len(probe.hold_calls) == holds, goal                # not the driver's hold
         return True
 
     for goal in bad_goals:
@@ -131,12 +144,13 @@ def _passive_rules(probe, proc, wait_for, kin) -> None:
     probe.driving = True
     time.sleep(0.1)
     assert probe.enable(True).success
-    holds = len(probe.hold_calls)
+    holds, t_near = len(probe.hold_calls), time.monotonic()
     q = Q_SAFE.copy()
     q[4] = kin.upper[4] - 0.01
     probe.q = q
     _wait_mode(probe, wait_for, "passive")
-    wait_for(lambda: len(probe.hold_calls) == holds + 1, 5.0, what="hold at the limit")
+    wait_for(lambda: _held_here(probe, t_near), 5.0, what="the arm held at the limit")
+    assert len(probe.hold_calls) == holds
     assert "joint5" in probe.statuses[-1][1]["reason"]
     res = probe.enable(True)                                  # refused there
     assert not res.success and "joint5" in res.message
@@ -145,12 +159,12 @@ def _passive_rules(probe, proc, wait_for, kin) -> None:
     probe.q = Q_SAFE.copy()
     time.sleep(0.1)
     assert probe.enable(True).success
-    holds = len(probe.hold_calls)
+    holds, t_disable = len(probe.hold_calls), time.monotonic()
     assert probe.enable(False).success
-    wait_for(lambda: len(probe.hold_calls) == holds + 1, 5.0, what="hold at disable")
-    t_off = time.monotonic()
+    wait_for(lambda: _held_here(probe, t_disable), 5.0, what="the arm held at disable")
+    t_off = _held_here(probe, t_disable)[0][0]
     time.sleep(0.2)
-    assert not _commands_since(probe, t_off + 0.02)
+    assert not _commands_since(probe, t_off) and len(probe.hold_calls) == holds
     assert "Traceback" not in proc.output()
 
 
