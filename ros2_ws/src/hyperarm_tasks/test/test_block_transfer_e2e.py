@@ -24,26 +24,14 @@ def _script(executable) -> str:
     return os.path.join(os.path.dirname(executable("hyperarm_tasks", "run_task")), "run_task.sh")
 
 
-def _alive(logs: Path) -> list[str]:
-    out = []
-    for line in (logs / "pids").read_text().split("\n"):
-        if line.strip():
-            name, pid = line.split()
-            try:
-                os.kill(int(pid), 0)
-                out.append(f"{name} ({pid})")
-            except ProcessLookupError:
-                pass
-    return out
-
-
 def _run(script, args, ros_domain, timeout):
     env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain), PYTHONUNBUFFERED="1")
     return subprocess.run([script, *args], env=env, capture_output=True, text=True,
                           timeout=timeout)
 
 
-def test_two_cycles_there_and_back_recorded_and_plotted(executable, ros_domain, tmp_path):
+def test_two_cycles_there_and_back_recorded_and_plotted(executable, ros_domain, tmp_path,
+                                                        still_running):
     logs, rec = tmp_path / "logs", tmp_path / "run.mcap"
     done = _run(_script(executable), ["--seed", "21", "--logs", str(logs), "--record", str(rec),
                                       "block_transfer", "block_transfer_back"], ros_domain, 170)
@@ -52,7 +40,7 @@ def test_two_cycles_there_and_back_recorded_and_plotted(executable, ros_domain, 
     assert out.count("run_task: succeeded") == 2, out
     for step in ("[8/12] insert (force_insert)", "[12/12] ready_end"):
         assert step in out
-    assert _alive(logs) == []
+    assert still_running(logs) == []
     from hyperarm_tasks.recording import read_recording
     topics = {t for t, _, _ in read_recording(rec)}
     assert {"/hyperarm/joint_states", "/hyperarm/joint_command", "/hyperarm/detections",
@@ -64,7 +52,8 @@ def test_two_cycles_there_and_back_recorded_and_plotted(executable, ros_domain, 
         assert (tmp_path / "png" / name).stat().st_size > 10_000
 
 
-def test_unreachable_destination_fails_with_the_waypoint(executable, ros_domain, tmp_path):
+def test_unreachable_destination_fails_with_the_waypoint(executable, ros_domain, tmp_path,
+                                                         still_running):
     from ament_index_python.packages import get_package_share_directory
     cell = yaml.safe_load(open(Path(get_package_share_directory("hyperarm_driver"))
                                / "config" / "workcell.yaml"))
@@ -79,10 +68,11 @@ def test_unreachable_destination_fails_with_the_waypoint(executable, ros_domain,
     assert done.returncode == 1, out
     assert "step 'above_destination' (move_to) failed: IK failed for above_destination" in out
     assert "waypoint" in out
-    assert _alive(logs) == []
+    assert still_running(logs) == []
 
 
-def test_sigint_twice_mid_task_cancels_and_leaves_no_process(executable, ros_domain, tmp_path):
+def test_sigint_twice_mid_task_cancels_and_leaves_no_process(executable, ros_domain, tmp_path,
+                                                             still_running):
     logs = tmp_path / "logs"
     env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain), PYTHONUNBUFFERED="1")
     # As from a user's shell: SIGINT not ignored. A shell started with SIGINT ignored (e.g.
@@ -105,7 +95,7 @@ def test_sigint_twice_mid_task_cancels_and_leaves_no_process(executable, ros_dom
     assert proc.returncode != 0, out
     assert "cancelling the task" in out and "cancelled during above_source" in out, out
     assert "Traceback" not in out and "Segmentation" not in out
-    assert _alive(logs) == []
+    assert still_running(logs) == []
     assert "cancel requested for task 'block_transfer' during above_source" in \
         (logs / "task_node.log").read_text()
 
@@ -157,7 +147,8 @@ def test_cancel_mid_insertion_holds_with_force_off(launch, rclpy_context, execut
     assert "cancelled during insert (force control off, holding)" in log
 
 
-def test_refused_rail_command_fails_with_the_drivers_reason(executable, ros_domain, tmp_path):
+def test_refused_rail_command_fails_with_the_drivers_reason(executable, ros_domain, tmp_path,
+                                                            still_running):
     (tmp_path / "tasks").mkdir()
     (tmp_path / "tasks" / "rail_out.yaml").write_text(
         "schema_version: 1\nsteps:\n  - {name: rail_out, type: move_joints, "
@@ -169,7 +160,7 @@ def test_refused_rail_command_fails_with_the_drivers_reason(executable, ros_doma
     out = done.stdout + done.stderr
     assert done.returncode == 1, out
     assert "step 'rail_out' (move_joints) failed: driver refused: the rail is not homed" in out
-    assert _alive(logs) == []
+    assert still_running(logs) == []
 
 
 def test_second_goal_is_rejected_with_a_reason(launch, ros_domain, executable, wait_for):
@@ -194,7 +185,7 @@ def test_second_goal_is_rejected_with_a_reason(launch, ros_domain, executable, w
 
 
 def test_hardware_mode_runs_on_the_dynamixel_driver(launch, executable, ros_domain, tmp_path,
-                                                    wait_for):
+                                                    wait_for, still_running):
     """--hardware PARAMS: the real Dynamixel driver (on its bus emulator) instead of the mock."""
     link = tmp_path / "ttyDXL"
     launch("hyperarm_driver", "dxl_emulator", "--link", str(link))
@@ -210,4 +201,4 @@ def test_hardware_mode_runs_on_the_dynamixel_driver(launch, executable, ros_doma
     assert out.count("run_task: succeeded") == 2
     assert [line.split()[0] for line in (logs / "pids").read_text().splitlines()] == \
         ["dynamixel_driver", "task_node"]
-    assert _alive(logs) == []
+    assert still_running(logs) == []
