@@ -245,6 +245,8 @@ def test_pressing_on_a_peg_top_with_the_mock(launch, rclpy_context, executor, wa
            params=dict(MOCK_PARAMS, payload_mass=0.05, calibration_file=path))
     arm = MockArm(probe, wait_for)
     arm.q_now()
+    # the calibrated node reads joint_states (its estimate comes on each): enable can work
+    wait_for(lambda: probe.wrench_base, 20.0, what="ee_wrench_base of the calibrated node")
     wait_for(lambda: probe.block_state, 20.0, what="mock diagnostics")
     block = np.array([0.35, 0.12, -0.185])           # on the source peg (docs/mock.md)
     arm.grip(1.2)
@@ -258,7 +260,7 @@ def test_pressing_on_a_peg_top_with_the_mock(launch, rclpy_context, executor, wa
     over = np.array([0.35 + 0.013, -0.12, top + 0.015 + 0.01])
     arm.move(over)
     res = probe.enable(True)
-    assert res.success, res.message
+    assert res.success, (res.message, probe.statuses[-1:])
     # in the air and at rest, the filtered estimates settled: the estimates' bias
     wait_for(lambda: np.abs(probe.last_state().velocity[:9]).max() < 0.01, 10.0,
              what="at rest")
