@@ -21,7 +21,6 @@ from std_srvs.srv import SetBool, Trigger
 from hyperarm_description.log_throttle import ReasonThrottle
 from hyperarm_description import contract
 from hyperarm_description.params import Range
-from hyperarm_description.joints import JointStateCache, JointStateError
 from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import declare_robot_description, run_node
 from hyperarm_interfaces.msg import HybridGoal
@@ -33,6 +32,7 @@ from .force.law import HybridLaw
 from .force.parameters import DYNAMIC, PARAMETERS, build
 from .force.wrench import WrenchEstimator
 from .kinematics import Kinematics
+from .ros_conversions import JointStateInput
 
 _LEVEL = {Mode.DISABLED: 0, Mode.ACTIVE: 0, Mode.PASSIVE: 1}   # OK, OK, WARN
 
@@ -57,7 +57,8 @@ class HybridForceNode(Node):
         except (ForceError, ValueError) as exc:
             raise SystemExit(f"hybrid_force: {exc}") from exc
         self._kin = kin
-        self._cache = JointStateCache()
+        self._input = JointStateInput(self.get_logger(), self._log_throttle)
+        self._cache = self._input.cache
         self._root, self._base = kin.root_frame, desc.base_frame
         self._timer_trigger = p["trigger"] == "timer"
         self._compute_time = 0.0
@@ -136,11 +137,7 @@ class HybridForceNode(Node):
 
     # -- inputs -----------------------------------------------------------------------------
     def _on_joint_states(self, msg: JointState) -> None:
-        try:
-            self._cache.update(msg.name, msg.position, msg.velocity, msg.effort)
-        except JointStateError as exc:
-            if (text := self._log_throttle.message(f"joint_states ignored: {exc}")):
-                self.get_logger().warn(text)
+        if not self._input.merge(msg):
             return
         if any(n in self._ctl.arm_names for n in msg.name):
             self._state_time = self._now()          # staleness counts from the arrival
