@@ -9,7 +9,9 @@ orientation. The step
 2. solves IK at every waypoint, each seeded with the previous solution (as the benchmark);
    the joint speeds the stated ``speed`` needs must be within half of each joint's limit;
 3. streams the joint path at ``speed`` along the path (constant speed, ramps of
-   ``acceleration`` at both ends), sampling the measured joints at every tick;
+   ``acceleration`` at both ends), sampling the measured joints at every tick; a late tick
+   (a loaded machine) advances the path by at most 1.5 periods, so the arm is never
+   commanded a jump along the path (the traversal then takes longer: ``track_time``);
 4. judges each waypoint by the closest approach of the measured path (FK of the measured
    joints) and puts the figures into the task's metrics (``track_reached``, ...); fails
    (kind ``tracking``) when fewer than ``min_reached`` of them came within ``reach``.
@@ -33,6 +35,7 @@ from ..tracking import arc_length, tracking_report, trapezoid_time_scaling
 from . import BuildContext, Step, StepType, quantity, register
 
 SETTLE_TIME = 1.0        # s after the last waypoint, sampling until the tool is there
+LATE_TICKS = 1.5         # a tick later than this many periods slows the path down instead
 WINDOW = 1.0             # s: a waypoint is judged on the path measured this close in time to
                          # when it was commanded (the figure-8 crosses itself ~9 s apart)
 PLAN_CANCEL_EVERY = 100  # waypoints solved between two cancel checks
@@ -141,9 +144,12 @@ def run(step: TrackPath, runner) -> None:
     samples: list[np.ndarray] = []
     stamps: list[float] = []      # s, when each sample was taken
     commanded: list[float] = []   # fractional waypoint index commanded then
-    t0 = robot.now()
-    while True:
-        t = robot.now() - t0
+    t0 = last = robot.now()
+    t = 0.0                       # s, path time: wall time, but a late tick advances it by
+    while True:                   # at most LATE_TICKS periods (no jump after a stall)
+        now = robot.now()
+        t = min(t + min(now - last, LATE_TICKS * runner.period), duration)
+        last = now
         x = float(np.interp(s_of(t), s_at, index))
         k = min(int(x), len(points) - 2)
         f = x - k
@@ -155,6 +161,9 @@ def run(step: TrackPath, runner) -> None:
                         points[k] + f * (points[k + 1] - points[k]))
         if t >= duration:
             break
+        if now > deadline:
+            raise StepFailed("timeout", f"{step.name}: still tracking after the step's timeout "
+                             f"({step.timeout:g} s), at waypoint {k + 1}/{len(points)}")
         runner.tick(names)
     # hold the last waypoint, sampling until the tool is there (or SETTLE_TIME passed)
     t_end = robot.now()
