@@ -125,11 +125,14 @@ def test_figure8_on_the_mock_reaches_the_waypoints(desc, kin):
     assert any("1000/1000 waypoints" in msg or "999/1000" in msg for _, msg in robot.logs)
 
 
-def _run_file(desc, kin, tmp_path, step: str, **imperfections):
+def _run_file(desc, kin, tmp_path, step: str, hook=None, on_feedback=None, **imperfections):
     path = tmp_path / "track.yaml"
     path.write_text(f"schema_version: 1\nsteps:\n  - {step}\n")
     robot = SimRobot(JointSim(desc, _cell(32, **imperfections)))
-    return Runner(robot, kin, load_task_file(path, desc)).run(), robot
+    if hook:
+        hook(robot)
+    runner = Runner(robot, kin, load_task_file(path, desc), on_feedback=on_feedback)
+    return runner.run(), robot
 
 
 def test_figure8_judges_the_measured_path(desc, kin, tmp_path):
@@ -150,3 +153,34 @@ def test_too_fast_is_refused_before_tracking(desc, kin, tmp_path):
     assert not result.success and result.failure_kind == "tracking"
     assert "more than half its velocity limit" in result.message and "at most" in result.message
     assert "track_reached" not in result.metrics
+
+
+def test_a_stalled_tick_slows_the_path_instead_of_jumping(desc, kin, tmp_path):
+    # every 20th tick the node "stalls" 0.3 s (a loaded machine): without a limit, the next
+    # command would jump 3 cm along the path at 10 cm/s
+    robots, phases = [], []
+
+    def stall(robot):
+        real, calls = robot.sleep, [0]
+
+        def sleep(seconds):
+            calls[0] += 1
+            real(seconds + (0.3 if calls[0] % 20 == 0 else 0.0))
+        robot.sleep = sleep
+        robots.append(robot)
+
+    result, robot = _run_file(
+        desc, kin, tmp_path, "{name: f8, type: track_path, path: figure8, waypoints: 200, "
+        "speed: 10 cm/s, min_reached: 0.999}", hook=stall,
+        on_feedback=lambda fb: phases.append((robots[0].now(), fb.phase)))
+    assert result.success, result.message
+    t_track = [t for t, ph in phases if ph == "tracking"]
+    cmds = [c for t, c, _ in robot.commands if t_track[0] <= t <= t_track[-1]]
+    tool = np.array([kin.forward(np.array([c[n] for n in kin.joint_names]))[:3, 3]
+                     for c in cmds])
+    assert len(tool) > 100
+    step = np.linalg.norm(np.diff(tool, axis=0), axis=1).max()
+    assert step <= 1.5 * 0.02 * 0.10 * 1.01           # 1.5 periods at 10 cm/s: 3 mm
+    nominal = 0.7306 / 0.10 + 0.10 / 0.1               # cruise + the two ramps
+    assert result.metrics["track_time"] > nominal + 1.0   # it took longer instead
+    assert result.metrics["track_reached"] >= 0.999 * 200
