@@ -184,3 +184,26 @@ def test_a_stalled_tick_slows_the_path_instead_of_jumping(desc, kin, tmp_path):
     nominal = 0.7306 / 0.10 + 0.10 / 0.1               # cruise + the two ramps
     assert result.metrics["track_time"] > nominal + 1.0   # it took longer instead
     assert result.metrics["track_reached"] >= 0.999 * 200
+
+
+def test_a_stalled_driver_holds_the_path(desc, kin, tmp_path):
+    # the driver stalls 0.3 s in every 2 s (a loaded machine): it applies no command and
+    # publishes no joint_states meanwhile, then takes the newest goal. Were the path to run
+    # on, that goal would be 3 cm ahead at 10 cm/s and the servos would cut across.
+    def stall(robot):
+        real = robot.command
+
+        def stalled() -> bool:
+            return 1.0 <= robot.now() % 2.0 < 1.3
+
+        def command(positions, efforts=None):
+            if not stalled():
+                real(positions, efforts)
+        robot.command = command
+        robot.joint_states_age = lambda: robot.now() % 2.0 - 1.0 if stalled() else 0.0
+
+    result, robot = _run_file(desc, kin, tmp_path, "{name: f8, type: track_path, path: "
+                              "figure8, waypoints: 200, speed: 10 cm/s, min_reached: 0.999}",
+                              hook=stall)
+    assert result.success, result.message
+    assert result.metrics["track_time"] > 0.7306 / 0.10 + 1.0 + 0.5   # it waited

@@ -10,8 +10,9 @@ orientation. The step
    the joint speeds the stated ``speed`` needs must be within half of each joint's limit;
 3. streams the joint path at ``speed`` along the path (constant speed, ramps of
    ``acceleration`` at both ends), sampling the measured joints at every tick; a late tick
-   (a loaded machine) advances the path by at most 1.5 periods, so the arm is never
-   commanded a jump along the path (the traversal then takes longer: ``track_time``);
+   (a loaded machine) advances the path by at most 1.5 periods, and while joint_states are
+   older than 50 ms (the driver stalls) the path waits, so the arm is never commanded a
+   jump along the path (the traversal then takes longer: ``track_time``);
 4. judges each waypoint by the closest approach of the measured path (FK of the measured
    joints) and puts the figures into the task's metrics (``track_reached``, ...); fails
    (kind ``tracking``) when fewer than ``min_reached`` of them came within ``reach``.
@@ -35,6 +36,7 @@ from ..tracking import arc_length, tracking_report, trapezoid_time_scaling
 from . import BuildContext, Step, StepType, quantity, register
 
 SETTLE_TIME = 1.0        # s after the last waypoint, sampling until the tool is there
+STALE_STATES = 0.05       # s: joint_states older than this (the driver stalls) hold the path
 LATE_TICKS = 1.5         # a tick later than this many periods slows the path down instead
 WINDOW = 1.0             # s: a waypoint is judged on the path measured this close in time to
                          # when it was commanded (the figure-8 crosses itself ~9 s apart)
@@ -148,8 +150,9 @@ def run(step: TrackPath, runner) -> None:
     t = 0.0                       # s, path time: wall time, but a late tick advances it by
     while True:                   # at most LATE_TICKS periods (no jump after a stall)
         now = robot.now()
-        t = min(t + min(now - last, LATE_TICKS * runner.period), duration)
-        last = now
+        if robot.joint_states_age() <= STALE_STATES:
+            t = min(t + min(now - last, LATE_TICKS * runner.period), duration)
+        last = now                # (stale joint_states: the driver lags, hold the goal)
         x = float(np.interp(s_of(t), s_at, index))
         k = min(int(x), len(points) - 2)
         f = x - k
