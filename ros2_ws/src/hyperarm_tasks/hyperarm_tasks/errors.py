@@ -23,7 +23,8 @@ class TaskFileError(TaskError):
 
 class StepFailed(TaskError):
     """A step could not do its job. ``kind`` classifies the failure (``ik``, ``grasp``,
-    ``grasp_lost``, ``insertion``, ``detection``, ``driver``, ``timeout``, ``joint_fault``)
+    ``grasp_lost``, ``insertion``, ``detection``, ``driver``, ``timeout``, ``joint_fault``,
+    ``condition``, ``tracking``)
     so retry rules can match it; the message is the reason shown to the user."""
 
     def __init__(self, kind: str, message: str) -> None:

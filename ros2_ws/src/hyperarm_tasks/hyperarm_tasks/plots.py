@@ -3,8 +3,10 @@
     plot_task run.mcap [--out DIR]
 
 Writes DIR/tool_path.png (tool0 over the pegs, top and side views, like Danko & Oh's
-Fig. 2), DIR/joints.png (measured joint trajectories, commanded dashed) and
-DIR/insertion.png (force and depth during the insertion). No rclpy: the recording is
+Fig. 2), DIR/joints.png (measured joint trajectories, commanded dashed),
+DIR/insertion.png (force and depth during the insertion) and, when the run tracked a path
+(``track_path``, e.g. the figure-8), DIR/tracking.png (commanded and measured path, and the
+measured path's closest approach to every commanded point). No rclpy: the recording is
 decoded with mcap-ros2-support and tool0 is computed from joint_states by FK.
 """
 from __future__ import annotations
@@ -20,6 +22,7 @@ from hyperarm_ik.kinematics import Kinematics
 
 from .perception import DetectionBuffer, camera_pose
 from .recording import read_recording
+from .tracking import closest_approach
 
 __all__ = ["load_series", "plot_recording", "main"]
 
@@ -94,19 +97,22 @@ def plot_recording(path: str | Path, out_dir: str | Path) -> list[Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
 
-    # 1. tool path over the pegs (top x-y, side y-z)
+    # 1. tool path over the pegs (top x-y, side y-z; on rail_arm x-z, one above the other)
     objs = _objects(series, desc)
-    fig, (top, side) = plt.subplots(1, 2, figsize=(11, 4.8))
+    h = 0 if variant == "rail_arm" else 1      # side view along the rail: x-z, else y-z
+    fig, (top, side) = plt.subplots(*((2, 1) if h == 0 else (1, 2)),
+                                    figsize=(11, 5.5) if h == 0 else (11, 4.8))
     top.plot(xyz[:, 0], xyz[:, 1], lw=1, label="tool0")
-    side.plot(xyz[:, 1], xyz[:, 2], lw=1, label="tool0")
+    side.plot(xyz[:, h], xyz[:, 2], lw=1, label="tool0")
     for name, p in objs.items():
         top.add_patch(plt.Circle((p[0], p[1]), 0.008, color="0.5", alpha=0.6))
         top.annotate(name, (p[0], p[1]), textcoords="offset points", xytext=(6, 6), fontsize=8)
-        side.add_patch(plt.Rectangle((p[1] - 0.008, p[2] - 0.08), 0.016, 0.08, color="0.5",
+        side.add_patch(plt.Rectangle((p[h] - 0.008, p[2] - 0.08), 0.016, 0.08, color="0.5",
                                      alpha=0.6))
-        side.annotate(name, (p[1], p[2]), textcoords="offset points", xytext=(6, 6), fontsize=8)
+        side.annotate(name, (p[h], p[2]), textcoords="offset points", xytext=(6, 6), fontsize=8)
     top.set(xlabel="x (m)", ylabel="y (m)", title="top view", aspect="equal")
-    side.set(xlabel="y (m)", ylabel="z (m)", title="side view (looking along x)", aspect="equal")
+    side.set(xlabel=f"{'xy'[h]} (m)", ylabel="z (m)", aspect="equal",
+             title=f"side view (looking along {'yx'[h]})")
     for ax in (top, side):
         ax.grid(True, alpha=0.3)
     fig.suptitle(f"tool path ({Path(path).name})")
@@ -134,11 +140,7 @@ def plot_recording(path: str | Path, out_dir: str | Path) -> list[Path]:
 
     # 3. insertion force and depth: one column per insertion (attempt)
     ins = [f for f in series["feedback"] if f[2] in ("descending", "dithering")]
-    segments: list[list] = []
-    for f in ins:
-        if not segments or f[0] - segments[-1][-1][0] > 1.0:
-            segments.append([])
-        segments[-1].append(f)
+    segments = _segments(ins)
     cols = max(1, len(segments))
     fig, axes = plt.subplots(2, cols, figsize=(5 * cols + 1, 6), squeeze=False)
     wr = np.array([(t - t0, fz) for t, fz in series["wrench"]]) if series["wrench"] else None
@@ -171,7 +173,58 @@ def plot_recording(path: str | Path, out_dir: str | Path) -> list[Path]:
     written.append(out_dir / "insertion.png")
     fig.savefig(written[-1], dpi=110)
     plt.close(fig)
+
+    # 4. path tracking (track_path): one row per tracked path
+    tracks = _segments([f for f in series["feedback"] if f[2] == "tracking"])
+    if tracks:
+        written.append(_plot_tracking(plt, tracks, ts + t0, xyz, out_dir / "tracking.png",
+                                      Path(path).name))
     return written
+
+
+def _segments(feedback: list, gap: float = 1.0) -> list[list]:
+    """Feedback entries split where more than ``gap`` s pass between two."""
+    out: list[list] = []
+    for f in feedback:
+        if not out or f[0] - out[-1][-1][0] > gap:
+            out.append([])
+        out[-1].append(f)
+    return out
+
+
+def _plot_tracking(plt, tracks: list[list], t_meas: np.ndarray, xyz: np.ndarray, out: Path,
+                   name: str, reach: float = 1e-3, window: float = 1.0) -> Path:
+    """Commanded (feedback waypoints) and measured (FK) path, y-z view, and the closest
+    approach of the measured path to each commanded point, within ``window`` s of it."""
+    fig, axes = plt.subplots(len(tracks), 2, figsize=(12, 4.6 * len(tracks)), squeeze=False)
+    for row, seg in zip(axes, tracks):
+        tc = np.array([f[0] for f in seg])
+        cmd = np.array([f[5] for f in seg])
+        sel = (t_meas >= tc[0] - window) & (t_meas <= tc[-1] + window)
+        tm, meas = t_meas[sel], xyz[sel]
+        lo = np.searchsorted(tm, tc - window, side="left")
+        hi = np.maximum(np.searchsorted(tm, tc + window, side="right") - 1, lo)
+        err, _ = closest_approach(cmd, meas, np.stack([lo, hi], axis=1))
+        ok = int(np.count_nonzero(err <= reach))
+        path_ax, err_ax = row
+        path_ax.plot(cmd[:, 1], cmd[:, 2], "--", color="0.4", lw=1.2, label="commanded")
+        path_ax.plot(meas[:, 1], meas[:, 2], lw=0.8, label="measured (FK of joint_states)")
+        path_ax.set(xlabel="y (m)", ylabel="z (m)", aspect="equal",
+                    title=f"tool path, x = {np.median(cmd[:, 0]):.3f} m (y-z view)")
+        err_ax.plot(tc - tc[0], err * 1000, lw=0.8, label="closest approach")
+        err_ax.axhline(reach * 1000, color="r", ls=":", lw=1, label=f"{reach * 1000:g} mm")
+        err_ax.set(xlabel="time from the start of the tracking (s)",
+                   ylabel="measured path to commanded point (mm)",
+                   title=f"{ok}/{len(err)} commanded points within {reach * 1000:g} mm "
+                         f"(max {err.max() * 1000:.3f} mm)")
+        for ax in row:
+            ax.grid(True, alpha=0.3)
+            ax.legend(fontsize=8)
+    fig.suptitle(f"path tracking ({name})")
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:

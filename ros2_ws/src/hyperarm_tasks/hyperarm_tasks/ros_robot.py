@@ -12,6 +12,7 @@ the caches from the action's execute thread.
 """
 from __future__ import annotations
 
+import math
 import threading
 import time
 from typing import Mapping, Sequence
@@ -56,6 +57,7 @@ class RosRobot:
         self._cache = JointStateCache()
         self._wrench: np.ndarray | None = None
         self._wrench_time = 0.0
+        self._states_time = -math.inf      # s (node clock), the last joint_states received
         self._diag: dict[str, dict[str, str]] = {}   # joint (or "rail") -> key/values
         self.goal_handle = None
         self.given: dict[str, np.ndarray] = {}
@@ -84,6 +86,7 @@ class RosRobot:
         try:
             with self._lock:
                 self._cache.update(msg.name, msg.position, msg.velocity, msg.effort)
+                self._states_time = self.now()
         except JointStateError as exc:
             if (text := self._log_throttle.message(f"joint_states ignored: {exc}")):
                 self.node.get_logger().warn(text)
@@ -134,6 +137,10 @@ class RosRobot:
     def joint_efforts(self) -> dict[str, float]:
         with self._lock:
             return dict(self._cache.effort)
+
+    def joint_states_age(self) -> float:
+        with self._lock:
+            return self.now() - self._states_time
 
     def command(self, positions: Mapping[str, float],
                 efforts: Mapping[str, float] | None = None) -> None:

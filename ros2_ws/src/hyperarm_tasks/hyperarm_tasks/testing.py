@@ -60,6 +60,9 @@ class SimRobot:
         s = self.sim.state()
         return dict(zip(self.sim.names, s.effort.tolist()))
 
+    def joint_states_age(self) -> float:
+        return 0.0                  # the simulation's state is always the present one
+
     def command(self, positions: Mapping[str, float],
                 efforts: Mapping[str, float] | None = None) -> None:
         names = list(positions)

@@ -1,7 +1,7 @@
 """Quantities in task files: a number (SI) or a string "<number> <unit>" (no ROS).
 
 Each field has a dimension; a unit of another dimension (``"2 kg"`` for a length) is an
-error. Results are SI floats: m, rad, s, N, N·m, m/s, rad/s.
+error. Results are SI floats: m, rad, s, N, N·m, m/s, rad/s, m/s².
 """
 from __future__ import annotations
 
@@ -18,6 +18,7 @@ UNITS: dict[str, dict[str, float]] = {
     "torque": {"N·m": 1.0, "N*m": 1.0, "Nm": 1.0},
     "speed": {"m/s": 1.0, "cm/s": 0.01, "mm/s": 0.001},
     "angular_speed": {"rad/s": 1.0, "deg/s": math.pi / 180.0},
+    "acceleration": {"m/s^2": 1.0, "m/s²": 1.0, "cm/s^2": 0.01, "cm/s²": 0.01},
     "stiffness": {"N/m": 1.0},
     "frequency": {"Hz": 1.0},
 }

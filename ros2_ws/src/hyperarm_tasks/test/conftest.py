@@ -1,11 +1,26 @@
-"""Fixtures of hyperarm_tasks' tests (the shared ones are in ros2_ws/src/conftest.py)."""
+"""Fixtures of the hyperarm_tasks tests (the shared ones are in ros2_ws/src/conftest.py):
+the fixed arm's description and kinematics, and what run_task.sh left running."""
 from __future__ import annotations
 
 import os
+import subprocess
 from pathlib import Path
 from typing import Callable
 
 import pytest
+
+from hyperarm_description import load_description
+from hyperarm_ik.kinematics import Kinematics
+
+
+@pytest.fixture(scope="module")
+def desc():
+    return load_description()
+
+
+@pytest.fixture(scope="module")
+def kin(desc):
+    return Kinematics(desc)
 
 
 def _alive(logs: Path) -> list[str]:
@@ -27,3 +42,17 @@ def _alive(logs: Path) -> list[str]:
 def still_running() -> Callable[[Path], list[str]]:
     """``still_running(logs)``: what run_task.sh left behind (expected: [])."""
     return _alive
+
+
+@pytest.fixture
+def run_task_sh(executable, ros_domain) -> Callable[..., subprocess.CompletedProcess]:
+    """``run_task_sh(*args, timeout=s)``: the installed run_task.sh on the test's domain,
+    output captured (text)."""
+    script = os.path.join(os.path.dirname(executable("hyperarm_tasks", "run_task")),
+                          "run_task.sh")
+
+    def run(*args: str, timeout: float) -> subprocess.CompletedProcess:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain), PYTHONUNBUFFERED="1")
+        return subprocess.run([script, *args], env=env, capture_output=True, text=True,
+                              timeout=timeout)
+    return run

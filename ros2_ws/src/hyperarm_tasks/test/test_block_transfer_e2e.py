@@ -1,6 +1,7 @@
 """End-to-end through the installed executables: run_task.sh starts mock_driver, task_node
 (and task_recorder) as processes over real DDS (the test's own ROS_DOMAIN_ID) and runs the
-shipped block_transfer; real time, so each test takes tens of seconds."""
+shipped block_transfer (and issue 13's figure8 and rail_transport); real time, so each test
+takes tens of seconds."""
 from __future__ import annotations
 
 import os

@@ -5,8 +5,6 @@ runs). The runner's reasons themselves are covered in test_runner_sim.py; this c
 they reach the user of the shell script."""
 from __future__ import annotations
 
-import os
-import subprocess
 from pathlib import Path
 
 import pytest
@@ -20,21 +18,16 @@ def _share(package: str) -> Path:
     return Path(get_package_share_directory(package))
 
 
-def _run_script(executable, ros_domain, tmp_path, cell: Path) -> tuple[int, str, Path]:
-    script = os.path.join(os.path.dirname(executable("hyperarm_tasks", "run_task")),
-                          "run_task.sh")
+def _run_script(run_task_sh, tmp_path, cell: Path) -> tuple[int, str, Path]:
     logs = tmp_path / "logs"
-    env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain), PYTHONUNBUFFERED="1")
-    done = subprocess.run([script, "--workcell", str(cell), "--logs", str(logs),
-                           "block_transfer"], env=env, capture_output=True, text=True,
-                          timeout=150)
+    done = run_task_sh("--workcell", str(cell), "--logs", str(logs), "block_transfer",
+                       timeout=150)
     return done.returncode, done.stdout + done.stderr, logs
 
 
-def test_no_block_in_the_cell_fails_saying_it_is_not_seen(executable, ros_domain, tmp_path,
-                                                          still_running):
+def test_no_block_in_the_cell_fails_saying_it_is_not_seen(run_task_sh, tmp_path, still_running):
     cell = _share("hyperarm_driver") / "config" / "workcell_no_block.yaml"
-    rc, out, logs = _run_script(executable, ros_domain, tmp_path, cell)
+    rc, out, logs = _run_script(run_task_sh, tmp_path, cell)
     assert rc == 1, out
     assert "run_task: failed: step 'down_to_block' (move_to) failed" in out, out
     assert "object 'block' not seen by the camera" in out, out
@@ -42,15 +35,14 @@ def test_no_block_in_the_cell_fails_saying_it_is_not_seen(executable, ros_domain
     assert still_running(logs) == []
 
 
-def test_camera_dropout_fails_with_stale_detections(executable, ros_domain, tmp_path,
-                                                    still_running):
+def test_camera_dropout_fails_with_stale_detections(run_task_sh, tmp_path, still_running):
     cell = yaml.safe_load((_share("hyperarm_driver") / "config" / "workcell.yaml").read_text())
     # the camera works for the first 8 s of the mock's life (the task node hears it), then
     # stops for good: the next step that needs a sighting finds only old ones
     cell.setdefault("camera", {})["dropouts"] = [{"start": 8.0, "duration": None}]
     path = tmp_path / "dropout.yaml"
     path.write_text(yaml.safe_dump(cell))
-    rc, out, logs = _run_script(executable, ros_domain, tmp_path, path)
+    rc, out, logs = _run_script(run_task_sh, tmp_path, path)
     assert rc == 1, out
     assert "run_task: failed: step '" in out and "are stale" in out, out
     assert "not seen by the camera" not in out, out

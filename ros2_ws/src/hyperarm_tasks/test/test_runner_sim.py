@@ -7,25 +7,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from hyperarm_description import load_description
 from hyperarm_driver.mock.config import load_mock_config
 from hyperarm_driver.mock.joint_sim import JointSim
-from hyperarm_ik.kinematics import Kinematics
 from hyperarm_tasks.runner import Runner
 from hyperarm_tasks.sequence import load_task
 from hyperarm_tasks.testing import SimRobot
 
 pytestmark = [pytest.mark.core, pytest.mark.slow]
-
-
-@pytest.fixture(scope="module")
-def desc():
-    return load_description()
-
-
-@pytest.fixture(scope="module")
-def kin(desc):
-    return Kinematics(desc)
 
 
 def cell(seed: int, **world):

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import textwrap
 
+import numpy as np
 import pytest
 
 from hyperarm_description import load_description
@@ -13,13 +14,8 @@ from hyperarm_tasks.steps import STEP_TYPES
 pytestmark = pytest.mark.core
 
 
-@pytest.fixture(scope="module")
-def desc():
-    return load_description()
-
-
 @pytest.mark.parametrize("variant", ["arm", "rail_arm"])
-@pytest.mark.parametrize("task", ["ready", "rest", "block_transfer"])
+@pytest.mark.parametrize("task", ["ready", "rest", "block_transfer", "figure8"])
 def test_shipped_tasks_load_and_stay_within_limits(task, variant):
     desc = load_description(variant=variant)
     limits = desc.limits_by_name()
@@ -48,12 +44,35 @@ def test_block_transfer_follows_the_papers_twelve_steps(desc):
 
 def test_every_step_type_is_registered():
     assert sorted(STEP_TYPES) == ["force_insert", "gripper", "home_rail", "move_joints",
-                                  "move_to", "retreat", "wait_for"]
+                                  "move_to", "retreat", "track_path", "wait_for"]
+
+
+def test_figure8_is_the_benchmarks_and_rail_transport_needs_the_rail(desc):
+    from hyperarm_ik.benchmark.ik_benchmark import figure8_targets
+    from hyperarm_ik.kinematics import Kinematics
+    from hyperarm_ik.paths import FIGURE8, hold_orientation
+    track = load_task("figure8", desc).steps[-1]
+    assert track.type == "track_path" and track.figure == FIGURE8
+    assert track.waypoints == 1000 and track.reach == pytest.approx(0.001)
+    assert track.min_reached == pytest.approx(0.999)
+    kin = Kinematics(desc)
+    bench = figure8_targets(kin, track.waypoints)          # the IK benchmark's set
+    assert np.array_equal(np.array([p for p, _ in bench]), track.figure.points(1000))
+    assert np.array_equal(bench[0][1], hold_orientation(kin))
+    rail = load_task("rail_transport", load_description(variant="rail_arm"))
+    assert [s.type for s in rail.steps] == [
+        "home_rail", "move_joints", "move_to", "gripper", "move_to", "gripper", "move_to",
+        "move_to", "force_insert", "move_to", "gripper", "retreat", "move_joints"]
+    assert rail.steps[1].goal["rail"] == 0.0 and rail.steps[-1].goal["rail"] == 0.0
+    with pytest.raises(TaskFileError, match=r"rail_transport.yaml:\d+: steps\[1\] \(ready\)"
+                                            r".joints.rail: unknown joint 'rail'"):
+        load_task("rail_transport", desc)                  # the fixed arm has no rail
 
 
 def test_unknown_task_lists_known_ones(desc, tmp_path):
     with pytest.raises(UnknownTaskError, match=r"unknown task 'dance'; known tasks: "
-                                                r"block_transfer, block_transfer_back, ready, rest"):
+                                                r"block_transfer, block_transfer_back, figure8, "
+                                                r"rail_transport, ready, rest"):
         load_task("dance", desc)
     (tmp_path / "wave.yaml").write_text(
         "schema_version: 1\nsteps:\n  - {name: a, type: move_joints, arm: 0}\n")
@@ -83,6 +102,16 @@ HEADER = "schema_version: 1\nobjects: [block]\nsteps:\n"
     ("  - {name: a, type: retreat, distance: 1 cm, retry: {attempts: 1, from: b}}\n"
      "  - {name: b, type: retreat, distance: 1 cm}\n", 4, "not this step or an earlier one"),
     ("  - {name: a, type: gripper, action: open\n", 5, "YAML syntax"),
+    ("  - {name: a, type: track_path, path: circle}\n", 4, "'circle' is not one of figure8"),
+    ("  - name: a\n    type: track_path\n    path: figure8\n    speed: 5 cm\n", 7,
+     "bad unit 'cm' for a speed (that is a length unit)"),
+    ("  - name: a\n    type: track_path\n    path: figure8\n    min_reached: 99.9\n", 7,
+     "99.9 is greater than the maximum of 1"),
+    ("  - name: a\n    type: track_path\n    path: figure8\n    acceleration: 1 m/s\n", 7,
+     "bad unit 'm/s' for a acceleration"),
+    ("  - name: a\n    type: track_path\n    path: figure8\n    center: [0.4, 0]\n", 7,
+     "is too short"),
+    ("  - {name: a, type: track_path}\n", 4, "'path' is missing"),
 ])
 def test_bad_files_are_rejected_with_their_line(tmp_path, desc, body, line, reason):
     path = tmp_path / "bad.yaml"

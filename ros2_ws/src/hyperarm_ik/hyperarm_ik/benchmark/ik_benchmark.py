@@ -6,7 +6,7 @@ Sets (targets are tool0 poses in the root frame):
                started from the last successful solution (the paper: "the previous joint
                angles serve as a close starting point"; q = 0 before the first success).
 - figure8_tight, tight: the same at TRAC-IK's usual tolerance (1e-5 m, 1e-4 rad).
-- figure8_wide: a second, larger 1,000-waypoint figure-8 (ik_studies.FIGURE8_WIDE), also
+- figure8_wide: a second, larger 1,000-waypoint figure-8 (paths.FIGURE8_WIDE), also
                with the paper's solvers re-seeded from their returned joints after a
                failure (the old protocol), for comparison.
 - near_limit:  FK of configurations with every joint within 5 % of a limit (cold).
@@ -53,6 +53,7 @@ import pinocchio as pin
 from hyperarm_description.urdf import generate_urdf
 
 from ..kinematics import Kinematics, rotation_angle
+from ..paths import FIGURE8, FIGURE8_WIDE, hold_orientation
 from ..solvers import make_solver
 from . import ik_studies as studies
 
@@ -229,14 +230,11 @@ def random_targets(kin, n, rng):
     return out
 
 
-def figure8_targets(kin, n, center=(0.40, 0.0, 0.20), half_width=0.12, half_height=0.06):
-    """A lemniscate of Gerono in the y-z plane in front of the arm, tool0 orientation of
-    the ready pose (m)."""
-    r = kin.forward(np.zeros(kin.nq))[:3, :3].copy()
-    c = np.asarray(center, dtype=float)
-    s = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
-    return [(c + np.array([0.0, half_width * math.sin(a), half_height * math.sin(2 * a)]), r)
-            for a in s]
+def figure8_targets(kin, n, figure=FIGURE8):
+    """The figure-8 (hyperarm_ik.paths, shared with the task ``figure8``): ``n`` waypoints,
+    tool0 orientation of the ready pose (m)."""
+    r = hold_orientation(kin)
+    return [(p, r) for p in figure.points(n)]
 
 
 def unreachable_targets(kin, n, rng):
@@ -606,7 +604,7 @@ def main(argv: list[str] | None = None) -> None:
 
     if "figure8_wide" not in args.skip:
         print("figure8_wide (second figure-8, warm start from the last success):", flush=True)
-        wide = figure8_targets(kin, args.count, **studies.FIGURE8_WIDE)
+        wide = figure8_targets(kin, args.count, FIGURE8_WIDE)
         adapters = [ours(kin, "default", *SOLVE_TOL, 0.05)] + peers(SOLVE_TOL, 0.05)
         adapters += [ours(kin, n, *SOLVE_TOL, 1.0) for n in paper]
         for a in adapters:

@@ -22,11 +22,8 @@ from ..solvers import make_solver
 from ..workspace import ReachBounds
 
 __all__ = ["near_limit_targets", "impossible_orientation_targets", "closest_study",
-           "sensitivity", "collision_study", "FIGURE8_WIDE", "BENCH_WORLD"]
+           "sensitivity", "collision_study", "BENCH_WORLD"]
 
-#: the second 1,000-waypoint figure-8 (m): larger and higher than the first, so that the
-#: paper's solvers meet the joint limits along it
-FIGURE8_WIDE = dict(center=(0.30, 0.0, 0.35), half_width=0.20, half_height=0.10)
 
 
 def near_limit_targets(kin: Kinematics, n: int, rng: np.random.Generator, frac: float = 0.05):

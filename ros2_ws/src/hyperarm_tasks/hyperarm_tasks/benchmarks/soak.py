@@ -1,13 +1,16 @@
 """soak_block_transfer: block_transfer N times in a row on the mock, a new seed each cycle.
 
     soak_block_transfer [--cycles 20] [--first-seed 1] [--logs DIR]
+                        [--task T] [--variant V] [--workcell FILE]
 
 Each cycle is one run of run_task.sh (a fresh stack: mock_driver with the default work cell
 and noise, its imperfection and camera seeds set to the cycle's seed; task_node), so every
 cycle sees a different arm error and camera noise. Prints one line per cycle and the
 figures recorded in docs/benchmarks.md: success rate, mean and p95 cycle time (the task's
 own time, without the stack's start-up), insertion time, dither turns and insertion
-attempts. Exit code 0 only if every cycle succeeded.
+attempts. Exit code 0 only if every cycle succeeded. ``--task`` soaks another task the same
+way (e.g. ``figure8``; ``rail_transport --variant rail_arm --workcell .../workcell_rail.yaml``)
+and prints the statistics of every metric its result reports.
 """
 from __future__ import annotations
 
@@ -31,10 +34,11 @@ def _script() -> str:
     return str(Path(get_package_prefix("hyperarm_tasks")) / "lib" / "hyperarm_tasks" / "run_task.sh")
 
 
-def run_cycle(seed: int, logs: Path, task: str = "block_transfer") -> dict:
+def run_cycle(seed: int, logs: Path, task: str = "block_transfer",
+              options: list[str] | None = None) -> dict:
     t0 = time.monotonic()
     done = subprocess.run([_script(), "--seed", str(seed), "--logs", str(logs / f"seed{seed}"),
-                           task], capture_output=True, text=True, timeout=600,
+                           *(options or []), task], capture_output=True, text=True, timeout=600,
                           env=dict(os.environ, PYTHONUNBUFFERED="1"))
     out = {"seed": seed, "ok": done.returncode == 0, "wall": time.monotonic() - t0,
            "message": "", "metrics": {}, "time": float("nan")}
@@ -56,11 +60,12 @@ def run_cycle(seed: int, logs: Path, task: str = "block_transfer") -> dict:
     return out
 
 
-def _stats(values) -> str:
+def _stats(values, fmt: str = ".2f") -> str:
     v = np.array([x for x in values if np.isfinite(x)])
     if not len(v):
         return "n/a"
-    return f"mean {v.mean():.2f}, p95 {np.percentile(v, 95):.2f}, max {v.max():.2f}"
+    return (f"mean {v.mean():{fmt}}, p95 {np.percentile(v, 95):{fmt}}, "
+            f"max {v.max():{fmt}}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -68,12 +73,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cycles", type=int, default=20)
     ap.add_argument("--first-seed", type=int, default=1)
     ap.add_argument("--logs", default=None, help="keep every cycle's logs here")
+    ap.add_argument("--task", default="block_transfer", help="the task to soak")
+    ap.add_argument("--variant", default=None, help="run_task.sh --variant")
+    ap.add_argument("--workcell", default=None, help="run_task.sh --workcell (the mock's cell)")
     args = ap.parse_args(argv)
     logs = Path(args.logs) if args.logs else Path(tempfile.mkdtemp(prefix="hyperarm-soak."))
+    options = [*(["--variant", args.variant] if args.variant else []),
+               *(["--workcell", args.workcell] if args.workcell else [])]
+    if args.task != "block_transfer":
+        return _soak_task(args, logs, options)
     results = []
     for k in range(args.cycles):
         seed = args.first_seed + k
-        r = run_cycle(seed, logs)
+        r = run_cycle(seed, logs, options=options)
         results.append(r)
         m = r["metrics"]
         print(f"cycle {k + 1:2d} seed {seed:3d}: {'ok  ' if r['ok'] else 'FAIL'} "
@@ -90,6 +102,32 @@ def main(argv: list[str] | None = None) -> int:
     print(f"insertion attempts: {_stats([r['metrics'].get('insertion_attempts', np.nan) for r in ok])}")
     print(f"logs: {logs}")
     return 0 if len(ok) == len(results) else 1
+
+
+def _soak_task(args, logs: Path, options: list[str]) -> int:
+    """Any other task: a line per cycle, then the statistics of every reported metric."""
+    results = []
+    for k in range(args.cycles):
+        seed = args.first_seed + k
+        r = run_cycle(seed, logs, args.task, options)
+        results.append(r)
+        figures = ", ".join(f"{n} {v:.4g}" for n, v in r["metrics"].items())
+        print(f"cycle {k + 1:2d} seed {seed:3d}: {'ok  ' if r['ok'] else 'FAIL'} task "
+              f"{r['time']:.1f} s (wall {r['wall']:.0f} s)"
+              + (f": {figures}" if r["ok"] else f": {r['message']}"), flush=True)
+    ok = [r for r in results if r["ok"]]
+    print(f"\n{args.task} success: {len(ok)}/{len(results)}")
+    print(f"task time (s): {_stats([r['time'] for r in ok])}")
+    for name in dict.fromkeys(n for r in ok for n in r["metrics"]):
+        print(f"{name}: min {_min(ok, name)}, "
+              f"{_stats([r['metrics'].get(name, np.nan) for r in ok], '.4g')}")
+    print(f"logs: {logs}")
+    return 0 if len(ok) == len(results) else 1
+
+
+def _min(results: list[dict], name: str) -> str:
+    v = [r["metrics"][name] for r in results if name in r["metrics"]]
+    return f"{min(v):.4g}" if v else "n/a"
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ __all__ = ["Step", "StepType", "BuildContext", "PoseSpec", "Retry", "STEP_TYPES"
 
 # Failure kinds a retry rule may name (StepFailed.kind).
 FAILURE_KINDS = ("ik", "grasp", "grasp_lost", "insertion", "detection", "driver", "timeout",
-                 "joint_fault", "condition")
+                 "joint_fault", "condition", "tracking")
 
 
 def quantity(dimension: str, description: str = "") -> dict:
@@ -237,6 +237,6 @@ def finite(v: float) -> bool:
 
 
 _MODULES = ("move_to", "move_joints", "gripper", "force_insert", "wait_for", "home_rail",
-            "retreat")
+            "retreat", "track_path")
 for _m in _MODULES:
     importlib.import_module(f"{__name__}.{_m}")

@@ -1,0 +1,209 @@
+"""``track_path``: track a reference path's waypoints with tool0 at a stated speed.
+
+The path is a named one of :mod:`hyperarm_ik.paths` (``figure8``: the IK benchmark's
+figure "8" of Danko & Oh's Table II, 1,000 waypoints; ``figure8_wide``), optionally moved
+or resized (``center``, ``half_width``, ``half_height``), held at the ready pose's tool
+orientation. The step
+
+1. goes to the first waypoint in a straight line (``approach_speed``);
+2. solves IK at every waypoint, each seeded with the previous solution (as the benchmark);
+   the joint speeds the stated ``speed`` needs must be within half of each joint's limit;
+3. streams the joint path at ``speed`` along the path (constant speed, ramps of
+   ``acceleration`` at both ends), sampling the measured joints at every tick; a late tick
+   (a loaded machine) advances the path by at most 1.5 periods, and while joint_states are
+   older than 50 ms (the driver stalls) the path waits, so the arm is never commanded a
+   jump along the path (the traversal then takes longer: ``track_time``);
+4. judges each waypoint by the closest approach of the measured path (FK of the measured
+   joints) and puts the figures into the task's metrics (``track_reached``, ...); fails
+   (kind ``tracking``) when fewer than ``min_reached`` of them came within ``reach``.
+
+    - name: figure8
+      type: track_path
+      path: figure8
+      speed: 4 cm/s
+      min_reached: 0.999
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from hyperarm_ik.paths import FIGURE8_WAYPOINTS, PATHS, Figure8, hold_orientation
+
+from ..errors import StepFailed
+from ..tracking import arc_length, tracking_report, trapezoid_time_scaling
+from . import BuildContext, Step, StepType, quantity, register
+
+SETTLE_TIME = 1.0        # s after the last waypoint, sampling until the tool is there
+STALE_STATES = 0.05       # s: joint_states older than this (the driver stalls) hold the path
+LATE_TICKS = 1.5         # a tick later than this many periods slows the path down instead
+WINDOW = 1.0             # s: a waypoint is judged on the path measured this close in time to
+                         # when it was commanded (the figure-8 crosses itself ~9 s apart)
+PLAN_CANCEL_EVERY = 100  # waypoints solved between two cancel checks
+
+
+@dataclass(frozen=True)
+class TrackPath(Step):
+    path: str = "figure8"
+    figure: Figure8 = Figure8()
+    waypoints: int = FIGURE8_WAYPOINTS
+    speed: float = 0.04           # m/s along the path
+    acceleration: float = 0.1     # m/s^2, the ramps at start and end
+    approach_speed: float = 0.10  # m/s, peak, to the first waypoint
+    reach: float = 0.001          # m, a waypoint is reached within this
+    min_reached: float = 0.0      # fraction of waypoints that must be reached
+
+
+def build(raw: dict, ctx: BuildContext, index: int) -> TrackPath:
+    base = PATHS[raw["path"]]
+    center = base.center
+    if "center" in raw:
+        try:
+            center = tuple(ctx.length_vector(raw["center"]))
+        except ValueError as exc:
+            raise ctx.FieldError(("center",), f"center: {exc}") from None
+    figure = Figure8(center,  # type: ignore[arg-type]
+                     ctx.si(raw, "half_width", "length", base.half_width, positive=True),
+                     ctx.si(raw, "half_height", "length", base.half_height, positive=True))
+    return TrackPath(**ctx.common(raw, index, 60.0), path=raw["path"], figure=figure,
+                     waypoints=int(raw.get("waypoints", FIGURE8_WAYPOINTS)),
+                     speed=ctx.si(raw, "speed", "speed", 0.04, positive=True),
+                     acceleration=ctx.si(raw, "acceleration", "acceleration", 0.1,
+                                         positive=True),
+                     approach_speed=ctx.si(raw, "approach_speed", "speed", 0.10, positive=True),
+                     reach=ctx.si(raw, "reach", "length", 0.001, positive=True),
+                     min_reached=float(raw.get("min_reached", 0.0)))
+
+
+def _plan(step: TrackPath, runner, points: np.ndarray, rot: np.ndarray) -> np.ndarray:
+    """IK at every waypoint, each seeded with the previous solution: (n, nq)."""
+    seed = runner.q_target if runner.q_target is not None else runner.q_measured()
+    qs = np.empty((len(points), len(seed)))
+    pose = np.eye(4)
+    pose[:3, :3] = rot
+    for k, p in enumerate(points):
+        if k % PLAN_CANCEL_EVERY == 0:
+            runner.feedback("planning", 0.1 * k / len(points), p)
+            runner.tick()
+        pose[:3, 3] = p
+        res = runner.ik(pose, seed)
+        if not res.success:
+            raise StepFailed("ik", f"IK failed for {step.name} ({step.path}) at waypoint "
+                             f"{k + 1}/{len(points)} ({', '.join(f'{v:.3f}' for v in p)}) m: "
+                             f"{res.message}")
+        qs[k] = seed = res.q
+    return qs
+
+
+def _check_speed(step: TrackPath, runner, qs: np.ndarray, ds: np.ndarray) -> None:
+    """The joint speeds at ``step.speed`` must be within half of each joint's limit."""
+    if len(qs) < 2:
+        return
+    rate = np.abs(np.diff(qs, axis=0)) / np.maximum(ds, 1e-9)[:, None] * step.speed  # rad/s
+    vmax = np.array([0.5 * (runner.desc.rail.velocity if runner.desc.rail
+                            and n == runner.desc.rail.name else runner._vel(n))
+                     for n in runner.chain])
+    ratio = rate.max(axis=0) / vmax
+    j = int(np.argmax(ratio))
+    if ratio[j] > 1.0:
+        raise StepFailed("tracking", f"{step.name}: at {step.speed * 100:g} cm/s "
+                         f"{runner.chain[j]} would need {rate[:, j].max():.2f} rad/s, more "
+                         f"than half its velocity limit ({vmax[j]:.2f}); at most "
+                         f"{step.speed / ratio[j] * 100:.1f} cm/s")
+
+
+def windows(stamps: np.ndarray, commanded: np.ndarray, n: int) -> np.ndarray:
+    """(n, 2) sample index ranges: the samples within WINDOW s of when each waypoint was
+    first commanded (``commanded``: non-decreasing fractional waypoint index per sample)."""
+    first = np.minimum(np.searchsorted(commanded, np.arange(n), side="left"), len(stamps) - 1)
+    t = stamps[first]
+    lo = np.searchsorted(stamps, t - WINDOW, side="left")
+    hi = np.searchsorted(stamps, t + WINDOW, side="right") - 1
+    return np.stack([lo, np.maximum(hi, lo)], axis=1)
+
+
+def run(step: TrackPath, runner) -> None:
+    robot, kin = runner.robot, runner.kin
+    t_step = robot.now()
+    deadline = t_step + step.timeout
+    points = step.figure.points(step.waypoints)
+    rot = hold_orientation(kin)
+    first = np.eye(4)
+    first[:3, :3], first[:3, 3] = rot, points[0]
+    runner.move_line(first, step.approach_speed, 0.005, step.reach, step.timeout, True,
+                     f"{step.name} (to its first waypoint)")
+    qs = _plan(step, runner, points, rot)
+    s_at = arc_length(points)
+    _check_speed(step, runner, qs, np.diff(s_at))
+    s_of, duration = trapezoid_time_scaling(float(s_at[-1]), step.speed, step.acceleration)
+    if robot.now() + duration + SETTLE_TIME > deadline:
+        raise StepFailed("timeout", f"{step.name}: the path needs {duration:.1f} s at "
+                         f"{step.speed * 100:g} cm/s, more than the step's timeout "
+                         f"({step.timeout:g} s) leaves")
+    index = np.arange(len(points), dtype=float)
+    names = runner.chain
+    samples: list[np.ndarray] = []
+    stamps: list[float] = []      # s, when each sample was taken
+    commanded: list[float] = []   # fractional waypoint index commanded then
+    t0 = last = robot.now()
+    t = 0.0                       # s, path time: wall time, but a late tick advances it by
+    while True:                   # at most LATE_TICKS periods (no jump after a stall)
+        now = robot.now()
+        if robot.joint_states_age() <= STALE_STATES:
+            t = min(t + min(now - last, LATE_TICKS * runner.period), duration)
+        last = now                # (stale joint_states: the driver lags, hold the goal)
+        x = float(np.interp(s_of(t), s_at, index))
+        k = min(int(x), len(points) - 2)
+        f = x - k
+        runner.send(names, qs[k] + f * (qs[k + 1] - qs[k]))
+        samples.append(runner.q_measured())
+        stamps.append(robot.now())
+        commanded.append(x)
+        runner.feedback("tracking", 0.1 + 0.85 * min(t / duration, 1.0),
+                        points[k] + f * (points[k + 1] - points[k]))
+        if t >= duration:
+            break
+        if now > deadline:
+            raise StepFailed("timeout", f"{step.name}: still tracking after the step's timeout "
+                             f"({step.timeout:g} s), at waypoint {k + 1}/{len(points)}")
+        runner.tick(names)
+    # hold the last waypoint, sampling until the tool is there (or SETTLE_TIME passed)
+    t_end = robot.now()
+    while robot.now() - t_end < SETTLE_TIME:
+        runner.tick(names)
+        samples.append(runner.q_measured())
+        stamps.append(robot.now())
+        commanded.append(float(len(points) - 1))
+        if np.linalg.norm(kin.forward(samples[-1])[:3, 3] - points[-1]) <= 0.25 * step.reach:
+            break
+    runner.q_target = qs[-1].copy()
+    runner.tool_target = kin.forward(qs[-1])
+    qm = np.array(samples)
+    xyz = np.array([kin.forward(q)[:3, 3] for q in qm])
+    report = tracking_report(points, qs, xyz, qm, step.reach,
+                             windows(np.array(stamps), np.array(commanded), len(points)))
+    runner.metrics.update(report.metrics())
+    runner.metrics.update(track_speed=step.speed, track_length=float(s_at[-1]),
+                          track_time=float(t_end - t0))
+    runner.feedback("tracked", 1.0, points[-1])
+    robot.log("info", f"{step.name} ({step.path}, {step.speed * 100:g} cm/s, "
+                      f"{t_end - t0:.1f} s): {report.summary()}")
+    if report.reached_fraction < step.min_reached:
+        raise StepFailed("tracking", f"{report.summary()}: fewer than the required "
+                         f"{100.0 * step.min_reached:g} %")
+
+
+register(StepType(
+    "track_path",
+    {"path": {"enum": sorted(PATHS), "description": "a reference path of hyperarm_ik.paths"},
+     "center": {"type": "array", "minItems": 3, "maxItems": 3, "items": quantity("length")},
+     "half_width": quantity("length"), "half_height": quantity("length"),
+     "waypoints": {"type": "integer", "minimum": 2, "maximum": 100000},
+     "speed": quantity("speed", "along the path"),
+     "acceleration": quantity("acceleration", "ramps at both ends"),
+     "approach_speed": quantity("speed", "to the first waypoint"),
+     "reach": quantity("length", "a waypoint is reached within this"),
+     "min_reached": {"type": "number", "minimum": 0, "maximum": 1,
+                     "description": "fraction of the waypoints that must be reached"}},
+    ("path",), build, run, "track a reference path's waypoints at a speed"))
