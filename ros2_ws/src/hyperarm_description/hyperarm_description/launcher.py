@@ -21,7 +21,11 @@ class _StoppedDuringStartup(BaseException):
     """A signal arrived while the node module was being imported (not an error)."""
 
 
-def _on_signal(_signum: int, _frame: Any) -> None:
+_signalled: list[int] = []
+
+
+def _on_signal(signum: int, _frame: Any) -> None:
+    _signalled.append(signum)   # kept even if a library's import swallows the exception
     raise _StoppedDuringStartup
 
 
@@ -34,6 +38,8 @@ def lazy_main(module: str, attr: str = "main") -> Callable[[], Any]:
             signal.signal(sig, _on_signal)
         try:
             main = getattr(importlib.import_module(module), attr)
+            if _signalled:      # the exception was swallowed inside some import
+                raise _StoppedDuringStartup
             # run_node() replaces the handler at once; a signal in between is still quiet.
             return main()
         except _StoppedDuringStartup:
