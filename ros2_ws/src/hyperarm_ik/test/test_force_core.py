@@ -422,3 +422,44 @@ def test_pure_force_goal_moves_the_pseudo_goal_at_bounded_speed(kin):
         assert np.linalg.norm(x - prev) <= cfg.max_speed * 0.01 * 1.05 + 1e-6
         prev = x
     assert prev[2] < p[2] - 0.005          # it does move down, towards the force
+
+
+def test_joint_state_input_merges_by_name_and_drops_a_bad_message_whole():
+    """The one joint_states handler of hybrid_force and hybrid_force_calibrate: merged by
+    name; a malformed message changes nothing and warns once per reason (throttled)."""
+    from sensor_msgs.msg import JointState
+
+    from hyperarm_ik.ros_conversions import JointStateInput
+
+    class Log:
+        def __init__(self) -> None:
+            self.lines: list[str] = []
+
+        def warn(self, text: str) -> None:
+            self.lines.append(text)
+
+    log = Log()
+    inp = JointStateInput(log)
+    assert inp.merge(JointState(name=["joint1", "joint2"], position=[0.1, 0.2],
+                                effort=[0.3, 0.4]))
+    assert inp.merge(JointState(name=["gripper"], position=[0.5]))     # another driver's
+    assert inp.ready(["joint1", "joint2", "gripper"], with_effort=["joint1"])
+    assert not inp.ready(["joint1", "joint3"]) and not inp.ready(["gripper"], ["gripper"])
+    bad = JointState(name=["joint1", "joint2"], position=[9.0])         # 1 value, 2 names
+    assert not inp.merge(bad) and not inp.merge(bad)
+    assert inp.cache.position == {"joint1": 0.1, "joint2": 0.2, "gripper": 0.5}
+    assert len(log.lines) == 1 and "joint_states ignored" in log.lines[0], log.lines
+
+
+def test_calibration_fit_does_not_trade_scale_for_offset_on_a_narrow_spread():
+    """joint2 on the mock: ~3.3 N·m of gravity varying by +-0.07 over 3 poses, a 2 % torque
+    constant error and quantized efforts (0.005 N·m). A plain two-parameter fit put the
+    scale error into a 0.07 N·m offset; the regularised fit keeps the offset near 0 and
+    finds the scale. A joint with no gravity torque (joint1) keeps scale 1."""
+    x = np.array([[0.0, 3.25], [0.0, 3.33], [0.0, 3.40]])
+    y = np.round(x / 1.02 / 0.005) * 0.005
+    cal = fit_calibration(["joint1", "joint2"], x, y)
+    j2 = cal.joints["joint2"]
+    assert j2.identified and abs(j2.scale - 1 / 1.02) < 0.004 and abs(j2.offset) < 0.01, j2
+    j1 = cal.joints["joint1"]
+    assert not j1.identified and j1.scale == 1.0 and j1.offset == 0.0, j1

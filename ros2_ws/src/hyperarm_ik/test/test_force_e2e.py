@@ -122,21 +122,33 @@ def _passive_rules(probe, proc, wait_for, kin) -> None:
     assert probe.mode() == "active"
 
     # stale joint_states: passive within 0.2 s, one hold
-    holds = len(probe.hold_calls)
-    probe.driving = False
-    time.sleep(0.02)
-    t_stop = probe.last_published                  # stamp (ROS time) of the last joint state
-    wait_for(lambda: len(probe.hold_calls) > holds, 2.0, what="hold after stale joint_states")
-    _wait_mode(probe, wait_for, "passive", 2.0)
-    # the node's diagnostics at the event carry its time of going passive and when the
-    # last joint state reached it (delivery delays of an overloaded machine excluded)
-    st = next(st for st in probe.statuses if st[3] > t_stop and st[1]["mode"] == "passive")
-    t_passive, t_last = st[3], float(st[1]["last_state_s"])
-    print(f"stale joint_states: passive {t_passive - t_last:.3f} s after the last one "
-          f"arrived ({t_passive - t_stop:.3f} s after it was sent)")
-    assert t_last >= t_stop - 1e-3                     # it is the last one the probe sent
-    assert t_passive - t_last < 0.2, f"passive after {t_passive - t_last:.3f} s"
-    assert "stale" in probe.statuses[-1][1]["reason"]
+    def stale_once() -> bool:
+        """Stop the states: passive within 0.2 s of the last one's arrival, one hold.
+        False if the node had not taken in the probe's last states (an overloaded machine
+        delayed its executor or the probe: the measurement is void): the caller retries."""
+        holds = len(probe.hold_calls)
+        probe.driving = False
+        time.sleep(0.02)
+        t_stop = probe.last_published              # stamp (ROS time) of the last joint state
+        wait_for(lambda: len(probe.hold_calls) > holds, 2.0,
+                 what="hold after stale joint_states")
+        _wait_mode(probe, wait_for, "passive", 2.0)
+        # the node's diagnostics at the event carry its time of going passive and when the
+        # last joint state reached it (delivery delays of an overloaded machine excluded)
+        st = next(st for st in probe.statuses if st[3] > t_stop and st[1]["mode"] == "passive")
+        t_passive, t_last = st[3], float(st[1]["last_state_s"])
+        print(f"stale joint_states: passive {t_passive - t_last:.3f} s after the last one "
+              f"arrived ({t_passive - t_stop:.3f} s after it was sent)")
+        if t_last < t_stop - 1e-3:                 # not the last one the probe sent
+            probe.driving = True
+            wait_for(lambda: probe.enable(True).success, 5.0, what="re-enabled")
+            return False
+        assert t_passive - t_last < 0.2, f"passive after {t_passive - t_last:.3f} s"
+        assert len(probe.hold_calls) == holds + 1
+        assert "stale" in probe.statuses[-1][1]["reason"]
+        return True
+
+    assert any(stale_once() for _ in range(3)), "the node missed the last states 3 times"
     # enable refused while joint_states are stale
     res = probe.enable(True)
     assert not res.success and "stale" in res.message
@@ -371,6 +383,103 @@ def test_step_tracking_and_no_sag(launch, rclpy_context, executor, wait_for, tmp
     sag["stop"] = _excursion(probe, arm, p1, lambda: probe.enable(False))
     print("tool excursion (mm):", {k: round(v * 1e3, 3) for k, v in sag.items()})
     assert all(v < 0.001 for v in sag.values()), sag
+
+
+def _wrap_cell(tmp_path, sim, q_mid: np.ndarray, radius: float = 0.055) -> str:
+    """The pole work cell with its pole moved and thickened so the arm can close around it:
+    the shipped pole (15 mm radius) is thinner than the arm's bends can wrap (link5 + link6
+    run straight for 17 cm between the yaw joints 5 and 7, so at most the two links at one
+    bend touch it). The pole stands inside the U that ``q_mid`` (joints 5 and 7 at 90°)
+    makes, 8.3 cm from link4, link7 and the link5-link6 side."""
+    import yaml
+    import pinocchio as pin
+    from ament_index_python.packages import get_package_share_directory
+
+    m, d = sim.model, sim.model.createData()
+    pin.forwardKinematics(m, d, np.r_[q_mid, np.zeros(m.nq - len(q_mid))])
+    at = {m.names[i]: d.oMi[i].translation for i in range(1, m.njoints)}
+    d4 = at["joint5"] - at["joint4"]
+    d56 = at["joint7"] - at["joint5"]
+    p = at["joint5"] + 0.083 * d56 / np.linalg.norm(d56) - 0.075 * d4 / np.linalg.norm(d4)
+    src = f"{get_package_share_directory('hyperarm_driver')}/config/workcell_pole.yaml"
+    data = yaml.safe_load(open(src, encoding="utf-8"))
+    data["imperfections"].update({"repeatability": 0.0, "seed": 2})
+    data["world"]["poles"] = {"pole1": {"xy": [float(p[0]), float(p[1])], "radius": radius,
+                                        "height": 0.6}}
+    out = tmp_path / "workcell_wrap.yaml"
+    out.write_text(yaml.safe_dump(data), encoding="utf-8")
+    return str(out)
+
+
+def _wrap_posture(bend: float) -> np.ndarray:
+    """joint1 at 0.3 rad, the yaw joints 5 and 7 bent by ``bend`` (rad), the rest 0."""
+    q = np.zeros(9)
+    q[0], q[4], q[6] = 0.3, bend, bend
+    return q
+
+
+@pytest.mark.slow
+def test_whole_arm_compliance_closes_around_a_pole(launch, rclpy_context, executor, wait_for,
+                                                   tmp_path):
+    """Whole-arm compliance through the node in a pole work cell: from an open posture
+    (the pole inside the arm's open U, nothing touching), compliance on, the goal leads the
+    tool (tool pose of a closed posture, in 4 steps) and the null-space posture is that
+    closed posture, which lies inside the pole: the arm ends with at least 3 links on the
+    pole (debug/contacts, the mock's ground truth; the gripper's capsule not counted) and
+    bounded contact forces (every link's
+    below 25 N, not growing)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from hyperarm_driver.mock.joint_sim import JointSim
+
+    sim = JointSim(load_description())
+    q_open, q_closed = _wrap_posture(0.5), _wrap_posture(2.0)
+    cell = _wrap_cell(tmp_path, sim, _wrap_posture(math.pi / 2))
+    launch("hyperarm_driver", "mock_driver", params={"workcell_file": cell})
+    posture = "[" + ",".join(f"{v:.4f}" for v in q_closed) + "]"
+    launch("hyperarm_ik", "hybrid_force", params=dict(MOCK_PARAMS, posture=posture))
+    probe = ForceProbe(rclpy_context, executor, wait_for)
+    contacts: list = []
+    probe.node.create_subscription(DiagnosticArray, contract.CONTACTS_TRUTH,
+                                   probe._rec(contacts), qos_for(contract.CONTACTS_TRUTH))
+    arm = MockArm(probe, wait_for)
+    arm.q_now()
+    wait_for(lambda: probe.cmd_pub.get_subscription_count() > 0, 10.0, what="mock subscribed")
+    probe.command(arm.arm, q_open)
+    wait_for(lambda: np.abs(arm.q_now() - q_open).max() < 2e-3, 10.0, what="open posture")
+    assert not any(m.status for _, m in contacts[-1:]), "touching in the open posture"
+    assert probe.enable(True).success
+    assert probe.compliance(True).success
+    kin = arm.kin
+    for s in (0.25, 0.5, 0.75, 1.0):
+        t = kin.forward(q_open + s * (q_closed - q_open))
+        probe.send_goal(t[:3, 3], t[:3, :3], STIFF)
+        time.sleep(1.0)                 # the goal's pace (it leads the tool), not a wait
+
+    def links(msg) -> dict:
+        return {kv.value: float(np.linalg.norm([float(v) for v in dict(
+            (k.key, k.value) for k in st.values)["force_N"].split()]))
+            for st in msg.status for kv in st.values if kv.key == "link"}
+
+    def closed() -> bool:
+        with probe.lock:
+            recent = [(t, links(m)) for t, m in contacts if t > time.monotonic() - 2.0]
+        if len(recent) < 20 or len([k for k in recent[-1][1] if k.startswith("link")]) < 3:
+            return False
+        half = recent[-1][0] - 1.0
+        f_old = max(max(ls.values(), default=0.0) for t, ls in recent if t <= half)
+        f_new = max(max(ls.values(), default=0.0) for t, ls in recent if t > half)
+        return f_new <= 1.05 * f_old + 0.1
+    wait_for(closed, 10.0, what=">= 3 links on the pole, forces steady")
+    with probe.lock:
+        last = links(contacts[-1][1])
+        peak = max(max(links(m).values(), default=0.0) for _, m in contacts)
+    print(f"compliance around the pole: links in contact {sorted(last)}, forces (N) "
+          f"{ {k: round(v, 2) for k, v in sorted(last.items())} }, peak {peak:.2f} N, "
+          f"mode {probe.mode()}")
+    assert len([k for k in last if k.startswith("link")]) >= 3, last   # arm links, not the gripper
+    assert max(last.values()) < 25.0, last
+    assert probe.mode() == "active"
+    assert probe.enable(False).success
 
 
 def _calibrate(launch, wait_for, tmp_path, poses: int = 3) -> tuple[str, str]:
