@@ -8,9 +8,17 @@ source scripts/env.sh
 # Tests that start ROS processes isolate themselves (ROS_DOMAIN_ID per test, localhost only).
 export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 export PYTHONDONTWRITEBYTECODE=1
+# Two pytest-xdist workers by default (HYPERARM_TEST_WORKERS=1 for one process): most tests
+# wait on processes and DDS, so two run side by side on a 2-core machine; each worker has its
+# own slice of ROS domains (ros2_ws/src/conftest.py). Whole files go to one worker.
+workers="${HYPERARM_TEST_WORKERS:-2}"
+parallel=()
+if [ "$workers" -gt 1 ] && python -c "import xdist" 2>/dev/null; then
+  parallel=(-n "$workers" --dist loadfile)
+fi
 start=$(date +%s)
 set +e
-python -m pytest "$@"
+python -m pytest "${parallel[@]}" "$@"
 rc=$?
 set -e
 echo "[test] pytest exit code $rc after $(( $(date +%s) - start )) s"

@@ -37,7 +37,20 @@ def _domain_range() -> tuple[int, int]:
     return lo, hi
 
 
-_DOMAIN_LO, _DOMAIN_HI = _domain_range()
+def _worker_range(lo: int, hi: int) -> tuple[int, int]:
+    """Under pytest-xdist (``make test`` runs two workers), worker k of n takes the k-th of
+    n disjoint slices of the range, so two workers never share a domain."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    count = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1") or 1)
+    if not worker.startswith("gw") or count <= 1:
+        return lo, hi
+    k, size = int(worker[2:]), (hi - lo + 1) // count
+    if size < 1:
+        raise RuntimeError(f"HYPERARM_TEST_DOMAINS={lo}-{hi}: too few domains for {count} workers")
+    return lo + k * size, lo + (k + 1) * size - 1
+
+
+_DOMAIN_LO, _DOMAIN_HI = _worker_range(*_domain_range())
 _DOMAIN_START = os.getpid()  # a different starting point per pytest run
 _domain_counter = [0]
 

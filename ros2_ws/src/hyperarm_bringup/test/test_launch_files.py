@@ -130,11 +130,15 @@ def test_there_are_launch_files_for_mock_and_hardware():
 @pytest.mark.parametrize("variant", VARIANTS)
 @pytest.mark.parametrize("name", ["mock.launch.xml", "hardware.launch.xml"])
 def test_launch_file_names_only_what_exists(name, variant):
-    seen: list[str] = []
-    check_launch(PKG / "launch" / name, {"variant": variant, "rviz": "true"}, seen)
-    driver = "mock_driver" if name.startswith("mock") else "dynamixel_driver"
-    assert driver in seen and "robot_state_publisher" in seen and "ik_service" in seen
-    assert ("pmac_rail_driver" in seen) == (name.startswith("hardware") and variant == "rail_arm")
+    for force in ("false", "true"):
+        seen: list[str] = []
+        check_launch(PKG / "launch" / name, {"variant": variant, "rviz": "true",
+                                             "force": force}, seen)
+        driver = "mock_driver" if name.startswith("mock") else "dynamixel_driver"
+        assert driver in seen and "robot_state_publisher" in seen and "ik_service" in seen
+        assert ("pmac_rail_driver" in seen) == (name.startswith("hardware")
+                                                and variant == "rail_arm")
+        assert ("hybrid_force" in seen) == (force == "true")
 
 
 def test_the_checker_catches_an_undeclared_parameter(tmp_path):

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
 from hyperarm_description.model import load_description
@@ -66,6 +66,7 @@ def _depth(sim) -> float:
                    "commanded ~9 cm or more below a peg's top, the block pressed on the top "
                    "at the friction cone's edge loses the top contact and falls to the table")
 @settings(max_examples=8, deadline=None, derandomize=True,
+          phases=[Phase.explicit, Phase.reuse, Phase.generate],  # no shrinking: minutes
           suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(off=st.floats(0.003, 0.007), angle=st.floats(0.0, 2.0 * math.pi),
        depth=st.floats(0.0, 0.12), limited=st.booleans())

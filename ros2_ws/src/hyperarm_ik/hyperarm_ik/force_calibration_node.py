@@ -14,7 +14,6 @@ from sensor_msgs.msg import JointState
 
 from hyperarm_description.log_throttle import ReasonThrottle
 from hyperarm_description import contract
-from hyperarm_description.joints import JointStateCache, JointStateError
 from hyperarm_description.params import NonEmpty, ParamSpec, Range, declare_parameters
 from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import declare_robot_description, run_node
@@ -23,6 +22,7 @@ from .force.calibration import (CalibrationError, CalibrationRun, calibration_po
                                 fit_calibration, save_calibration)
 from .force.law import GravityModel, Payload
 from .kinematics import Kinematics
+from .ros_conversions import JointStateInput
 
 PARAMETERS: ParamSpec = {
     "output_file": ("", "path of the calibration YAML to write", NonEmpty()),
@@ -53,7 +53,8 @@ class CalibrationNode(Node):
         self._payload = Payload(self._p["payload_mass"])
         self._arm = list(desc.arm_joint_names)
         self._arm_idx = [self._kin.joint_names.index(n) for n in self._arm]
-        self._cache = JointStateCache()
+        self._input = JointStateInput(self.get_logger(), self._log_throttle)
+        self._cache = self._input.cache
         self._run: CalibrationRun | None = None
         self._cmd = self.create_publisher(JointState, contract.JOINT_COMMAND,
                                           qos_for(contract.JOINT_COMMAND))
@@ -63,14 +64,8 @@ class CalibrationNode(Node):
                                f"{self._p['output_file']}; waiting for joint_states")
 
     def _on_states(self, msg: JointState) -> None:
-        try:
-            self._cache.update(msg.name, msg.position, msg.velocity, msg.effort)
-        except JointStateError as exc:
-            if (text := self._log_throttle.message(f"joint_states ignored: {exc}")):
-                self.get_logger().warn(text)
-            return
         names = self._kin.joint_names
-        if not self._cache.has(names) or not all(n in self._cache.effort for n in self._arm):
+        if not self._input.merge(msg) or not self._input.ready(names, self._arm):
             return
         q = self._cache.positions(names)
         qa = q[self._arm_idx]

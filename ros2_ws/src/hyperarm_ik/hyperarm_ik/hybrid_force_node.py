@@ -21,7 +21,6 @@ from std_srvs.srv import SetBool, Trigger
 from hyperarm_description.log_throttle import ReasonThrottle
 from hyperarm_description import contract
 from hyperarm_description.params import Range
-from hyperarm_description.joints import JointStateCache, JointStateError
 from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import declare_robot_description, run_node
 from hyperarm_interfaces.msg import HybridGoal
@@ -33,6 +32,7 @@ from .force.law import HybridLaw
 from .force.parameters import DYNAMIC, PARAMETERS, build
 from .force.wrench import WrenchEstimator
 from .kinematics import Kinematics
+from .ros_conversions import JointStateInput
 
 _LEVEL = {Mode.DISABLED: 0, Mode.ACTIVE: 0, Mode.PASSIVE: 1}   # OK, OK, WARN
 
@@ -57,7 +57,8 @@ class HybridForceNode(Node):
         except (ForceError, ValueError) as exc:
             raise SystemExit(f"hybrid_force: {exc}") from exc
         self._kin = kin
-        self._cache = JointStateCache()
+        self._input = JointStateInput(self.get_logger(), self._log_throttle)
+        self._cache = self._input.cache
         self._root, self._base = kin.root_frame, desc.base_frame
         self._timer_trigger = p["trigger"] == "timer"
         self._compute_time = 0.0
@@ -136,11 +137,7 @@ class HybridForceNode(Node):
 
     # -- inputs -----------------------------------------------------------------------------
     def _on_joint_states(self, msg: JointState) -> None:
-        try:
-            self._cache.update(msg.name, msg.position, msg.velocity, msg.effort)
-        except JointStateError as exc:
-            if (text := self._log_throttle.message(f"joint_states ignored: {exc}")):
-                self.get_logger().warn(text)
+        if not self._input.merge(msg):
             return
         if any(n in self._ctl.arm_names for n in msg.name):
             self._state_time = self._now()          # staleness counts from the arrival
@@ -224,13 +221,32 @@ class HybridForceNode(Node):
             self.get_logger().warn(event.message)
         else:
             self.get_logger().info(event.message)
-        if event.hold:
+        if event.hold and event.kind != "stale" and self._hold_arm_here():
+            pass
+        elif event.hold:
             if self._hold.service_is_ready():
                 self._hold.call_async(Trigger.Request())
             else:
                 self.get_logger().error(f"driver's {contract.HOLD} service not available: "
                                         "the arm keeps its last command")
         self._publish_diagnostics()
+
+    def _hold_arm_here(self) -> bool:
+        """Hold the ARM joints where they are (one position command) from fresh joint
+        states; False if they are not fresh. Not the driver's hold service: that holds every
+        joint where it is, the gripper too, whose fingers then stop squeezing a held block
+        (and, called asynchronously, it landed after the task's next commands)."""
+        names, c = self._ctl.arm_names, self._cache
+        fresh = (self._state_time is not None and c.has(names)
+                 and self._now() - self._state_time <= self._ctl.config.stale_timeout)
+        if not fresh:
+            return False
+        cmd = JointState()
+        cmd.header.stamp = self.get_clock().now().to_msg()
+        cmd.name = list(names)
+        cmd.position = [float(c.position[n]) for n in names]
+        self._cmd.publish(cmd)
+        return True
 
     def _publish_wrench(self, out: Output, stamp) -> None:
         msg = WrenchStamped()

@@ -1,12 +1,44 @@
-"""Conversions between geometry_msgs and numpy (imports message types, not rclpy)."""
+"""Conversions between geometry_msgs/sensor_msgs and numpy (imports message types, not
+rclpy)."""
 from __future__ import annotations
+
+from typing import Iterable
 
 import numpy as np
 import pinocchio as pin
 from geometry_msgs.msg import Pose
 from sensor_msgs.msg import JointState
 
-__all__ = ["matrix_to_pose", "pose_to_matrix", "joint_state"]
+from hyperarm_description.joints import JointStateCache, JointStateError
+from hyperarm_description.log_throttle import ReasonThrottle
+
+__all__ = ["matrix_to_pose", "pose_to_matrix", "joint_state", "JointStateInput"]
+
+
+class JointStateInput:
+    """joint_states as the force nodes read them: every message merged by name into
+    ``cache`` (each driver publishes its own joints); a malformed one is dropped whole with
+    a warning, throttled per reason through ``throttle``. ``logger``: anything with
+    ``warn(str)`` (a node's logger)."""
+
+    def __init__(self, logger, throttle: ReasonThrottle | None = None) -> None:
+        self.cache = JointStateCache()
+        self._logger = logger
+        self._throttle = throttle if throttle is not None else ReasonThrottle(5.0)
+
+    def merge(self, msg: JointState) -> bool:
+        """Merge ``msg``; False (and a throttled warning) if it was malformed."""
+        try:
+            self.cache.update(msg.name, msg.position, msg.velocity, msg.effort)
+        except JointStateError as exc:
+            if (text := self._throttle.message(f"joint_states ignored: {exc}")):
+                self._logger.warn(text)
+            return False
+        return True
+
+    def ready(self, names: Iterable[str], with_effort: Iterable[str] = ()) -> bool:
+        """Positions of every joint of ``names`` and efforts of ``with_effort`` seen."""
+        return self.cache.has(names) and all(n in self.cache.effort for n in with_effort)
 
 
 def matrix_to_pose(t: np.ndarray) -> Pose:

@@ -1,5 +1,11 @@
-"""Fixtures of the hyperarm_tasks tests: the fixed arm's description and kinematics."""
+"""Fixtures of the hyperarm_tasks tests (the shared ones are in ros2_ws/src/conftest.py):
+the fixed arm's description and kinematics, and what run_task.sh left running."""
 from __future__ import annotations
+
+import os
+import subprocess
+from pathlib import Path
+from typing import Callable
 
 import pytest
 
@@ -15,3 +21,38 @@ def desc():
 @pytest.fixture(scope="module")
 def kin(desc):
     return Kinematics(desc)
+
+
+def _alive(logs: Path) -> list[str]:
+    """The processes run_task.sh started (its ``--logs`` directory's ``pids`` file) that are
+    still running, as "name (pid)"."""
+    out = []
+    for line in (logs / "pids").read_text().split("\n"):
+        if line.strip():
+            name, pid = line.split()
+            try:
+                os.kill(int(pid), 0)
+                out.append(f"{name} ({pid})")
+            except ProcessLookupError:
+                pass
+    return out
+
+
+@pytest.fixture
+def still_running() -> Callable[[Path], list[str]]:
+    """``still_running(logs)``: what run_task.sh left behind (expected: [])."""
+    return _alive
+
+
+@pytest.fixture
+def run_task_sh(executable, ros_domain) -> Callable[..., subprocess.CompletedProcess]:
+    """``run_task_sh(*args, timeout=s)``: the installed run_task.sh on the test's domain,
+    output captured (text)."""
+    script = os.path.join(os.path.dirname(executable("hyperarm_tasks", "run_task")),
+                          "run_task.sh")
+
+    def run(*args: str, timeout: float) -> subprocess.CompletedProcess:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain), PYTHONUNBUFFERED="1")
+        return subprocess.run([script, *args], env=env, capture_output=True, text=True,
+                              timeout=timeout)
+    return run
