@@ -58,6 +58,7 @@ LINEARIZATIONS = 6         # quasi-static contact solves per step at most (stops
 HARD_DEPTH = 0.001         # m: contacts deeper than this are on the stiff branch
 HARD_FACTOR = 50.0         # the stiff branch's stiffness / contact_stiffness
 RELINEARIZE = 1e-3         # rad: re-linearize when the solution is this far from the point
+CONTACT_MARGIN = 0.02      # m: a remembered peg top or side this far apart is still a row
 
 
 class MockCommandError(MockError):
@@ -665,7 +666,9 @@ class JointSim:
         if warm is not None:
             at_q = self.world.contacts(self._tool_at(q))
             # (links on a pole: linearized where they are, near the pole's surface)
-            if (not at_q and not self.link_contacts) or not all(c.frictional for c in at_q):
+            if (not at_q and not self.link_contacts) or not all(c.frictional for c in at_q) \
+                    or (self.world.peg is not None and self.world.state is BlockState.HELD):
+                # (threaded: the hole's wall is curved)
                 warm = None
         q_lin, solved = (q, None) if warm is None else (q + warm, None)
         side = None
@@ -746,7 +749,7 @@ class JointSim:
         contact each row belongs to, which rows are tangential, and the contact points."""
         qt = q + self.offset[:self.nk]
         tool = self._tool_at(q)
-        contacts = self.world.contacts(tool, side_normal)
+        contacts = self.world.contacts(tool, side_normal, CONTACT_MARGIN)
         if self._poles:
             contacts = contacts + self._pole_contacts()
         if not contacts:
@@ -765,7 +768,11 @@ class JointSim:
             rows.append(c.normal @ jp); p0.append(c.depth); owner.append(ci)
             tangential.append(False); dirs.append(c.normal); points.append(c.point)
             if c.frictional:
-                anchor = self._anchors.setdefault(c.kind, c.point[:2].copy())
+                anchor = self._anchors.get(c.kind)
+                if anchor is None:   # touch-down: where the block actually is, not where
+                    # the linearization point (e.g. the commanded joints) would put it
+                    anchor = self._anchors[c.kind] = \
+                        self.world.block_pose(self._tool)[:2, 3].copy()
                 for axis in (0, 1):
                     rows.append(jp[axis]); p0.append(anchor[axis] - c.point[axis])
                     owner.append(ci); tangential.append(True); dirs.append(_AXES[axis])
@@ -853,24 +860,29 @@ class JointSim:
             f[free] = np.linalg.solve(a_full[np.ix_(free, free)], rhs)
             if damp is not None:
                 f[free] -= damp[free]
-            pulling = [c for c in active if f[groups[c][0]] < 0.0]
-            if pulling:
-                active = [c for c in active if c not in pulling]
-                continue
+            # friction first: a tangential force beyond the cone (none if the normal force
+            # pulls) is set on its edge, then the normal forces are judged: a far friction
+            # anchor must not make a real contact look pulling
             changed = False
             for c in active:
                 n, t = groups[c]
                 if not t:
                     continue
-                fn = float(f[n])
+                cap = mu * max(float(f[n]), 0.0)
                 norm = math.hypot(*(float(f[i]) for i in t))
-                if norm > mu * fn * (1.0 + 1e-9):
-                    f[t] *= mu * fn / norm
+                if norm > cap * (1.0 + 1e-9):
+                    f[t] *= cap / norm
                     if not fixed.issuperset(t):
                         fixed.update(t)
                         changed = True
-            if not changed:
+            if changed:
+                continue
+            pulling = [c for c in active if f[groups[c][0]] < 0.0]
+            if not pulling:
                 break
+            # drop the one pulling most only: with it gone the others may push
+            worst = min(pulling, key=lambda c: f[groups[c][0]])
+            active = [c for c in active if c != worst]
         return f
 
     def _limit_efforts(self, q: np.ndarray, P: np.ndarray, dq: np.ndarray, gen: np.ndarray,
