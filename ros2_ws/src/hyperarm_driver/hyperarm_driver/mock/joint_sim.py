@@ -82,6 +82,7 @@ class CommandReport:
     applied: tuple[str, ...]
     clamped: tuple[str, ...]
     mode: ControlMode = ControlMode.POSITION
+    rejected: str = ""       # why the rail's part was refused (the rest applied), or ""
 
 
 @dataclass(frozen=True)
@@ -286,18 +287,16 @@ class JointSim:
             raise JointStateError("command has neither positions nor efforts")
         goals = check_command(names, positions, self.names) if len(positions) else {}
         torques = check_command(names, efforts, self.names, "effort") if len(efforts) else {}
+        rejected = self._rail_problem(goals, torques)
+        if rejected:
+            # the real pair on rail_arm: the PMAC driver refuses the rail's part, the
+            # Dynamixel driver still applies its own joints (nothing at all if only the rail)
+            names = [n for n in names if n != self.rail]
+            if not names:
+                raise MockCommandError(rejected)
+            goals.pop(self.rail, None)
+        torques.pop(self.rail, None)       # 0 (no extra limit) or refused above
         idx = [self._index[n] for n in names]
-        if self.rail in torques:
-            raise MockCommandError(f"{self.rail} is position-controlled: effort commands are not "
-                                   "accepted for it")
-        if self.rail in goals:
-            i = self._index[self.rail]
-            if not self.lower[i] <= goals[self.rail] <= self.upper[i]:
-                raise MockCommandError(
-                    f"{self.rail} setpoint {goals[self.rail]:g} m outside "
-                    f"[{self.lower[i]:g}, {self.upper[i]:g}] m: command rejected")
-            if self.require_homing and not self.homed:
-                raise MockCommandError(f"{self.rail} is not homed: call rail/home first")
         clamped = []
         values = {}
         for n, i in zip(names, idx):
@@ -352,7 +351,25 @@ class JointSim:
                 self.offset[arm] = self._rng.normal(0.0, imp.repeatability, len(arm))
 
         self._schedule(apply)
-        return CommandReport(applied=tuple(names), clamped=tuple(clamped), mode=mode)
+        return CommandReport(applied=tuple(names), clamped=tuple(clamped), mode=mode,
+                             rejected=rejected)
+
+    def _rail_problem(self, goals: dict, torques: dict) -> str:
+        """Why the PMAC rail driver would refuse the rail's part of a command, or "": an
+        effort other than 0 (0 = no extra limit, as for every joint), or an effort without
+        a position; a setpoint outside its range; before homing (``require_homing``)."""
+        if self.rail is None or (self.rail not in goals and self.rail not in torques):
+            return ""
+        if self.rail in torques and (self.rail not in goals or torques[self.rail] != 0.0):
+            return (f"effort {torques[self.rail]:g} for {self.rail!r} refused: the rail is "
+                    "position-controlled (send 0 or no effort)")
+        i = self._index[self.rail]
+        if not self.lower[i] <= goals[self.rail] <= self.upper[i]:
+            return (f"{self.rail} setpoint {goals[self.rail]:g} m outside "
+                    f"[{self.lower[i]:g}, {self.upper[i]:g}] m: command rejected")
+        if self.require_homing and not self.homed:
+            return f"{self.rail} is not homed: call rail/home first"
+        return ""
 
     def _schedule(self, fn: Callable[[], None]) -> None:
         if self.cfg.imperfections.command_latency > 0.0:
