@@ -301,6 +301,11 @@ class MockDriver(Node):
             if (text := self._throttle.message(f"joint_command rejected: {exc}")):
                 self.get_logger().error(text)    # per reason: a new kind is never hidden
             return
+        if report.rejected:       # the rail's part only: the arm's was applied
+            self._stats.rejected_setpoints += 1
+            if (text := self._throttle.message(
+                    f"rail setpoint rejected, nothing sent: {report.rejected}")):
+                self.get_logger().error(text)
         if report.clamped and (text := self._throttle.message(
                 f"joint_command clamped to limits: {list(report.clamped)}")):
             self.get_logger().warn(text)

@@ -135,10 +135,6 @@ def test_mock_and_dynamixel_driver_expose_the_same_interface(launch, rclpy_conte
                          ["bus"] + [f"joint{i}" for i in range(1, 10)] + ["gripper"])
 
 
-@pytest.mark.xfail(strict=True, reason="issue 17: the PMAC driver serves rail/set_torque, "
-                   "rail/hold, rail/home (one owner per service on rail_arm) and reports the "
-                   "diagnostics keys torque, latched_faults, watchdog; the mock's side is the "
-                   "mock helper's: remove this mark when it lands")
 def test_rail_variant_and_pmac_rail_driver_expose_the_same_interface(
         launch, rclpy_context, executor, wait_for):
     import socket

@@ -23,7 +23,7 @@ from hyperarm_description import contract
 from hyperarm_description.model import load_description
 from hyperarm_description.qos import qos_for
 from hyperarm_driver.mock.config import MockConfig, default_workcell_path, load_mock_config
-from hyperarm_driver.mock.joint_sim import JointSim
+from hyperarm_driver.mock.joint_sim import OVERLOAD_TIME, JointSim, MockCommandError
 from hyperarm_driver.mock.scenario import tool_down_ik
 
 VARIANTS = ["arm", "rail_arm"]
@@ -37,11 +37,12 @@ VARIANTS = ["arm", "rail_arm"]
 # ``rail_arm`` the rail stays at 0 (homed) and targets are shifted into base_link.
 #
 # Per cycle (block from one peg to the other, then back in the next cycle): rail/home
-# (``homed``), grasp (``grasped``), lift (``unthreaded``), a grip below the slip torque
-# (``dropped``, onto the peg it came from), grasp and lift again, descend onto the other peg
-# (``threaded``), press the block into the table in position mode until a servo overloads
-# (``hardware_error``), reboot + torque on, open (``released``), an effort command followed by
-# silence (``watchdog``), a current limit below a joint's load (``underpowered``).
+# (``homed``), the stretched arm swung into a pole in position mode until joint1 overloads
+# (``hardware_error``; set_torque then fails: latched until the reboot), reboot + torque on,
+# grasp (``grasped``), lift (``unthreaded``), a grip below the slip torque (``dropped``, onto
+# the peg it came from), grasp and lift again, descend onto the other peg (``threaded``),
+# open (``released``), an effort command followed by silence (``watchdog``), a current limit
+# below a joint's load (``underpowered``).
 
 ARM = [f"joint{i}" for i in range(1, 10)]
 EVENT_KINDS = {"grasped", "unthreaded", "dropped", "threaded", "hardware_error", "released",
@@ -97,6 +98,12 @@ def tour(cfg: MockConfig, variant: str, cycles: int = 2, overload: bool = True) 
         d_base = [*dst.xy, w.table_height + half]
         if desc.rail:
             steps.append(Step(service="rail/home", wait=1.0))
+        if overload:   # the arm stretched, joint1 swung into the pole: overload
+            steps.append(Step(ARM, [0.0] * 9, wait=2.0))
+            steps.append(Step(["joint1"], [2.0], wait=OVERLOAD_TIME + 1.5))
+            steps.append(Step(service="reboot", wait=0.2))   # clears the latched error
+            steps.append(Step(service="set_torque", data=True, wait=0.3))
+            steps.append(Step(["joint1"], [0.0], wait=1.0))   # back, away from the pole
         grip(OPEN, GRIP)
         steps.append(Step(ARM, ik(s_above), wait=3.0))
         line(s_above, s_base, 1.5)
@@ -109,11 +116,6 @@ def tour(cfg: MockConfig, variant: str, cycles: int = 2, overload: bool = True) 
         line(s_base, s_above, 1.5)                          # unthreaded
         line(s_above, d_above, 2.0)
         line(d_above, d_base, 1.5)                          # threaded
-        if overload:
-            below = [*dst.xy, w.table_height + half - 0.12]
-            steps.append(Step(ARM, ik(below), wait=4.0))    # press: overload
-            steps.append(Step(service="reboot", wait=0.2))
-            steps.append(Step(service="set_torque", data=True, wait=0.5))
         grip(OPEN, GRIP)                                    # released
         steps.append(Step(ARM, ik(d_above), wait=2.5))
         steps.append(Step(["joint1"], [], [0.0], wait=1.5))  # watchdog
@@ -129,6 +131,9 @@ def run_on_sim(sim: JointSim, steps: list[Step], dt: float = 0.01) -> list[str]:
         if s.service == "rail/home":
             sim.home_rail()
         elif s.service == "reboot":
+            assert sim.errors, "no hardware error to clear"
+            with pytest.raises(MockCommandError, match="reboot first"):
+                sim.set_torque(True)          # latched: only a reboot clears it
             sim.reboot([])
         elif s.service == "set_torque":
             sim.set_torque(s.data)
@@ -144,8 +149,12 @@ def run_on_sim(sim: JointSim, steps: list[Step], dt: float = 0.01) -> list[str]:
 
 
 def _cell(tmp_path: Path) -> Path:
-    """The packaged work cell without repeatability noise (the tour is scripted blind)."""
+    """The packaged work cell plus a pole at 60° off x, away from the transfer path (the tour
+    swings the stretched arm into it to overload joint1; at 70° on rail_arm, whose base is
+    5 cm higher, the limp joint1 let a link wrap around the pole), without repeatability
+    noise (the tour is scripted blind)."""
     raw = yaml.safe_load(default_workcell_path().read_text())
+    raw["world"]["poles"] = {"pole1": {"xy": [0.1695, 0.2936], "radius": 0.015, "height": 0.6}}
     raw["imperfections"].update(repeatability=0.0, seed=3)
     raw["camera"].update(seed=3)
     out = tmp_path / "cell.yaml"
@@ -154,7 +163,7 @@ def _cell(tmp_path: Path) -> Path:
 
 
 def _expected(variant: str) -> set[str]:
-    return (EVENT_KINDS - {"hardware_error"}) | ({"homed"} if variant == "rail_arm" else set())
+    return EVENT_KINDS | ({"homed"} if variant == "rail_arm" else set())
 
 
 @pytest.mark.core
@@ -162,7 +171,7 @@ def _expected(variant: str) -> set[str]:
 def test_core_tour_provokes_every_event_kind_twice(variant, tmp_path):
     cfg = load_mock_config(_cell(tmp_path))
     sim = JointSim(load_description(variant=variant), cfg)
-    counts = Counter(run_on_sim(sim, tour(cfg, variant, overload=False)))
+    counts = Counter(run_on_sim(sim, tour(cfg, variant, overload=True)))
     assert {k for k, n in counts.items() if n >= 2} >= _expected(variant), counts
 
 
@@ -178,7 +187,7 @@ def test_node_keeps_publishing_through_every_event_kind(variant, launch, rclpy_c
     from hyperarm_interfaces.srv import Reboot
 
     cell = _cell(tmp_path)
-    steps = tour(load_mock_config(cell), variant, overload=False)
+    steps = tour(load_mock_config(cell), variant, overload=True)
     proc = launch("hyperarm_driver", "mock_driver",
                   params={"variant": variant, "sim_speed": 5.0, "workcell_file": str(cell)})
     node = rclpy.create_node("tour", namespace=contract.DEFAULT_NAMESPACE,
@@ -205,6 +214,12 @@ def test_node_keeps_publishing_through_every_event_kind(variant, launch, rclpy_c
                       f"(log tail: {proc.output()[-400:]!r})")
 
     for s in steps:
+        if s.service == "reboot":   # a hardware error stays latched until a reboot
+            wait_for(lambda: "hardware_error: " in proc.output(), 10.0, what="the overload")
+            req = SetBool.Request(data=True)
+            fut = clients["set_torque"].call_async(req)
+            wait_for(fut.done, 10.0, what="set_torque answered")
+            assert not fut.result().success and "reboot" in fut.result().message
         if s.service:
             req = clients[s.service].srv_type.Request()
             if s.service == "set_torque":

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, Phase, given, settings
+from hypothesis import HealthCheck, Phase, example, given, settings
 from hypothesis import strategies as st
 
 from hyperarm_description.model import load_description
@@ -29,6 +29,7 @@ pytestmark = [pytest.mark.core, pytest.mark.slow]
 
 DT = 0.01
 MAX_PENETRATION = 0.002   # m, issue 9 item 2
+NO_SHRINK = (Phase.explicit, Phase.reuse, Phase.generate)   # a known failure: no minutes
 
 
 def _cfg(repeatability: float = 0.0):
@@ -62,11 +63,13 @@ def _depth(sim) -> float:
     return max((c.depth for c in cs), default=0.0)
 
 
-@pytest.mark.xfail(strict=False, reason="known defect, issue 9 item 2 not finished: "
-                   "commanded ~9 cm or more below a peg's top, the block pressed on the top "
-                   "at the friction cone's edge loses the top contact and falls to the table")
-@settings(max_examples=8, deadline=None, derandomize=True,
-          phases=[Phase.explicit, Phase.reuse, Phase.generate],  # no shrinking: minutes
+@pytest.mark.xfail(strict=False, reason="issue 9 item 2 not finished: (1) pressed straight "
+                   "down, this arm's servo springs push the block sideways at 0.78 x the "
+                   "normal force (> friction 0.5): it slides as friction allows, off the top "
+                   "or over the hole (then it threads), so 'stays on the top' is not the "
+                   "physics for deep presses; (2) current-limited deep presses: the yielding "
+                   "joints' linear solve can still put the block into the peg or fling it")
+@settings(max_examples=8, deadline=None, derandomize=True, phases=NO_SHRINK,
           suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(off=st.floats(0.003, 0.007), angle=st.floats(0.0, 2.0 * math.pi),
        depth=st.floats(0.0, 0.12), limited=st.booleans())
@@ -91,6 +94,42 @@ def test_misaligned_press_never_penetrates_nor_threads(held, off, angle, depth, 
     assert worst <= MAX_PENETRATION, worst
     bottom = sc.block_xyz()[2] - half
     assert bottom >= top - MAX_PENETRATION
+
+
+@settings(max_examples=6, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(off=st.floats(0.003, 0.007), angle=st.floats(0.0, 2.0 * math.pi),
+       depth=st.floats(0.0, 0.12))
+@example(off=0.005, angle=0.5 * math.pi, depth=0.12)   # went through the peg (issue 9)
+@example(off=0.005, angle=0.5 * math.pi, depth=0.09)
+@example(off=0.003, angle=math.pi, depth=0.12)
+def test_position_mode_press_never_interpenetrates(held, off, angle, depth):
+    """The invariant, checked after every simulation step: a misaligned block pressed down
+    in position mode to any depth (4 cm under the table at most) penetrates neither the
+    table nor a peg by more than 2 mm (World.penetration: the geometry alone, no contact
+    memory), whether it stays on the top, slides over the hole and threads, or slides off
+    the top's edge and comes down beside the peg."""
+    sc0, above, half, top = held
+    sc = copy.deepcopy(sc0)
+    sim = sc.sim
+    d = np.array([off * math.cos(angle), off * math.sin(angle), 0.0])
+    sc.move_tool(above + d, 1.0)
+    worst = [0.0]
+    step = sim.step
+
+    def checked(dt):
+        step(dt)
+        worst[0] = max(worst[0], sim.world.penetration(sim.tool_pose()))
+
+    sim.step = checked
+    target = above + d
+    target[2] = top + half - depth
+    sc.tool_target = above + d
+    for k in range(1, 13):
+        sc.move_tool(above + d + (target - above - d) * k / 12, 0.15)
+    sc.run(0.5)
+    assert sim.world.state is BlockState.HELD
+    assert worst[0] <= MAX_PENETRATION, worst[0]
 
 
 @settings(max_examples=6, deadline=None, derandomize=True,

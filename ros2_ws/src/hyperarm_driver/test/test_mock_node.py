@@ -190,13 +190,20 @@ def test_rail_variant_homing(rclpy_context, executor, wait_for):
     wait_for(lambda: p.diag("mock_driver: rail").get("rejected_setpoints") == "1", 5.0,
              what="the setpoint before homing rejected")
     assert p.diag("mock_driver: rail")["homed"] == "false"
+    # arm + rail before homing, as the Dynamixel + PMAC pair: the rail's part refused, the
+    # arm's applied (docs/architecture.md)
+    p.send(["rail", "joint1"], [0.3, 0.2])
+    wait_for(lambda: p.diag("mock_driver: rail").get("rejected_setpoints") == "2", 5.0,
+             what="the rail's part rejected")
+    wait_for(lambda: abs(p.position("joint1") - 0.2) < 1e-6, 5.0, what="joint1 at 0.2 rad")
+    assert p.position("rail") == 0.0
     r = p.call(contract.RAIL_HOME, wait_for)
     assert r.success
     wait_for(lambda: p.diag("mock_driver: rail").get("homed") == "true", 5.0, what="homed")
     assert p.position("rail") == 0.0
-    p.send(["rail"], [0.3])
+    p.send(["rail", "joint1"], [0.3, 0.0], [0.0, 0.0])    # efforts of 0 include the rail
     wait_for(lambda: abs(p.position("rail") - 0.3) < 1e-6, 5.0, what="rail at 0.3 m")
-    assert int(p.diag("mock_driver: rail")["rejected_setpoints"]) == 1
+    assert int(p.diag("mock_driver: rail")["rejected_setpoints"]) == 2
 
 
 def test_rail_services_own_the_rail_and_arm_services_the_servos(rclpy_context, executor,

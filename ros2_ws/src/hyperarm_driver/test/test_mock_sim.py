@@ -248,8 +248,12 @@ def test_rail_variant_homing_and_setpoints():
     sim = JointSim(desc, config())
     assert sim.names[0] == "rail" and len(sim.names) == 11
     with pytest.raises(MockCommandError, match="not homed"):
-        sim.command(["rail", "joint1"], [0.2, 0.1])
-    assert sim.goal[1] == 0.0                       # nothing applied
+        sim.command(["rail"], [0.2])
+    # arm + rail before homing: as the real pair (the PMAC driver refuses its part, the
+    # Dynamixel driver applies its joints), the arm's part applies, the rail's does not
+    report = sim.command(["rail", "joint1"], [0.2, 0.1])
+    assert "not homed" in report.rejected and report.applied == ("joint1",)
+    assert sim.goal[0] == 0.0 and sim.goal[1] == 0.1
     sim.set_torque(False)
     with pytest.raises(MockCommandError, match="not enabled"):
         sim.home_rail()
@@ -265,3 +269,14 @@ def test_rail_variant_homing_and_setpoints():
         sim.command(["rail"], [2.0])
     with pytest.raises(MockCommandError, match="position-controlled"):
         sim.command(["rail"], [], [10.0])
+    # efforts of 0 (many tools fill them) include the rail: no extra limit, accepted
+    report = sim.command(["rail", "joint1"], [0.4, 0.2], [0.0, 0.0])
+    assert report.rejected == "" and sim.goal[0] == 0.4 and sim.goal[1] == 0.2
+    assert sim.limit_cmd[1] == sim.default_limit[1]
+    # a non-zero rail effort: the rail's part refused whole, the arm's applied
+    report = sim.command(["rail", "joint1"], [0.45, 0.3], [1.0, 0.5])
+    assert "position-controlled" in report.rejected
+    assert sim.goal[0] == 0.4 and sim.goal[1] == 0.3 and sim.limit_cmd[1] == 0.5
+    with pytest.raises(JointStateError, match="non-finite"):   # NaN anywhere: all refused
+        sim.command(["rail", "joint1"], [math.nan, 0.1])
+    assert sim.goal[1] == 0.3

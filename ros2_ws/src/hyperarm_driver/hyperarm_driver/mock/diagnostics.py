@@ -77,6 +77,12 @@ def mock_diagnostics(sim: JointSim, stats: BusStats, period: float, sim_speed: f
         out.append(DiagStatus(
             name=f"{node}: rail", hardware_id="mock-pmac", level=level, message=message,
             values={"link": "up", "endpoint": "mock", "motor": str(sim.desc.rail.pmac_motor),
+                    # the PMAC driver's: torque as the driver set it; faults latched until
+                    # rail/set_torque true (the mock's rail has none); the on-card watchdog
+                    # (nothing to lose on the mock: always "on", as the driver's default)
+                    "torque": "on" if enabled else "off",
+                    "latched_faults": sim.errors.get(sim.rail, "none"),
+                    "watchdog": "on",
                     "position_m": f"{sim.position[i]:.6f}",
                     "velocity_mps": f"{sim.velocity[i]:.6f}",
                     "following_error_m": f"{sim.goal[i] - sim.position[i]:.6f}"

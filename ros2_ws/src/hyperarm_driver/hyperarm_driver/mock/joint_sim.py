@@ -58,6 +58,7 @@ LINEARIZATIONS = 6         # quasi-static contact solves per step at most (stops
 HARD_DEPTH = 0.001         # m: contacts deeper than this are on the stiff branch
 HARD_FACTOR = 50.0         # the stiff branch's stiffness / contact_stiffness
 RELINEARIZE = 1e-3         # rad: re-linearize when the solution is this far from the point
+CONTACT_MARGIN = 0.02      # m: a remembered peg top or side this far apart is still a row
 
 
 class MockCommandError(MockError):
@@ -81,6 +82,7 @@ class CommandReport:
     applied: tuple[str, ...]
     clamped: tuple[str, ...]
     mode: ControlMode = ControlMode.POSITION
+    rejected: str = ""       # why the rail's part was refused (the rest applied), or ""
 
 
 @dataclass(frozen=True)
@@ -285,18 +287,16 @@ class JointSim:
             raise JointStateError("command has neither positions nor efforts")
         goals = check_command(names, positions, self.names) if len(positions) else {}
         torques = check_command(names, efforts, self.names, "effort") if len(efforts) else {}
+        rejected = self._rail_problem(goals, torques)
+        if rejected:
+            # the real pair on rail_arm: the PMAC driver refuses the rail's part, the
+            # Dynamixel driver still applies its own joints (nothing at all if only the rail)
+            names = [n for n in names if n != self.rail]
+            if not names:
+                raise MockCommandError(rejected)
+            goals.pop(self.rail, None)
+        torques.pop(self.rail, None)       # 0 (no extra limit) or refused above
         idx = [self._index[n] for n in names]
-        if self.rail in torques:
-            raise MockCommandError(f"{self.rail} is position-controlled: effort commands are not "
-                                   "accepted for it")
-        if self.rail in goals:
-            i = self._index[self.rail]
-            if not self.lower[i] <= goals[self.rail] <= self.upper[i]:
-                raise MockCommandError(
-                    f"{self.rail} setpoint {goals[self.rail]:g} m outside "
-                    f"[{self.lower[i]:g}, {self.upper[i]:g}] m: command rejected")
-            if self.require_homing and not self.homed:
-                raise MockCommandError(f"{self.rail} is not homed: call rail/home first")
         clamped = []
         values = {}
         for n, i in zip(names, idx):
@@ -351,7 +351,25 @@ class JointSim:
                 self.offset[arm] = self._rng.normal(0.0, imp.repeatability, len(arm))
 
         self._schedule(apply)
-        return CommandReport(applied=tuple(names), clamped=tuple(clamped), mode=mode)
+        return CommandReport(applied=tuple(names), clamped=tuple(clamped), mode=mode,
+                             rejected=rejected)
+
+    def _rail_problem(self, goals: dict, torques: dict) -> str:
+        """Why the PMAC rail driver would refuse the rail's part of a command, or "": an
+        effort other than 0 (0 = no extra limit, as for every joint), or an effort without
+        a position; a setpoint outside its range; before homing (``require_homing``)."""
+        if self.rail is None or (self.rail not in goals and self.rail not in torques):
+            return ""
+        if self.rail in torques and (self.rail not in goals or torques[self.rail] != 0.0):
+            return (f"effort {torques[self.rail]:g} for {self.rail!r} refused: the rail is "
+                    "position-controlled (send 0 or no effort)")
+        i = self._index[self.rail]
+        if not self.lower[i] <= goals[self.rail] <= self.upper[i]:
+            return (f"{self.rail} setpoint {goals[self.rail]:g} m outside "
+                    f"[{self.lower[i]:g}, {self.upper[i]:g}] m: command rejected")
+        if self.require_homing and not self.homed:
+            return f"{self.rail} is not homed: call rail/home first"
+        return ""
 
     def _schedule(self, fn: Callable[[], None]) -> None:
         if self.cfg.imperfections.command_latency > 0.0:
@@ -665,7 +683,9 @@ class JointSim:
         if warm is not None:
             at_q = self.world.contacts(self._tool_at(q))
             # (links on a pole: linearized where they are, near the pole's surface)
-            if (not at_q and not self.link_contacts) or not all(c.frictional for c in at_q):
+            if (not at_q and not self.link_contacts) or not all(c.frictional for c in at_q) \
+                    or (self.world.peg is not None and self.world.state is BlockState.HELD):
+                # (threaded: the hole's wall is curved)
                 warm = None
         q_lin, solved = (q, None) if warm is None else (q + warm, None)
         side = None
@@ -746,7 +766,7 @@ class JointSim:
         contact each row belongs to, which rows are tangential, and the contact points."""
         qt = q + self.offset[:self.nk]
         tool = self._tool_at(q)
-        contacts = self.world.contacts(tool, side_normal)
+        contacts = self.world.contacts(tool, side_normal, CONTACT_MARGIN)
         if self._poles:
             contacts = contacts + self._pole_contacts()
         if not contacts:
@@ -765,7 +785,11 @@ class JointSim:
             rows.append(c.normal @ jp); p0.append(c.depth); owner.append(ci)
             tangential.append(False); dirs.append(c.normal); points.append(c.point)
             if c.frictional:
-                anchor = self._anchors.setdefault(c.kind, c.point[:2].copy())
+                anchor = self._anchors.get(c.kind)
+                if anchor is None:   # touch-down: where the block actually is, not where
+                    # the linearization point (e.g. the commanded joints) would put it
+                    anchor = self._anchors[c.kind] = \
+                        self.world.block_pose(self._tool)[:2, 3].copy()
                 for axis in (0, 1):
                     rows.append(jp[axis]); p0.append(anchor[axis] - c.point[axis])
                     owner.append(ci); tangential.append(True); dirs.append(_AXES[axis])
@@ -853,24 +877,29 @@ class JointSim:
             f[free] = np.linalg.solve(a_full[np.ix_(free, free)], rhs)
             if damp is not None:
                 f[free] -= damp[free]
-            pulling = [c for c in active if f[groups[c][0]] < 0.0]
-            if pulling:
-                active = [c for c in active if c not in pulling]
-                continue
+            # friction first: a tangential force beyond the cone (none if the normal force
+            # pulls) is set on its edge, then the normal forces are judged: a far friction
+            # anchor must not make a real contact look pulling
             changed = False
             for c in active:
                 n, t = groups[c]
                 if not t:
                     continue
-                fn = float(f[n])
+                cap = mu * max(float(f[n]), 0.0)
                 norm = math.hypot(*(float(f[i]) for i in t))
-                if norm > mu * fn * (1.0 + 1e-9):
-                    f[t] *= mu * fn / norm
+                if norm > cap * (1.0 + 1e-9):
+                    f[t] *= cap / norm
                     if not fixed.issuperset(t):
                         fixed.update(t)
                         changed = True
-            if not changed:
+            if changed:
+                continue
+            pulling = [c for c in active if f[groups[c][0]] < 0.0]
+            if not pulling:
                 break
+            # drop the one pulling most only: with it gone the others may push
+            worst = min(pulling, key=lambda c: f[groups[c][0]])
+            active = [c for c in active if c != worst]
         return f
 
     def _limit_efforts(self, q: np.ndarray, P: np.ndarray, dq: np.ndarray, gen: np.ndarray,

@@ -36,6 +36,12 @@ __all__ = ["WorldError", "BlockState", "Contact", "WorldEvent", "World",
 # Depth (m) below a peg's top that the block's bottom must reach, aligned, to be threaded
 # (more than the penalty penetration of a pressing contact, so pressing never threads).
 THREAD_DEPTH = 0.001
+# Contact memory of an unthreaded held block (``World.track``): at its actual pose, a block
+# whose bottom is above a peg's top minus TOP_SLACK (m: more than a pressing contact's
+# penetration) is "over" that peg, else "beside" it; pegs farther than NEAR (m) beyond the
+# block's corners are forgotten.
+TOP_SLACK = 0.003
+NEAR = 0.03
 
 
 class WorldError(MockError):
@@ -117,6 +123,10 @@ class World:
         self.events: list[WorldEvent] = []
         self._grasp: np.ndarray | None = None    # tool0 -> block, while held
         self._pose = np.eye(4)
+        # per unthreaded peg near the held block, from its last actual pose (``track``):
+        # ("top", None) resting on / above the top's disc, ("side", n) beside the peg (n:
+        # horizontal unit normal pushing the block away from the peg's axis)
+        self._memory: dict[str, tuple[str, np.ndarray | None]] = {}
         if cfg.block is None:                    # nothing to grasp
             self._half = np.zeros(3)
             self._corner = 0.0
@@ -217,6 +227,86 @@ class World:
         n = -np.array([c * nx - s * ny, s * nx + c * ny, 0.0])
         return p.radius - d, n
 
+    def _outward(self, peg: str, block_pose: np.ndarray) -> np.ndarray | None:
+        """Horizontal unit normal pushing the block away from peg ``peg`` (from the point of
+        the block's footprint nearest the peg's axis); None when the axis is inside the
+        footprint (under the solid part or the hole)."""
+        p = self._pegs[peg]
+        ex, ey = p.xy[0] - float(block_pose[0, 3]), p.xy[1] - float(block_pose[1, 3])
+        yaw = math.atan2(float(block_pose[1, 0]), float(block_pose[0, 0]))
+        c, s = math.cos(yaw), math.sin(yaw)
+        lx, ly = c * ex + s * ey, -s * ex + c * ey
+        dx = max(abs(lx) - self._half[0], 0.0)
+        dy = max(abs(ly) - self._half[1], 0.0)
+        d = math.hypot(dx, dy)
+        if d == 0.0:
+            return None
+        nx, ny = math.copysign(dx, lx) / d, math.copysign(dy, ly) / d
+        return -np.array([c * nx - s * ny, s * nx + c * ny, 0.0])
+
+    def _side_depth(self, peg: str, block_pose: np.ndarray, n: np.ndarray) -> float:
+        """Overlap (m) of the block's footprint with peg ``peg``'s disc along the horizontal
+        normal ``n`` (peg -> block): the peg's radius minus the gap between the axis and
+        the footprint's supporting line across ``n``; > 0 = penetrating, at any depth."""
+        p = self._pegs[peg]
+        rx, ry = float(block_pose[0, 3]) - p.xy[0], float(block_pose[1, 3]) - p.xy[1]
+        support = (self._half[0] * abs(float(n[0] * block_pose[0, 0] + n[1] * block_pose[1, 0]))
+                   + self._half[1] * abs(float(n[0] * block_pose[0, 1] + n[1] * block_pose[1, 1])))
+        return p.radius - (float(n[0]) * rx + float(n[1]) * ry - support)
+
+    def track(self, tool_pose: np.ndarray) -> None:
+        """Remember, from the held block's actual pose, which side of every nearby
+        unthreaded peg it is on (``contacts`` then applies that peg's top or side at any
+        commanded depth: a block over a top can only leave it upwards or over the edge,
+        a block beside a peg only sideways or upwards)."""
+        if self.state is not BlockState.HELD:
+            self._memory.clear()
+            return
+        pose = self.block_pose(tool_pose)
+        bottom = float(pose[2, 3]) - self._half[2]
+        for name, p in self._pegs.items():
+            if name == self.peg or self.misalignment(name, pose) >= self._corner + p.radius + NEAR:
+                self._memory.pop(name, None)
+                continue
+            top = self.cfg.table_height + p.height
+            over = self._touches_top(name, pose)
+            if bottom >= top - TOP_SLACK and over:
+                self._memory[name] = ("top", None)
+                continue
+            n = self._outward(name, pose)
+            if n is not None and not over:
+                self._memory[name] = ("side", n)
+            elif bottom >= top and not over:
+                self._memory.pop(name, None)   # above, over the hole: free (may thread)
+            # else: inside the footprint below the top (a penetration the solver is
+            # resolving) or over the hole below the top (threading): keep what it was
+
+    def penetration(self, tool_pose: np.ndarray) -> float:
+        """Largest interpenetration (m) of the held block with the table and the pegs at
+        this tool pose, from the geometry alone (no contact memory): the table's depth; per
+        unthreaded peg overlapping the block (its top above the bottom, its disc over the
+        footprint's solid part), the least of the vertical depth below its top and the
+        sideways overlap; on the threaded peg, the excess over the clearance. 0 when not
+        held. For invariant checks."""
+        if self.state is not BlockState.HELD:
+            return 0.0
+        pose = self.block_pose(tool_pose)
+        bottom = float(pose[2, 3]) - self._half[2]
+        worst = max(self.cfg.table_height - bottom, 0.0)
+        for name, p in self._pegs.items():
+            top = self.cfg.table_height + p.height
+            if name == self.peg:
+                worst = max(worst, self.misalignment(name, pose) - self.cfg.clearance(name))
+                continue
+            if top <= bottom:
+                continue
+            n = self._outward(name, pose)
+            if n is not None:
+                worst = max(worst, min(top - bottom, self._side_depth(name, pose, n)))
+            elif self._touches_top(name, pose):
+                worst = max(worst, top - bottom)
+        return worst
+
     # -- contacts of the robot's links with the poles ------------------------------------
     def pole_contacts(self, segments, normals: dict | None = None) -> list[Contact]:
         """Penetrating contacts of link capsules with the poles: ``segments`` are
@@ -261,13 +351,17 @@ class World:
         return out
 
     # -- contacts of the held block -----------------------------------------------------
-    def contacts(self, tool_pose: np.ndarray,
-                 side_normal: np.ndarray | None = None) -> list[Contact]:
+    def contacts(self, tool_pose: np.ndarray, side_normal: np.ndarray | None = None,
+                 margin: float = 0.0) -> list[Contact]:
         """Penetrating contacts of the held block at this tool pose (empty if not held).
         With ``side_normal``, the side of the peg the block is threaded on is taken as the
         plane of that normal tangent to the clearance circle, and reported at any depth
         (re-linearizing a contact found elsewhere: the linear solution may overshoot the
-        curved side, even past the axis, where its own normal would flip)."""
+        curved side, even past the axis, where its own normal would flip).
+        A peg the block is over or beside at its last actual pose (``track``) contributes
+        that top or side at any depth; with ``margin`` (m) also when it is up to that far
+        apart (a negative depth: a solver linearizing at a pose pushed out of the contact
+        must still see the surface it was pushed out by)."""
         if self.state is not BlockState.HELD:
             return []
         pose = self.block_pose(tool_pose)
@@ -276,7 +370,7 @@ class World:
         out: list[Contact] = []
         up = _UP
         depth = self.cfg.table_height - bottom
-        if depth > 0.0:
+        if depth > -margin:
             out.append(Contact("table", up, depth, np.array([centre[0], centre[1], bottom]),
                                frictional=True))
         for name, p in self._pegs.items():
@@ -296,6 +390,21 @@ class World:
                                        np.array([centre[0], centre[1], z])))
                 continue
             depth = top - bottom
+            memory = self._memory.get(name)
+            if memory is not None:   # the side it is on, at its last actual pose
+                kind, n = memory
+                if kind == "top" and depth > -margin and self._touches_top(name, pose):
+                    out.append(Contact(f"peg_top:{name}", up, depth,
+                                       np.array([centre[0], centre[1], bottom]),
+                                       frictional=True))
+                elif kind == "side" and depth > -margin:
+                    excess = self._side_depth(name, pose, n)
+                    if excess > -margin:
+                        low = max(bottom, self.cfg.table_height)
+                        z = low + 0.5 * (min(top, centre[2] + self._half[2]) - low)
+                        out.append(Contact(f"peg_side:{name}", n, excess,
+                                           np.array([centre[0], centre[1], z])))
+                continue
             if depth <= 0.0 or centre[2] + self._half[2] <= self.cfg.table_height:
                 continue
             side = self._side_contact(name, pose)
@@ -321,14 +430,15 @@ class World:
             if bottom > top:
                 self.events.append(WorldEvent("unthreaded", self.peg))
                 self.peg = None
-            return
-        for name, p in self._pegs.items():
-            top = self.cfg.table_height + p.height
-            if (bottom < top - THREAD_DEPTH
-                    and self.misalignment(name, pose) <= self.cfg.block.hole_radius - p.radius):
-                self.peg = name
-                self.events.append(WorldEvent("threaded", name))
-                return
+        else:
+            for name, p in self._pegs.items():
+                top = self.cfg.table_height + p.height
+                if (bottom < top - THREAD_DEPTH
+                        and self.misalignment(name, pose) <= self.cfg.block.hole_radius - p.radius):
+                    self.peg = name
+                    self.events.append(WorldEvent("threaded", name))
+                    break
+        self.track(tool_pose)
 
     # -- grasping -----------------------------------------------------------------------
     def grasp(self, tool_pose: np.ndarray) -> None:
@@ -343,6 +453,8 @@ class World:
         else:
             where = f"on {self.peg}" if self.peg else "from table"
         self.state = BlockState.HELD
+        self._memory.clear()
+        self.track(tool_pose)
         self.events.append(WorldEvent("grasped", where))
 
     def release(self, tool_pose: np.ndarray, kind: str = "released") -> None:
@@ -355,6 +467,7 @@ class World:
             return
         pose = self.block_pose(tool_pose)
         self._grasp = None
+        self._memory.clear()
         xy = pose[:2, 3].copy()
         rest = np.eye(4)
         rest[:3, :3] = _yaw_only(pose[:3, :3])
