@@ -75,8 +75,8 @@ class ViewerNode(Node):
             raise SystemExit(f"viewer: {exc}") from exc
         self.server.scene.configure_default_lights(cast_shadow=p["shadows"])
         self.server.gui.configure_theme(show_logo=False, show_share_button=False)
-        self.server.initial_camera.position = (0.4, -1.2, 0.7)
-        self.server.initial_camera.look_at = (0.3, 0.0, 0.05)
+        self.server.initial_camera.position = (0.45, -0.85, 0.55)
+        self.server.initial_camera.look_at = (0.25, 0.0, 0.05)
         self.scene = RobotScene(self.server.scene, desc, world, config)
         self._lock = threading.Lock()
         self._joints: JointState | None = None
