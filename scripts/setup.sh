@@ -92,6 +92,25 @@ else
     echo "$want" > "$STAMPS/python"
   fi
   PREFIX="$VENV"
+  # The browser viewer's test loads the page in headless Chromium (Debian packages).
+  # Installed only when missing; the package lists are refreshed only if apt cannot find
+  # the packages. HYPERARM_NO_BROWSER=1 skips this (the browser test then skips).
+  if [ "${HYPERARM_NO_BROWSER:-0}" != 1 ] && command -v apt-get >/dev/null 2>&1 \
+      && ! { command -v chromium >/dev/null 2>&1 && command -v chromedriver >/dev/null 2>&1; }; then
+    if [ "$(id -u)" = 0 ]; then
+      log "installing chromium and chromium-driver (apt) for the viewer's browser test"
+      export DEBIAN_FRONTEND=noninteractive
+      if ! apt-get install -y -q --no-install-recommends chromium chromium-driver \
+            > "$STAMPS/apt-chromium.log" 2>&1; then
+        apt-get update -q > /dev/null
+        apt-get install -y -q --no-install-recommends chromium chromium-driver \
+          > "$STAMPS/apt-chromium.log" 2>&1 || { cat "$STAMPS/apt-chromium.log"; exit 1; }
+      fi
+    else
+      log "chromium/chromedriver missing (sudo apt-get install chromium chromium-driver):" \
+          "the viewer's browser test will skip"
+    fi
+  fi
   export CMAKE_PREFIX_PATH="$VENV${CMAKE_PREFIX_PATH:+:$CMAKE_PREFIX_PATH}"
   export AMENT_PREFIX_PATH="$VENV${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
 fi

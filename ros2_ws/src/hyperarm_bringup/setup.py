@@ -26,6 +26,7 @@ setup(
     entry_points={
         "console_scripts": [
             "hyperarm = hyperarm_bringup.cli:main",
+            "viewer = hyperarm_bringup.entry:viewer",
         ],
     },
 )

@@ -30,6 +30,7 @@ NODES = [
     ("hyperarm_ik", "hybrid_force", "hybrid_force"),
     ("hyperarm_tasks", "task_node", "task_node"),
     ("hyperarm_tasks", "task_recorder", "task_recorder"),
+    ("hyperarm_bringup", "viewer", "viewer"),
 ]
 
 BAD_OUTPUT = ("Traceback", "Segmentation fault", "Failed to publish log message",
@@ -62,7 +63,8 @@ def test_help_lists_each_nodes_parameters(executable):
               "ik_service": ["default_solver", "max_timeout"],
               "task_node": ["command_rate", "tasks_dir", "detection_max_age"],
               "task_recorder": ["output"],
-              "hybrid_force": ["output", "stale_timeout", "payload_mass"]}
+              "hybrid_force": ["output", "stale_timeout", "payload_mass"],
+              "viewer": ["port", "host", "objects_topic", "workcell_file"]}
     for package, name, _node in NODES:
         text = subprocess.run([executable(package, name), "--help"], capture_output=True,
                               text=True, timeout=30.0).stdout
@@ -92,6 +94,8 @@ def _start_all(launch, tmp_path, wait_for):
         "task_node": launch("hyperarm_tasks", "task_node"),
         "task_recorder": launch("hyperarm_tasks", "task_recorder",
                                 params={"output": str(tmp_path / "rec.mcap")}),
+        "viewer": launch("hyperarm_bringup", "viewer", params={"port": 0,
+                                                               "host": "127.0.0.1"}),
     }
     return procs, EmulatorControl(ctl)
 
@@ -161,7 +165,8 @@ def test_signal_during_start_up_is_a_clean_exit(launch, sig):
     """A signal while the node is still importing its libraries or building itself (seconds
     on a loaded computer) ends it with 0 and no traceback: nothing had started."""
     procs = {name: launch(package, name, params={"port": "/dev/does-not-exist"}
-                          if name == "dynamixel_driver" else None)
+                          if name == "dynamixel_driver" else {"port": 0}
+                          if name == "viewer" else None)
              for package, name, _node in NODES}
     # Signal each one while it imports its node module: numpy is mapped (the node's imports
     # have begun) but the node has not said it is up yet. Before that, only Python itself
