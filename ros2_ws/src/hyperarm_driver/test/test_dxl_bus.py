@@ -275,6 +275,15 @@ def test_current_based_position_and_gripper_grip_force(emu):
     # an explicit effort sets the closing force
     drv.command(["gripper"], [0.0], [0.3])
     st = run_until(drv, lambda s: abs(abs(s.effort[-1]) - 0.3) < 0.01, 2.0, "grip effort 0.3")
+    # hold: every arm joint where it is, but the gripper keeps squeezing the object (held
+    # where it is, its goal would be the object's surface: no squeeze, the object drops)
+    drv.command(["joint2"], [0.0])
+    drv.hold()
+    assert drv.goal_position[1] == pytest.approx(drv.state.position[1])
+    assert drv.goal_position[-1] == 0.0 and drv.goal_effort[-1] == pytest.approx(0.3)
+    for _ in range(20):
+        st = drv.cycle()
+    assert abs(abs(st.effort[-1]) - 0.3) < 0.01 and abs(st.position[-1] - 0.4) < 3e-3
 
 
 @pytest.mark.parametrize("bit,name", [(0, "input_voltage"), (2, "overheating"),

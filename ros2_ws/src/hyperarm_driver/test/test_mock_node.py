@@ -312,3 +312,32 @@ def test_pick_through_ros_topics(rclpy_context, executor, wait_for):
     wait_for(lambda: p.truth[-1].poses[0].position.x < z_before - 0.02, 10.0,
              what="the block lifted (seen by the camera)")
     assert p.diag("mock_driver: work_cell")["block_state"] == "held"
+
+
+def test_hold_stops_the_arm_and_leaves_a_closing_gripper_its_goal(rclpy_context, executor,
+                                                                   wait_for):
+    """`hold`, as the Dynamixel driver does it: every arm joint stops where it is; a
+    position-controlled gripper keeps its goal and limit (held where it is, a gripper
+    squeezing a block would stop squeezing and drop it); an effort-controlled one is held."""
+    start(rclpy_context, executor, rate=200.0)
+    p = Probe(rclpy_context, executor)
+    wait_for(lambda: len(p.states) > 5, 10.0, what="joint_states")
+    p.send(["gripper"], [1.2])
+    wait_for(lambda: abs(p.position("gripper") - 1.2) < 1e-3, 10.0, what="gripper open")
+    p.send(["joint1", "gripper"], [1.5, 0.0], [0.0, 0.3])     # both on their way
+    wait_for(lambda: p.position("joint1") > 0.1 and p.position("gripper") < 1.1, 5.0,
+             what="joint1 and the gripper moving")
+    assert p.call(contract.HOLD, wait_for).success
+    held = p.position("joint1")
+    wait_for(lambda: p.position("gripper") < 0.01, 10.0, what="the gripper closing on")
+    assert abs(p.position("joint1") - held) < 0.05 and p.position("joint1") < 1.0
+    # effort-controlled, the gripper is held like a joint
+    p.send(["gripper"], [1.2])
+    wait_for(lambda: abs(p.position("gripper") - 1.2) < 1e-3, 10.0, what="gripper open again")
+    p.send(["gripper"], effort=[-0.2])
+    wait_for(lambda: p.position("gripper") < 1.1, 5.0, what="the gripper driven by its effort")
+    assert p.call(contract.HOLD, wait_for).success
+    time.sleep(0.1)
+    stopped = p.position("gripper")
+    time.sleep(0.5)
+    assert abs(p.position("gripper") - stopped) < 0.02 and stopped > 0.3

@@ -28,7 +28,8 @@ class JointServo:
     ``lower``/``upper`` (rad) are the joint limits; ``velocity`` (rad/s) the profile
     velocity; ``mode`` the operating mode used for position commands (``position`` or
     ``current_based_position``); ``hold_effort`` (N·m) the current limit used in
-    current-based position mode when no effort is commanded (the gripper's grip torque).
+    current-based position mode when no effort is commanded (the gripper's grip torque);
+    ``gripper`` marks the gripper's servo (``hold`` leaves a gripping gripper squeezing).
     """
 
     name: str
@@ -41,6 +42,7 @@ class JointServo:
     velocity: float
     mode: str = "position"
     hold_effort: float | None = None
+    gripper: bool = False
 
     def __post_init__(self) -> None:
         if not 0 <= self.id <= 252:
@@ -147,5 +149,6 @@ def bus_config_from_description(desc) -> BusConfig:  # type: ignore[no-untyped-d
             name=spec.name, id=servo.id, model=model, direction=servo.direction,
             zero_offset=servo.zero_offset, lower=spec.lower, upper=spec.upper,
             velocity=spec.velocity, mode=servo.operating_mode,
-            hold_effort=desc.gripper.grip_effort if is_gripper else None))
+            hold_effort=desc.gripper.grip_effort if is_gripper else None,
+            gripper=is_gripper))
     return BusConfig(tuple(joints))

@@ -266,10 +266,18 @@ class DynamixelDriver:
         return report
 
     def hold(self) -> None:
-        """Every joint: hold the present position (current-based position, default limit)."""
+        """Every arm joint: hold the present position (current-based position, default
+        limit). The gripper, when it is position-controlled (closing or squeezing at its
+        current limit), keeps its goal and limit: holding it where it is would end the
+        squeeze and drop a held object. An effort-controlled gripper is held like a joint."""
         if self.state is None:
             raise PortLostError("no state: port down")
+        keep = [i for i, j in enumerate(self.config.joints)
+                if j.gripper and self.control[i] == CBP and self._have_goal]
+        kept = [(self.goal_position[i], self.goal_effort[i]) for i in keep]
         self._reset_goals_to_present()
+        for i, (goal, effort) in zip(keep, kept):
+            self.goal_position[i], self.goal_effort[i] = goal, effort
 
     # -- cycle -------------------------------------------------------------------------------
     def cycle(self, now: float | None = None) -> BusState | None:
