@@ -29,8 +29,8 @@ from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import declare_robot_description, run_node
 
 from .errors import IKError
-from .host import (CompensationConfig, Compensator, HostState, RailHost, ReactionModel,
-                   Status)
+from .host import (CompensationConfig, Compensator, DelayEstimator, HostState, RailHost,
+                   ReactionModel, Status)
 from .kinematics import Kinematics
 from .ros_conversions import pose_to_matrix
 
@@ -39,8 +39,8 @@ PARAMETERS: ParamSpec = {
     "host_source": ("auto", "where the host pose comes from: 'rail' (the rail joint, rail_arm), "
                     "'host_pose' (the topic), 'auto' (rail on rail_arm, else host_pose)",
                     OneOf(("auto", "rail", "host_pose"))),
-    "actuator_lag": (0.02, "s added to the measured latency in the prediction horizon (the "
-                     "servos' time constant)", Range(0.0, 0.5)),
+    "initial_delay": (0.04, "s, the prediction horizon until the loop delay is measured (from "
+                      "a command to the joint_states that match it)", Range(0.0, 0.5)),
     "max_horizon": (_C.max_horizon, "s, the prediction horizon's upper bound", Range(0.0, 1.0)),
     "iterations": (_C.iterations, "damped least-squares iterations per cycle", Range(1, 100)),
     "speed_scale": (_C.speed_scale, "fraction of each joint's velocity limit allowed per "
@@ -103,6 +103,7 @@ class HostCompensationNode(Node):
         self._last_time: float | None = None
         self._latency = 0.0
         self._prev_dq: tuple[float, np.ndarray] | None = None
+        self._delay = DelayEstimator(min(p["initial_delay"], p["max_horizon"]))
         self._cycles = 0
         self._compute = 0.0
         self._err = (0.0, 0.0)
@@ -157,15 +158,16 @@ class HostCompensationNode(Node):
         t0 = time.perf_counter()
         now = self._now()
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        if stamp > 0.0:
-            self._latency += 0.1 * (min(max(now - stamp, 0.0), 0.5) - self._latency)
+        age = min(max(now - stamp, 0.0), 0.5) if stamp > 0.0 else 0.0   # s, state's age
+        self._latency += 0.1 * (age - self._latency)
         c = self._cache
         q = np.array([c.position[n] for n in self._arm])
         dq = np.array([c.velocity.get(n, 0.0) for n in self._arm])
         host = self._host_state()
         self._publish_reaction(now, q, dq, host, msg.header.stamp)
         if self._enabled:
-            self._cycle(now, host, msg.header.stamp)
+            self._delay.measured(now - age, q)      # when the joints were there
+            self._cycle(now, host, msg.header.stamp, age)
         self._last_time = now
         self._compute = time.perf_counter() - t0
 
@@ -177,22 +179,24 @@ class HostCompensationNode(Node):
                                     self._cache.velocity.get(self._rail_name, 0.0))
         return self._host
 
-    def _cycle(self, now: float, host: HostState | None, stamp) -> None:
+    def _cycle(self, now: float, host: HostState | None, stamp, age: float) -> None:
+        """One command: for the host pose when the arm will be there, i.e. the state's
+        age plus the measured delay from a command to the joints reaching it."""
         if host is None or (self._source == "host_pose" and self._host_time is not None
                             and now - self._host_time > self._p["stale_timeout"]):
             self._disable("host pose stale or missing: compensation stopped")
             return
         dt = now - self._last_time if self._last_time is not None else 0.01
         dt = min(max(dt, 1e-3), 0.1)
-        step = self._comp.step(host, self._latency + self._p["actuator_lag"], dt)
+        step = self._comp.step(host, age + self._delay.delay, dt)
         self._cycles += 1
         self._err = (step.position_error, step.orientation_error)
         status = step.status.value
         if status != self._status:
             if step.status is Status.UNREACHABLE:
                 self.get_logger().warn(step.reason)
-            else:
-                self.get_logger().info(f"compensation {status}")
+            elif self._status == Status.UNREACHABLE.value:
+                self.get_logger().info(f"goal reachable again: {status}")
             self._status = status
             self._reason = step.reason or status
         cmd = JointState()
@@ -200,6 +204,7 @@ class HostCompensationNode(Node):
         cmd.name = list(self._arm)
         cmd.position = [float(v) for v in step.q]
         self._cmd.publish(cmd)
+        self._delay.commanded(now, step.q)
 
     def _on_goal(self, msg: PoseStamped) -> None:
         if not self._enabled:
@@ -245,6 +250,7 @@ class HostCompensationNode(Node):
             return res
         q = [self._cache.position[n] for n in self._arm]
         goal = self._comp.start(q, host)
+        self._delay.reset()
         self._enabled, self._status, self._reason = True, "tracking", "enabled"
         res.success = True
         res.message = (f"holding tool0 at {np.round(goal[:3, 3], 4).tolist()} m in "
@@ -284,6 +290,7 @@ class HostCompensationNode(Node):
         values = {"enabled": self._enabled, "status": self._status, "reason": self._reason,
                   "host_source": self._source, "cycles": self._cycles,
                   "latency_ms": f"{self._latency * 1e3:.2f}",
+                  "loop_delay_ms": f"{self._delay.delay * 1e3:.2f}",
                   "compute_ms": f"{self._compute * 1e3:.3f}",
                   "position_error_m": f"{self._err[0]:.5f}",
                   "orientation_error_rad": f"{self._err[1]:.5f}"}

@@ -235,3 +235,22 @@ def test_reaction_rejects_malformed_states(kin):
         model.wrench(Q0, dq=np.full(9, np.nan))
     with pytest.raises(HostConfigError):
         ReactionModel(Kinematics(variant="rail_arm"))
+
+
+def test_delay_estimator_finds_a_known_delay_and_ignores_standstill():
+    from hyperarm_ik.host import DelayEstimator
+
+    est = DelayEstimator(0.01, gain=0.2)
+    delay = 0.045
+    for i in range(200):                       # commands ramp at 0.5 rad/s, every 10 ms
+        t = i * DT
+        est.commanded(t, np.full(9, 0.5 * t))
+        est.measured(t, np.full(9, 0.5 * max(t - delay, 0.0)))
+    assert est.delay == pytest.approx(delay, abs=DT / 2 + 1e-9)
+    still = DelayEstimator(0.02)
+    for i in range(100):
+        still.commanded(i * DT, np.zeros(9))
+        still.measured(i * DT, np.zeros(9))
+    assert still.delay == 0.02 and still.samples == 0
+    with pytest.raises(HostConfigError):
+        DelayEstimator(-1.0)

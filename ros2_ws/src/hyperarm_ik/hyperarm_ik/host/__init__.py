@@ -6,12 +6,13 @@
 - ``reaction``: the wrench the arm exerts on its mount from pinocchio's RNEA
   (:class:`ReactionModel`).
 """
-from .compensation import (CompensationConfig, Compensator, CompensationStep, HostState,
-                           RailHost, Status)
+from .compensation import (CompensationConfig, Compensator, CompensationStep, DelayEstimator,
+                           HostState, RailHost, Status)
 from .errors import (HostConfigError, HostError, HostGoalError, HostStateError,
                      NotStartedError)
 from .reaction import ReactionModel
 
-__all__ = ["CompensationConfig", "Compensator", "CompensationStep", "HostState", "RailHost",
+__all__ = ["CompensationConfig", "Compensator", "CompensationStep", "DelayEstimator",
+           "HostState", "RailHost",
            "Status", "HostConfigError", "HostError", "HostGoalError", "HostStateError",
            "NotStartedError", "ReactionModel"]

@@ -38,7 +38,7 @@ from ..kinematics import Kinematics, rotation_angle
 from .errors import HostConfigError, HostGoalError, HostStateError, NotStartedError
 
 __all__ = ["HostState", "RailHost", "CompensationConfig", "Status", "CompensationStep",
-           "Compensator", "check_pose"]
+           "Compensator", "DelayEstimator", "check_pose"]
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
@@ -306,3 +306,54 @@ class Compensator:
     def _errors(self, q: np.ndarray, pt: np.ndarray, rt: np.ndarray) -> tuple[float, float]:
         p, r = self.kin.pose_view(q)
         return float(np.linalg.norm(pt - p)), rotation_angle(rt, r)
+
+
+class DelayEstimator:
+    """The loop's delay (s) from a command to the measured joints that match it.
+
+    :meth:`commanded` records every command (time s, joints rad); :meth:`measured`, for a
+    measured joint vector at its arrival time, finds the recorded command nearest to it
+    (within ``window`` s) and, while the commands move (at least ``min_motion`` rad over
+    the window), smooths arrival - command time into :attr:`delay` (exponential, ``gain``
+    per sample). On a ramp, a first-order servo lag looks like a pure delay, so this is the
+    horizon that makes the measured joints land on the host pose they were computed for.
+    """
+
+    def __init__(self, initial: float, window: float = 0.3, min_motion: float = 0.005,
+                 gain: float = 0.05) -> None:
+        for name, v, lo, hi in (("initial", initial, 0.0, 1.0), ("window", window, 0.01, 5.0),
+                                ("min_motion", min_motion, 0.0, 1.0), ("gain", gain, 1e-4, 1.0)):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
+                    or not lo <= v <= hi:
+                raise HostConfigError(f"delay estimator {name} must be in {lo:g}..{hi:g}, "
+                                      f"got {v!r}")
+        self.delay = float(initial)
+        self.window, self.min_motion, self.gain = window, min_motion, gain
+        self._t: list[float] = []
+        self._q: list[np.ndarray] = []
+        self.samples = 0
+
+    def reset(self) -> None:
+        self._t.clear()
+        self._q.clear()
+
+    def commanded(self, t: float, q: np.ndarray) -> None:
+        self._t.append(t)
+        self._q.append(np.array(q, dtype=float))
+        while self._t and self._t[0] < t - self.window:
+            self._t.pop(0)
+            self._q.pop(0)
+
+    def measured(self, t: float, q: np.ndarray) -> float:
+        """Update with joints measured (arriving) at ``t``; returns the delay (s)."""
+        if len(self._q) < 3:
+            return self.delay
+        hist = np.array(self._q)
+        if float(np.abs(hist[-1] - hist[0]).max()) < self.min_motion:
+            return self.delay
+        i = int(np.argmin(np.abs(hist - np.asarray(q, dtype=float)).max(axis=1)))
+        if i > 0:     # the oldest entry may be older still: no sample from it
+            sample = t - self._t[i]
+            self.delay += self.gain * (min(max(sample, 0.0), self.window) - self.delay)
+            self.samples += 1
+        return self.delay
