@@ -123,6 +123,7 @@ class HostCompensationNode(Node):
                                  qos_for(contract.HOST_COMP_GOAL))
         self.create_service(SetBool, contract.HOST_COMP_ENABLE, self._on_enable)
         self.create_timer(p["diagnostics_period"], self._publish_diagnostics)
+        self.create_timer(min(0.05, p["stale_timeout"] / 2.0), self._check_stale)
         self.get_logger().info(f"host_compensation: {desc.variant}, host from {source}; "
                                f"disabled until {contract.HOST_COMP_ENABLE} true")
 
@@ -257,6 +258,14 @@ class HostCompensationNode(Node):
                        f"{contract.WORLD_FRAME}")
         self.get_logger().info(res.message)
         return res
+
+    def _check_stale(self) -> None:
+        """Joint states stopped while enabled: stop (latched) rather than resume later
+        from an old command."""
+        if self._enabled and self._last_time is not None \
+                and self._now() - self._last_time > self._p["stale_timeout"]:
+            self._disable(f"no joint_states for {self._p['stale_timeout']:g} s: "
+                          "compensation stopped")
 
     def _disable(self, why: str) -> None:
         if self._enabled:
