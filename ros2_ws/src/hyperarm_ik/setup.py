@@ -28,6 +28,8 @@ setup(
             "hybrid_force = hyperarm_ik.entry:hybrid_force",
             "hybrid_force_calibrate = hyperarm_ik.entry:hybrid_force_calibrate",
             "force_benchmark = hyperarm_ik.benchmark.force_benchmark:main",
+            "host_benchmark = hyperarm_ik.benchmark.host_benchmark:main",
+            "host_compensation = hyperarm_ik.entry:host_compensation",
         ],
     },
 )

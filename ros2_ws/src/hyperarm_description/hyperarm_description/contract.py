@@ -29,6 +29,10 @@ DETECTIONS = "detections"              # hyperarm_interfaces/Detections, in came
 DETECTIONS_TRUTH = "debug/detections_truth"  # mock only: ground truth, same type
 DIAGNOSTICS = "/diagnostics"           # diagnostic_msgs/DiagnosticArray (absolute)
 CLOCK = "/clock"                       # rosgraph_msgs/Clock, mock with sim time (absolute)
+# Host motion (issue 15). On the arm variant, `world` exists only while host_pose is given.
+HOST_POSE = "host_pose"                # geometry_msgs/PoseStamped: base_link in world
+BASE_REACTION = "base_reaction"        # geometry_msgs/WrenchStamped: arm on its mount, base_link
+HOST_COMP_GOAL = "host_compensation/goal"  # geometry_msgs/PoseStamped: tool0 goal in world
 
 # Services (relative to the namespace)
 SOLVE_IK = "solve_ik"                  # hyperarm_interfaces/SolveIK
@@ -45,6 +49,8 @@ RAIL_HOLD = "rail/hold"                # std_srvs/Trigger (rail drivers)
 HYBRID_ENABLE = "hybrid_force/enable"  # std_srvs/SetBool
 HYBRID_TARE = "hybrid_force/tare"      # std_srvs/Trigger: capture the wrench estimate's bias
 HYBRID_COMPLIANCE = "hybrid_force/compliance"  # std_srvs/SetBool: whole-arm compliance mode
+# Host-motion compensation. While enabled it is the only publisher of arm joint_command.
+HOST_COMP_ENABLE = "host_compensation/enable"  # std_srvs/SetBool: true = hold tool0 in world
 
 # Actions (relative to the namespace)
 RUN_TASK = "run_task"                  # hyperarm_interfaces/RunTask
@@ -65,6 +71,9 @@ QOS = {
     TOOL_WRENCH_TRUTH: {"reliability": "reliable", "durability": "volatile", "depth": 10},
     CONTACTS_TRUTH: {"reliability": "reliable", "durability": "volatile", "depth": 5},
     DIAGNOSTICS: {"reliability": "reliable", "durability": "volatile", "depth": 10},
+    HOST_POSE: {"reliability": "reliable", "durability": "volatile", "depth": 1},
+    BASE_REACTION: {"reliability": "reliable", "durability": "volatile", "depth": 10},
+    HOST_COMP_GOAL: {"reliability": "reliable", "durability": "volatile", "depth": 1},
 }
 
 # Joint naming

@@ -28,6 +28,7 @@ NODES = [
     ("hyperarm_ik", "fk_node", "fk_node"),
     ("hyperarm_ik", "ik_service", "ik_service"),
     ("hyperarm_ik", "hybrid_force", "hybrid_force"),
+    ("hyperarm_ik", "host_compensation", "host_compensation"),
     ("hyperarm_tasks", "task_node", "task_node"),
     ("hyperarm_tasks", "task_recorder", "task_recorder"),
     ("hyperarm_bringup", "viewer", "viewer"),
@@ -64,7 +65,8 @@ def test_help_lists_each_nodes_parameters(executable):
               "task_node": ["command_rate", "tasks_dir", "detection_max_age"],
               "task_recorder": ["output"],
               "hybrid_force": ["output", "stale_timeout", "payload_mass"],
-              "viewer": ["port", "host", "objects_topic", "workcell_file"]}
+              "viewer": ["port", "host", "objects_topic", "workcell_file"],
+              "host_compensation": ["host_source", "initial_delay", "speed_scale"]}
     for package, name, _node in NODES:
         text = subprocess.run([executable(package, name), "--help"], capture_output=True,
                               text=True, timeout=30.0).stdout
@@ -91,6 +93,7 @@ def _start_all(launch, tmp_path, wait_for):
         "fk_node": launch("hyperarm_ik", "fk_node"),
         "ik_service": launch("hyperarm_ik", "ik_service"),
         "hybrid_force": launch("hyperarm_ik", "hybrid_force"),
+        "host_compensation": launch("hyperarm_ik", "host_compensation"),
         "task_node": launch("hyperarm_tasks", "task_node"),
         "task_recorder": launch("hyperarm_tasks", "task_recorder",
                                 params={"output": str(tmp_path / "rec.mcap")}),

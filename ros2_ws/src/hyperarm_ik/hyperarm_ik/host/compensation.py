@@ -1,0 +1,359 @@
+"""Keep tool0 at a pose in the world while the arm's host (rail carriage, UAV) moves.
+
+Every cycle, :meth:`Compensator.step` takes the host's state (the pose of ``base_link`` in
+``world`` and its twist, :class:`HostState`), predicts the host pose ``horizon`` s ahead
+(feed-forward of the host velocity over the measured latency plus the actuators' lag),
+expresses the world goal in ``base_link`` and runs a few damped least-squares iterations on
+the nine arm joints, warm-started from the previous command (the rail, or the UAV, is a
+known input, not a variable); the first iteration also pulls the joints back towards the
+posture at start in the task's null space (``posture_gain``), so the redundant joints do
+not drift into a stretched, singular posture over a long motion. The change from the previous command is then limited to
+``speed_scale`` x each joint's velocity limit x dt (uniform scaling, so the tool's path
+keeps its direction): the command never jumps. Joints stay ``limit_margin`` inside their
+limits.
+
+When the pose cannot be reached (the miss stays above the tolerances and stops shrinking
+for ``stall_cycles`` cycles while the step limit is not what holds the motion back, or the
+position is beyond the arm's reach bound), the step says so
+(``Status.UNREACHABLE`` and a reason) and keeps commanding the closest configuration the
+damped iterations find (least-squares closest, within the limits, step-limited); tracking
+resumes by itself when the pose is reachable again.
+
+Units: m, rad, s; twists in world axes (linear velocity of base_link's origin m/s, angular
+velocity rad/s). Poses are 4x4 homogeneous matrices.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+import pinocchio as pin
+
+from hyperarm_description.model import RobotDescription
+from hyperarm_description.pinocchio_model import build_model
+
+from ..kinematics import Kinematics, rotation_angle
+from .errors import HostConfigError, HostGoalError, HostStateError, NotStartedError
+
+__all__ = ["HostState", "RailHost", "CompensationConfig", "Status", "CompensationStep",
+           "Compensator", "DelayEstimator", "check_pose"]
+
+_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+
+def check_pose(t, what: str, error: type[Exception] = HostStateError) -> np.ndarray:
+    """``t`` as a float 4x4 homogeneous matrix with a proper rotation, or raise ``error``."""
+    m = np.asarray(t, dtype=float)
+    if m.shape != (4, 4):
+        raise error(f"{what} must be a 4x4 matrix, got shape {m.shape}")
+    if not np.all(np.isfinite(m)):
+        raise error(f"{what} is not finite")
+    r = m[:3, :3]
+    if np.abs(r @ r.T - np.eye(3)).max() > 1e-6 or abs(np.linalg.det(r) - 1.0) > 1e-6 \
+            or np.abs(m[3] - (0.0, 0.0, 0.0, 1.0)).max() > 1e-9:
+        raise error(f"{what} is not a rigid transform (orthonormal rotation, det +1, "
+                    "last row 0 0 0 1)")
+    return m
+
+
+def _vec3(v, what: str) -> np.ndarray:
+    a = np.asarray(v, dtype=float).reshape(-1)
+    if a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise HostStateError(f"{what} must be 3 finite numbers, got {a.tolist()}")
+    return a
+
+
+@dataclass(frozen=True)
+class HostState:
+    """Pose of base_link in world (4x4, m) and its twist in world axes: ``linear`` (m/s, of
+    base_link's origin) and ``angular`` (rad/s). Validated on construction."""
+
+    pose: np.ndarray
+    linear: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    angular: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "pose", check_pose(self.pose, "host pose"))
+        object.__setattr__(self, "linear", _vec3(self.linear, "host linear velocity"))
+        object.__setattr__(self, "angular", _vec3(self.angular, "host angular velocity"))
+
+    def predict(self, horizon: float) -> np.ndarray:
+        """The host pose (4x4) ``horizon`` s ahead at constant twist (first order)."""
+        out = self.pose.copy()
+        out[:3, 3] += self.linear * horizon
+        if self.angular.any():
+            out[:3, :3] = pin.exp3(self.angular * horizon) @ self.pose[:3, :3]
+        return out
+
+
+class RailHost:
+    """The host state of the rail_arm variant from the rail joint (m, m/s)."""
+
+    def __init__(self, desc: RobotDescription) -> None:
+        if desc.rail is None:
+            raise HostConfigError("RailHost needs the rail_arm description (it has no rail)")
+        self._model = build_model(desc)
+        self._data = self._model.createData()
+        self._frame = self._model.getFrameId(desc.base_frame)
+        self._q = np.zeros(self._model.nq)   # rail first, the arm joints do not matter
+        self.lower, self.upper = float(desc.rail.lower), float(desc.rail.upper)
+        self.axis = self.pose(1.0)[:3, 3] - self.pose(0.0)[:3, 3]   # world, per metre
+
+    def pose(self, rail: float) -> np.ndarray:
+        """4x4 pose of base_link in world at rail position ``rail`` (m)."""
+        self._q[0] = rail
+        pin.framesForwardKinematics(self._model, self._data, self._q)
+        return self._data.oMf[self._frame].homogeneous.copy()
+
+    def state(self, rail: float, rail_velocity: float = 0.0) -> HostState:
+        """:class:`HostState` at rail position (m) and velocity (m/s)."""
+        if not (math.isfinite(rail) and math.isfinite(rail_velocity)):
+            raise HostStateError(f"rail state is not finite: {rail!r} m, {rail_velocity!r} m/s")
+        return HostState(self.pose(rail), self.axis * rail_velocity)
+
+
+@dataclass(frozen=True)
+class CompensationConfig:
+    """Settings of :class:`Compensator` (validated on construction).
+
+    iterations: damped least-squares iterations per cycle (warm-started).
+    damping: lambda0 of the damping lambda = damping + |e|^2 (m^2).
+    orientation_scale: m/rad, weight of orientation errors against position errors.
+    position_tolerance / orientation_tolerance: m / rad; above them (after the iterations
+    stall) the pose is reported unreachable.
+    speed_scale: fraction of each joint's velocity limit allowed per cycle (step limit).
+    limit_margin: rad kept from every joint limit.
+    max_horizon: s, the prediction horizon is clamped to [0, max_horizon].
+    posture_gain: fraction of the way back to the posture at start per cycle, in the
+    task's null space (keeps the nine joints from drifting towards singular postures).
+    stall_cycles: cycles in a row of a miss that does not shrink (not step-limited) after
+    which the pose is reported unreachable.
+    """
+
+    iterations: int = 6
+    damping: float = 1e-6
+    orientation_scale: float = 0.2
+    position_tolerance: float = 1e-3
+    orientation_tolerance: float = 0.01
+    speed_scale: float = 0.8
+    limit_margin: float = 0.02
+    max_horizon: float = 0.2
+    stall_cycles: int = 10
+    posture_gain: float = 0.05
+
+    def __post_init__(self) -> None:
+        for name in ("iterations", "stall_cycles"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 100:
+                raise HostConfigError(f"{name} must be an integer in 1..100, got {v!r}")
+        for name, lo, hi in (("damping", 0.0, 1.0), ("orientation_scale", 1e-3, 10.0),
+                             ("position_tolerance", 1e-6, 0.1),
+                             ("orientation_tolerance", 1e-5, 1.0), ("speed_scale", 1e-3, 1.0),
+                             ("limit_margin", 0.0, 0.5), ("max_horizon", 0.0, 1.0),
+                             ("posture_gain", 0.0, 1.0)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
+                    or not lo <= v <= hi:
+                raise HostConfigError(f"{name} must be a number in {lo:g}..{hi:g}, got {v!r}")
+
+
+class Status(str, Enum):
+    TRACKING = "tracking"          # the command holds tool0 at the goal (within tolerance)
+    CONVERGING = "converging"      # moving there, limited by the step limit
+    UNREACHABLE = "unreachable"    # holding the closest configuration; reason says why
+
+
+@dataclass(frozen=True)
+class CompensationStep:
+    """One cycle's output: arm joint command ``q`` (rad, the arm's joint order), status,
+    reason (empty unless UNREACHABLE), tool errors of ``q`` against the predicted goal (m,
+    rad) and whether the step limit scaled the motion."""
+
+    q: np.ndarray
+    status: Status
+    reason: str
+    position_error: float
+    orientation_error: float
+    step_limited: bool
+
+
+class Compensator:
+    """Per-cycle IK of the nine arm joints for a world-fixed tool0 goal on a moving host.
+
+    ``kin`` is the fixed-arm :class:`Kinematics` (root base_link, nine joints).
+    """
+
+    def __init__(self, kin: Kinematics, config: CompensationConfig | None = None) -> None:
+        if kin.variant != "arm" or kin.nq != len(kin.desc.joints):
+            raise HostConfigError("Compensator needs the fixed-arm kinematics (variant 'arm', "
+                                  f"root base_link), got {kin.variant!r}")
+        self.kin = kin
+        self.config = config if config is not None else CompensationConfig()
+        c = self.config
+        self.lower = kin.lower + c.limit_margin
+        self.upper = kin.upper - c.limit_margin
+        if np.any(self.lower >= self.upper):
+            raise HostConfigError(f"limit_margin {c.limit_margin} rad leaves no joint range")
+        self.speed = np.array([j.velocity for j in kin.desc.joints]) * c.speed_scale  # rad/s
+        self._s2 = np.array([1.0, 1.0, 1.0] + [c.orientation_scale ** 2] * 3)  # error weights
+        self._winv = np.diag(1.0 / self._s2)
+        self._best, self._stuck = math.inf, 0
+        self.q: np.ndarray | None = None        # the last command (rad)
+        self.goal: np.ndarray | None = None     # tool0 in world (4x4)
+
+    @property
+    def started(self) -> bool:
+        return self.q is not None
+
+    def tool_in_world(self, q: np.ndarray, host: HostState) -> np.ndarray:
+        """4x4 pose of tool0 in world with arm joints ``q`` on ``host``."""
+        return host.pose @ self.kin.forward(q)
+
+    def start(self, q_measured, host: HostState, goal: np.ndarray | None = None) -> np.ndarray:
+        """Begin from the measured arm joints (clipped into the margins); the goal is
+        ``goal`` (tool0 in world) or, if None, where tool0 is now. Returns the goal."""
+        q = self.kin._q(q_measured)     # raises InvalidSeedError (an IKError) when malformed
+        self.q = np.clip(q, self.lower, self.upper)
+        self._ref = self.q.copy()               # the posture the null space pulls towards
+        self._best, self._stuck = math.inf, 0
+        self.goal = (self.tool_in_world(q, host) if goal is None
+                     else check_pose(goal, "goal", HostGoalError))
+        return self.goal.copy()
+
+    def set_goal(self, goal: np.ndarray) -> None:
+        """New tool0 goal in world (4x4); reached at the step limit's pace."""
+        if self.q is None:
+            raise NotStartedError("set_goal before start")
+        self.goal = check_pose(goal, "goal", HostGoalError)
+        self._best, self._stuck = math.inf, 0
+
+    def stop(self) -> None:
+        self.q = self.goal = None
+
+    def step(self, host: HostState, horizon: float, dt: float) -> CompensationStep:
+        """One cycle: the arm command for the host pose ``horizon`` s ahead (s, clamped to
+        0..max_horizon), moving at most the step limit over ``dt`` s (> 0) from the last
+        command."""
+        if self.q is None or self.goal is None:
+            raise NotStartedError("step before start")
+        if not (math.isfinite(horizon) and math.isfinite(dt) and dt > 0.0):
+            raise HostStateError(f"horizon {horizon!r} s and dt {dt!r} s must be finite, "
+                                 "dt > 0")
+        c, kin = self.config, self.kin
+        h = min(max(horizon, 0.0), c.max_horizon)
+        target = np.linalg.inv(host.predict(h)) @ self.goal      # tool0 goal in base_link
+        pt, rt = target[:3, 3], target[:3, :3]
+        excess = kin.reach_excess(pt)
+        # no posture pull while unreachable: the command settles at the closest configuration
+        pull = c.posture_gain if excess <= 0.0 and self._stuck < c.stall_cycles else 0.0
+        q = self.q.copy()
+        prev = math.inf
+        stalled = False
+        for it in range(c.iterations):
+            p, r, j = kin.pose_jacobian_view(q)
+            e = np.concatenate((pt - p, pin.log3(rt @ r.T)))
+            cost = float(e @ (self._s2 * e))
+            if cost >= prev * 0.99:
+                stalled = True
+            prev = cost
+            if math.sqrt(cost) < 1e-7:
+                break
+            lam = c.damping + cost
+            # first iteration: a pull towards the posture at start, in the task's null space
+            z = pull * (self._ref - q) if it == 0 and pull > 0.0 else None
+            dq = self._dls(j, e, lam, z)
+            out = ((q + dq < self.lower) & (dq < 0)) | ((q + dq > self.upper) & (dq > 0))
+            if out.any():          # joints held at a limit leave the step (active set, once)
+                j = j.copy()
+                j[:, out] = 0.0
+                dq = self._dls(j, e, lam, None if z is None else np.where(out, 0.0, z))
+            q = np.clip(q + dq, self.lower, self.upper)
+        perr_ik, oerr_ik = self._errors(q, pt, rt)
+        delta = q - self.q
+        ratio = float(np.max(np.abs(delta) / (self.speed * dt)))
+        limited = ratio > 1.0
+        if limited:
+            delta /= ratio
+        self.q = np.clip(self.q + delta, self.lower, self.upper)
+        perr, oerr = self._errors(self.q, pt, rt)
+        ok = perr_ik <= c.position_tolerance and oerr_ik <= c.orientation_tolerance
+        # a miss that no longer shrinks (1 %) for stall_cycles cycles, not step-limited
+        residual = perr_ik + c.orientation_scale * oerr_ik
+        if ok or limited or not stalled or residual < 0.99 * self._best:
+            self._best, self._stuck = residual, 0
+        else:
+            self._stuck += 1
+        if excess > 0.0 or self._stuck >= c.stall_cycles:
+            why = (f"beyond the arm's reach by {excess:.3f} m" if excess > 0.0 else
+                   f"closest configuration misses by {perr_ik * 1e3:.1f} mm, "
+                   f"{math.degrees(oerr_ik):.2f} deg")
+            return CompensationStep(self.q.copy(), Status.UNREACHABLE,
+                                    f"goal unreachable from the host's pose: {why}; holding "
+                                    "the closest configuration", perr, oerr, limited)
+        status = Status.TRACKING if (perr <= c.position_tolerance
+                                     and oerr <= c.orientation_tolerance) else Status.CONVERGING
+        return CompensationStep(self.q.copy(), status, "", perr, oerr, limited)
+
+    def _dls(self, j: np.ndarray, e: np.ndarray, lam: float,
+             z: np.ndarray | None = None) -> np.ndarray:
+        """Weighted damped least squares: argmin |J dq - e|^2_W + lam |dq - z|^2."""
+        if z is None:
+            return j.T @ np.linalg.solve(j @ j.T + lam * self._winv, e)
+        return z + j.T @ np.linalg.solve(j @ j.T + lam * self._winv, e - j @ z)
+
+    def _errors(self, q: np.ndarray, pt: np.ndarray, rt: np.ndarray) -> tuple[float, float]:
+        p, r = self.kin.pose_view(q)
+        return float(np.linalg.norm(pt - p)), rotation_angle(rt, r)
+
+
+class DelayEstimator:
+    """The loop's delay (s) from a command to the measured joints that match it.
+
+    :meth:`commanded` records every command (time s, joints rad); :meth:`measured`, for a
+    measured joint vector at its arrival time, finds the recorded command nearest to it
+    (within ``window`` s) and, while the commands move (at least ``min_motion`` rad over
+    the window), smooths arrival - command time into :attr:`delay` (exponential, ``gain``
+    per sample). On a ramp, a first-order servo lag looks like a pure delay, so this is the
+    horizon that makes the measured joints land on the host pose they were computed for.
+    """
+
+    def __init__(self, initial: float, window: float = 0.3, min_motion: float = 0.005,
+                 gain: float = 0.05) -> None:
+        for name, v, lo, hi in (("initial", initial, 0.0, 1.0), ("window", window, 0.01, 5.0),
+                                ("min_motion", min_motion, 0.0, 1.0), ("gain", gain, 1e-4, 1.0)):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
+                    or not lo <= v <= hi:
+                raise HostConfigError(f"delay estimator {name} must be in {lo:g}..{hi:g}, "
+                                      f"got {v!r}")
+        self.delay = float(initial)
+        self.window, self.min_motion, self.gain = window, min_motion, gain
+        self._t: list[float] = []
+        self._q: list[np.ndarray] = []
+        self.samples = 0
+
+    def reset(self) -> None:
+        self._t.clear()
+        self._q.clear()
+
+    def commanded(self, t: float, q: np.ndarray) -> None:
+        self._t.append(t)
+        self._q.append(np.array(q, dtype=float))
+        while self._t and self._t[0] < t - self.window:
+            self._t.pop(0)
+            self._q.pop(0)
+
+    def measured(self, t: float, q: np.ndarray) -> float:
+        """Update with joints measured (arriving) at ``t``; returns the delay (s)."""
+        if len(self._q) < 3:
+            return self.delay
+        hist = np.array(self._q)
+        if float(np.abs(hist[-1] - hist[0]).max()) < self.min_motion:
+            return self.delay
+        i = int(np.argmin(np.abs(hist - np.asarray(q, dtype=float)).max(axis=1)))
+        if i > 0:     # the oldest entry may be older still: no sample from it
+            sample = t - self._t[i]
+            self.delay += self.gain * (min(max(sample, 0.0), self.window) - self.delay)
+            self.samples += 1
+        return self.delay
