@@ -42,8 +42,18 @@ class _Client:
         self.wait_for(lambda: self.cli.service_is_ready(), timeout, what="solve_ik service")
 
     def call(self, req, timeout=10.0) -> SolveIK.Response:
+        """One request; if no answer came within 3 s, the same request once more (within the
+        same ``timeout``). A client that has just discovered a service can lose the first
+        reply: the server may not have matched the client's reply reader yet (a DDS
+        discovery race; seen once in a full parallel run). A solve is idempotent."""
+        import time
+        t0 = time.monotonic()
         fut = self.cli.call_async(req)
-        self.wait_for(fut.done, timeout, what="solve_ik response")
+        try:
+            self.wait_for(fut.done, min(3.0, timeout), what="solve_ik response")
+        except AssertionError:
+            fut = self.cli.call_async(req)
+            self.wait_for(fut.done, timeout - (time.monotonic() - t0), what="solve_ik response")
         return fut.result()
 
 
