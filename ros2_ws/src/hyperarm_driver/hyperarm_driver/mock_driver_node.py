@@ -42,7 +42,7 @@ from .common import (OneOf, ParamSpec, Range, answer_reboot, answer_set_torque,
 from .mock.camera import Camera, Frame, pose_from_xyz_rpy
 from .mock.config import MockError, load_mock_config
 from .mock.diagnostics import BusStats, mock_diagnostics
-from .mock.joint_sim import ControlMode, JointSim
+from .mock.joint_sim import JointSim
 
 class _SimSpeed:
     """0 (real time) or a speed-up within 0.1..100."""
@@ -341,17 +341,9 @@ class MockDriver(Node):
 
     def _on_hold(self, req: Trigger.Request, res: Trigger.Response) -> Trigger.Response:
         with self._lock:
-            self._sim.hold(self._hold_names())
+            self._sim.hold_keeping_grip(self._servos)   # the real driver's rule
         res.success, res.message = True, "holding the present position"
         return res
-
-    def _hold_names(self) -> list[str]:
-        """The real driver's rule: every arm joint; the gripper only when it is effort-
-        controlled. Position-controlled it keeps its goal and limit (held where it is, a
-        gripper squeezing a block would stop squeezing and drop it)."""
-        g = self._sim.desc.gripper.name
-        torque = self._sim.mode[self._sim.names.index(g)] is ControlMode.TORQUE
-        return [n for n in self._servos if n != g or torque]
 
     def _on_home(self, req: Trigger.Request, res: Trigger.Response) -> Trigger.Response:
         try:

@@ -201,6 +201,28 @@ def test_hold_stops_motion_and_drops_efforts(sim):
     assert sim.velocity[0] == 0.0
 
 
+def test_hold_keeping_grip_leaves_a_closing_gripper_its_goal(sim):
+    """The drivers' hold rule: the arm stops; a position-controlled gripper goes on to its
+    goal (its squeeze is kept); an effort-controlled one is held."""
+    names = list(sim.names)
+    sim.command(["gripper"], [1.2])
+    run(sim, 2.0)
+    sim.command(["joint1", "gripper"], [1.0, 0.0], [0.0, 0.3])
+    run(sim, 0.2)
+    moving = sim.position[0]
+    assert "gripper" not in sim.hold_keeping_grip(names)
+    run(sim, 2.0)
+    assert abs(sim.position[0] - moving) < 0.05 and sim.position[-1] < 0.01
+    sim.command(["gripper"], [1.2])
+    run(sim, 2.0)
+    sim.command(["gripper"], [], [-0.2])
+    run(sim, 0.1)
+    assert "gripper" in sim.hold_keeping_grip(names)
+    stopped = sim.position[-1]
+    run(sim, 0.5)
+    assert abs(sim.position[-1] - stopped) < 0.05 and stopped > 0.3
+
+
 def test_state_latency_and_noise(desc):
     sim = JointSim(desc, config(state_latency=0.05, position_noise=0.001))
     sim.command(["joint1"], [1.0])

@@ -403,6 +403,15 @@ class JointSim:
             self._gap_hold[i] = self._gap[i] > 0.0
         return [self.names[i] for i in powered]
 
+    def hold_keeping_grip(self, names: Sequence[str]) -> list[str]:
+        """The drivers' ``hold`` service rule (as the Dynamixel driver's): the joints among
+        ``names`` stop where they are, but a position-controlled gripper keeps its goal and
+        limit (held where it is, a gripper squeezing a block would stop squeezing and drop
+        it); an effort-controlled gripper is held like a joint. Returns the joints held."""
+        g = self.desc.gripper.name
+        torque = self.mode[self._index[g]] is ControlMode.TORQUE
+        return self.hold([n for n in names if n != g or torque])
+
     def set_torque(self, enable: bool, names: Sequence[str] | None = None) -> None:
         """Torque on (the joints among ``names``, None = all, hold where they are in their
         position-class mode) or off (limp)."""
