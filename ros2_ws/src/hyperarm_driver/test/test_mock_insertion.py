@@ -1,8 +1,13 @@
 """Core tier: physical invariants of insertion (issue 9, item 2), as properties over drawn
 commands (hypothesis), on the ROS-free simulation core.
 
-- a misaligned block pressed onto a peg's top, to any depth (even below the table) and with
-  or without a current limit, penetrates the top at most 2 mm, and never threads;
+- a misaligned block pressed down to any depth (even below the table), in position mode or
+  current-limited, penetrates neither the table nor a peg by more than 2 mm after any
+  step, a threaded one stays within the clearance (+2 mm of wall), and it is never flung:
+  it moves at most as fast as the arm's joints can move it; settled, the limited joints
+  exert at most their limits against the contact;
+- torque (effort-only) presses never fling the block (their penetration: a known gap,
+  strict xfail);
 - a block let go threaded rests within the radial clearance of the peg's axis; let go on
   the top with its centre over the top's disc, it stays on the top where it was;
 - the repeatability offset is drawn once per move: streamed small setpoints (an approach, a
@@ -110,6 +115,7 @@ class _Watch:
        depth=st.floats(0.0, 0.12), limited=st.booleans())
 @example(off=0.005, angle=0.5 * math.pi, depth=0.12, limited=False)   # went through the
 @example(off=0.005, angle=0.5 * math.pi, depth=0.09, limited=False)   # peg (issue 9)
+@example(off=0.003, angle=math.pi, depth=0.12, limited=False)
 @example(off=0.005, angle=0.5 * math.pi, depth=0.12, limited=True)    # 90 mm in, flung
 @example(off=0.005, angle=0.0, depth=0.12, limited=True)              # 79 mm in, 62 m/s
 def test_press_never_penetrates_nor_flings(held, off, angle, depth, limited):
@@ -147,6 +153,52 @@ def test_press_never_penetrates_nor_flings(held, off, angle, depth, limited):
     need = pin.computeGeneralizedGravity(sim.model, sim.model.createData(), q) \
         - j.T @ sim.tool_wrench
     assert np.all(np.abs(need) <= sim.limit[:nk] * 1.02 + 1e-3), (need, sim.limit[:nk])
+
+
+def _torque_press(held, off, angle, force):
+    """Above the destination peg, ``off`` m from its axis towards ``angle``, the arm
+    switched to torque control (effort-only commands, re-sent every 0.1 s): the holding
+    torques plus Jᵀ of a push of ``force`` N down and 0.3 x that sideways, for 2 s."""
+    sc0, above, half, top = held
+    sc = copy.deepcopy(sc0)
+    sim = sc.sim
+    d = np.array([off * math.cos(angle), off * math.sin(angle), 0.0])
+    sc.move_tool(above + d, 1.0)
+    nk = sim.nk
+    j = pin.computeFrameJacobian(sim.model, sim.model.createData(), sim.position[:nk],
+                                 sim.tool_id, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+    push = force * np.array([0.3 * math.cos(angle + 1.0), 0.3 * math.sin(angle + 1.0), -1.0])
+    tau = sim.effort[:nk] + j[:3].T @ push
+    watch = _Watch(sim)
+    for _ in range(20):
+        sim.command(sc.arm, [], tau.tolist())
+        sc.run(0.1)
+    return sim, watch
+
+
+@settings(max_examples=4, deadline=None, derandomize=True, phases=NO_SHRINK,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(off=st.floats(0.0, 0.03), angle=st.floats(0.0, 2.0 * math.pi),
+       force=st.floats(0.0, 30.0))
+def test_torque_press_never_flings(held, off, angle, force):
+    """Effort-only (torque) commands pushing the held block down onto the peg or the table:
+    the block moves at most as fast as the arm can move it (before the fix the contact
+    spring in the torque-mode dynamics pushed the wrong way: 50-80 m/s), the states stay
+    finite, it stays held."""
+    sim, watch = _torque_press(held, off, angle, force)
+    assert sim.world.state is BlockState.HELD
+    assert np.all(np.isfinite(sim.position)) and np.all(np.isfinite(sim.velocity))
+    assert watch.speed <= 1.0, watch.speed
+
+
+@pytest.mark.xfail(strict=True, reason="issue 9 item 2 not finished for torque commands: a "
+                   "torque-driven block hitting the table at ~1 m/s, or turned against a "
+                   "peg's side, still penetrates 3-13 mm (contact rows linearized once per "
+                   "step for the dynamic joints, side memory of a turning block)")
+def test_torque_press_never_penetrates(held):
+    """The penetration invariant for torque commands: one known failing case (cheap)."""
+    sim, watch = _torque_press(held, 0.00085, 0.781, 19.4)
+    assert watch.penetration <= MAX_PENETRATION, watch.penetration
 
 
 @settings(max_examples=6, deadline=None, derandomize=True, phases=NO_SHRINK,
