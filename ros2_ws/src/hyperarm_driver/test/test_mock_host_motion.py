@@ -115,6 +115,8 @@ def test_rail_follows_the_sweep_while_the_arm_is_commanded_separately():
     sim.command(["joint2"], [0.3])               # the arm: commanded on its own
     with pytest.raises(MockCommandError, match="scripted host motion"):
         sim.command(["rail"], [0.1])
+    with pytest.raises(MockCommandError, match="scripted host motion"):
+        sim.home_rail()
     trace = []
     run(sim, 7.0, lambda: trace.append((sim.position[0], sim.velocity[0])), dt=0.01)
     x, v = np.array(trace).T

@@ -389,17 +389,22 @@ class PassiveMount:
         omega = math.sqrt(float(np.max(self.k / np.diag(mass))))
         n = max(1, math.ceil(h * omega / self.MAX_OMEGA_H))
         hs = h / n
+        # one sub-step as a linear map of x = (δ, δ̇, δ̈) and the load f: x' = T x + G f
         inv = np.linalg.inv(mass + np.diag(0.5 * hs * self.c + 0.25 * hs * hs * self.k))
-        d, v, a = self.displacement, self.velocity, self.acceleration
-        start = self.load
-        for i in range(1, n + 1):
-            f = start + (force - start) * (i / n)
-            pred_v = v + 0.5 * hs * a
-            pred_d = d + hs * v + 0.25 * hs * hs * a
-            a = inv @ (f - self.c * pred_v - self.k * pred_d)
-            v = pred_v + 0.5 * hs * a
-            d = pred_d + 0.25 * hs * hs * a
-        self.displacement, self.velocity, self.acceleration = d, v, a
+        ic, ik = inv * self.c, inv * self.k             # inv @ diag(c), inv @ diag(k)
+        eye = np.eye(6)
+        a_d, a_v = -ik, -(ic + hs * ik)
+        a_a = -(0.5 * hs * ic + 0.25 * hs * hs * ik)
+        tv = np.block([[0.5 * hs * a_d, eye + 0.5 * hs * a_v, 0.5 * hs * (eye + a_a)]])
+        td = np.block([[eye + 0.25 * hs * hs * a_d, hs * eye + 0.25 * hs * hs * a_v,
+                        0.25 * hs * hs * (eye + a_a)]])
+        t = np.vstack([td, tv, np.hstack([a_d, a_v, a_a])])
+        g = np.vstack([0.25 * hs * hs * inv, 0.5 * hs * inv, inv])
+        x = np.r_[self.displacement, self.velocity, self.acceleration]
+        g0, g1 = g @ self.load, g @ (force - self.load)
+        for i in range(1, n + 1):                       # the load interpolated linearly
+            x = t @ x + g0 + (i / n) * g1
+        self.displacement, self.velocity, self.acceleration = x[:6], x[6:12], x[12:]
         self.load = np.array(force, dtype=float)
 
 
