@@ -611,6 +611,7 @@ class HostMotion:
         model.gravity = pin.Motion(GRAVITY - self._script.accel[:3], -self._script.accel[3:])
         pin.rnea(model, data, q, v, a)        # the root accelerating with the script only
         model.gravity = gravity
+        pin.forwardKinematics(model, data, q)     # rnea leaves data.oMi as it was
         self.base_pose = pin.updateFramePlacement(model, data, self._base_fid).homogeneous
         root = self._root
         on_mount = pin.Force(sim.contact_wrench()) - data.oMi[1].act(data.f[1])
