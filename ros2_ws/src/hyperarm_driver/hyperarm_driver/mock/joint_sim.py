@@ -468,6 +468,9 @@ class JointSim:
         i = self._index[self.rail]
         if self.mode[i] is ControlMode.OFF:
             raise MockCommandError(f"{self.rail} amplifier not enabled: set_torque true first")
+        if self.host is not None and self.host.drives_rail:
+            raise MockCommandError(f"{self.rail} follows the scripted host motion: "
+                                   "host_motion/enable false first")
         self._schedule(lambda: self._home(i))
 
     def _home(self, i: int) -> None:
