@@ -59,6 +59,9 @@ class RosRobot:
         self._wrench_time = 0.0
         self._states_time = -math.inf      # s (node clock), the last joint_states received
         self._diag: dict[str, dict[str, str]] = {}   # joint (or "rail") -> key/values
+        # the force node's newest reported mode and reason, and the stamp (s) of that report
+        self._force_mode: tuple[float, str, str, str] | None = None
+        self._force_enabled_at = math.inf          # s (node clock): our last enable request
         self.goal_handle = None
         self.given: dict[str, np.ndarray] = {}
         group = ReentrantCallbackGroup()
@@ -113,8 +116,15 @@ class RosRobot:
             self._wrench_time = time.monotonic()
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         with self._lock:
             for st in msg.status:
+                if st.name == "hybrid_force":
+                    kv = {k.key: k.value for k in st.values}
+                    if self._force_mode is None or stamp >= self._force_mode[0]:
+                        self._force_mode = (stamp, kv.get("mode", ""), kv.get("reason", ""),
+                                            kv.get("last_event", "").split(":", 1)[0])
+                    continue
                 joint = st.name.rsplit(": ", 1)[-1]
                 if joint in self.desc.all_joint_names or joint == "rail":
                     self._diag[joint] = {kv.key: kv.value for kv in st.values}
@@ -197,8 +207,20 @@ class RosRobot:
         return self._force.service_is_ready()
 
     def set_force_control(self, enabled: bool) -> str | None:
+        with self._lock:
+            self._force_enabled_at = self.now() if enabled else math.inf
         return self._call(self._force, SetBool.Request(data=enabled),
                           "enable force control" if enabled else "disable force control")
+
+    def force_passive(self) -> tuple[str, str] | None:
+        """(kind, reason) if the force node reported itself passive after our last enable
+        (kind ``stale``: joint states late; ``near_limit``, ``bad_goal``, ...); None while it
+        is not known to be."""
+        with self._lock:
+            m = self._force_mode
+            if m is None or m[0] < self._force_enabled_at or m[1] != "passive":
+                return None
+            return m[3], m[2] or "passive"
 
     def send_hybrid(self, goal: HybridCommand) -> None:
         msg = HybridGoal()

@@ -35,28 +35,38 @@ def _parse(argv: list[str]) -> argparse.Namespace:
     ap.add_argument("--quiet", action="store_true", help="only the result line")
     ap.add_argument("--wait-ready", type=float, default=0.0, metavar="S",
                     help="first wait up to S s for joint_states and the task node")
+    ap.add_argument("--wait-force", action="store_true",
+                    help="with --wait-ready, also wait for the force node (its "
+                         f"{contract.HYBRID_ENABLE} service)")
     return ap.parse_args(args_no_ros)
 
 
-def _wait_ready(node, client: TaskClient, timeout: float) -> str | None:
-    """Wait for joint_states and the action server; None when both are there."""
+def _wait_ready(node, client: TaskClient, timeout: float, force: bool = False) -> str | None:
+    """Wait for joint_states and the action server (and, with ``force``, the force node's
+    enable service); None when all are there, else what is missing."""
     from sensor_msgs.msg import JointState
+    from std_srvs.srv import SetBool
 
     from hyperarm_description.qos import qos_for
 
     seen: set[str] = set()
     sub = node.create_subscription(JointState, contract.JOINT_STATES,
                                    lambda m: seen.update(m.name), qos_for(contract.JOINT_STATES))
+    enable = node.create_client(SetBool, contract.HYBRID_ENABLE) if force else None
     deadline = time.monotonic() + timeout
     try:
         while time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.05)
-            if seen and client.server_ready():
+            if seen and client.server_ready() and (enable is None or enable.service_is_ready()):
                 return None
         return ("no joint_states from a driver" if not seen
-                else "the task node's run_task action is not available")
+                else "the task node's run_task action is not available"
+                if not client.server_ready()
+                else f"the force node's {contract.HYBRID_ENABLE} service is not available")
     finally:
         node.destroy_subscription(sub)
+        if enable is not None:
+            node.destroy_client(enable)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -79,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     code = 1
     try:
         if args.wait_ready > 0.0:
-            reason = _wait_ready(node, client, args.wait_ready)
+            reason = _wait_ready(node, client, args.wait_ready, args.wait_force)
             if reason:
                 print(f"run_task: not ready after {args.wait_ready:g} s: {reason}",
                       file=sys.stderr)

@@ -59,6 +59,7 @@ class Robot(Protocol):
     def force_available(self) -> bool: ...
     def set_force_control(self, enabled: bool) -> str | None: ...
     def send_hybrid(self, goal: HybridCommand) -> None: ...
+    def force_passive(self) -> tuple[str, str] | None: ...   # went passive: (kind, reason)
     def home_rail(self) -> str | None: ...
     def rail_homed(self) -> bool | None: ...
     def log(self, level: str, message: str) -> None: ...   # "info", "warn", "error"
@@ -111,6 +112,9 @@ class RunnerParams:
                      "joint_tolerance", "grasp_min_position"):
             if not getattr(self, name) > 0.0:
                 raise ValueError(f"{name} must be > 0")
+
+
+STATE_WAIT = 5.0   # s: at a task's start, wait this long for the first joint_states
 
 
 def min_jerk(tau: float) -> float:
@@ -439,6 +443,12 @@ class Runner:
         steps = self.task.steps
         result = RunResult(False, "")
         t_task = self.robot.now()
+        # a task sent right after the stack started: the driver's joint_states may not have
+        # reached this node yet (DDS discovery); wait a little for them (the first step then
+        # fails "driver not ready" with the joints still missing)
+        while (any(n not in self.robot.joint_positions() for n in self.chain)
+               and self.robot.now() - t_task < STATE_WAIT and not self.robot.cancel_requested()):
+            self.robot.sleep(self.period)
         retries: dict[int, int] = {}
         i = 0
         while i < len(steps):

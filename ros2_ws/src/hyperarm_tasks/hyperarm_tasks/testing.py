@@ -102,6 +102,9 @@ class SimRobot:
     def send_hybrid(self, goal) -> None:
         raise RuntimeError("no force node in the simulation")
 
+    def force_passive(self) -> tuple[str, str] | None:
+        return None
+
     def home_rail(self) -> str | None:
         self.sim.home_rail()
         return None

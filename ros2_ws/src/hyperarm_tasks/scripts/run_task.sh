@@ -5,8 +5,9 @@
 #
 # Several tasks run one after the other on the same stack (e.g. block_transfer
 # block_transfer_back: there and back), stopping at the first failure.
-# Starts the drivers (the mock by default) and the task node as separate processes, waits
-# until they are ready (joint_states and the run_task action: no fixed sleeps), sends the
+# Starts the drivers (the mock by default), the force node and the task node as separate
+# processes, waits until they are ready (joint_states, the run_task action and the force
+# node's enable service: no fixed sleeps), sends the
 # goal, prints a line per step and the result, and exits 0 on success, 1 on failure (with
 # the reason), 2 on bad use. Every process it started is stopped (SIGINT, then SIGKILL after
 # 10 s) on success, failure, Ctrl-C or SIGTERM; Ctrl-C cancels the task first (the arm
@@ -19,8 +20,8 @@
 #   --workcell FILE      the work-cell YAML: the mock's cell (default: its packaged one), and
 #                        the table/pegs/poles the task node checks its paths against
 #   --seed N             the mock's imperfection and camera seeds (a copy of the work cell)
-#   --force-node         also start hybrid_force: force_insert then uses hybrid force control
-#                        instead of its pressing fallback (experimental, see docs/tasks.md)
+#   --no-force-node      do not start hybrid_force: force_insert then presses with its
+#                        position pseudo-goal fallback instead of hybrid force control
 #   --record FILE        record the run to FILE (MCAP: joint_states, joint_command,
 #                        hybrid_goal, ee_wrench, detections, task feedback)
 #   --tasks-dir DIR      user task files (searched before the packaged ones)
@@ -32,7 +33,7 @@ set -uo pipefail
 usage() { sed -n '2,/^set -uo/p' "${BASH_SOURCE[0]}" | sed '$d; s/^# \{0,1\}//'; }
 
 variant=arm hardware="" workcell="" seed="" record="" tasks_dir="" timeout=300 logs="" tasks=()
-force_node=0
+force_node=1
 while [ $# -gt 0 ]; do
   case "$1" in
     -h|--help) usage; exit 0 ;;
@@ -41,7 +42,8 @@ while [ $# -gt 0 ]; do
     --workcell) workcell="${2:?--workcell needs a file}"; shift 2 ;;
     --seed) seed="${2:?--seed needs a number}"; shift 2 ;;
     --record) record="${2:?--record needs a file}"; shift 2 ;;
-    --force-node) force_node=1; shift ;;
+    --force-node) force_node=1; shift ;;     # the default (kept for old scripts)
+    --no-force-node) force_node=0; shift ;;
     --tasks-dir) tasks_dir="${2:?--tasks-dir needs a directory}"; shift 2 ;;
     --timeout) timeout="${2:?--timeout needs seconds}"; shift 2 ;;
     --logs) logs="${2:?--logs needs a directory}"; shift 2 ;;
@@ -154,7 +156,9 @@ n=0
 for task in "${tasks[@]}"; do
   n=$((n + 1))
   [ "${#tasks[@]}" -eq 1 ] || echo "== task $n/${#tasks[@]}: $task"
-  "$(exe hyperarm_tasks run_task)" "$task" --timeout "$timeout" --wait-ready 60 &
+  wait_force=()
+  [ "$force_node" = 0 ] || wait_force=(--wait-force)
+  "$(exe hyperarm_tasks run_task)" "$task" --timeout "$timeout" --wait-ready 60 "${wait_force[@]}" &
   client=$!
   while :; do
     wait "$client"; rc=$?

@@ -111,6 +111,7 @@ def test_cancel_mid_insertion_holds_with_force_off(launch, rclpy_context, execut
     cell["imperfections"]["seed"] = 5
     (tmp_path / "tight.yaml").write_text(yaml.safe_dump(cell))
     launch("hyperarm_driver", "mock_driver", params={"workcell_file": str(tmp_path / "tight.yaml")})
+    force = launch("hyperarm_ik", "hybrid_force")      # the insertion under force control
     task = launch("hyperarm_tasks", "task_node")
     node = rclpy.create_node("probe", namespace=contract.DEFAULT_NAMESPACE, context=rclpy_context)
     states, commands = [], []
@@ -123,7 +124,8 @@ def test_cancel_mid_insertion_holds_with_force_off(launch, rclpy_context, execut
     executor.add_node(node)
     env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain), PYTHONUNBUFFERED="1")
     client = subprocess.Popen([executable("hyperarm_tasks", "run_task"), "block_transfer",
-                               "--wait-ready", "60"], env=env, stdout=subprocess.PIPE,
+                               "--wait-ready", "60", "--wait-force"], env=env,
+                              stdout=subprocess.PIPE,
                               stderr=subprocess.STDOUT, text=True, start_new_session=True)
     lines = []
     for line in client.stdout:
@@ -146,6 +148,13 @@ def test_cancel_mid_insertion_holds_with_force_off(launch, rclpy_context, execut
     log = task.output()
     assert "cancel requested for task 'block_transfer' during insert" in log
     assert "cancelled during insert (force control off, holding)" in log
+    # the insertion did run under force control, and the cancel switched it off
+    flog = force.output()
+    assert "enabled (position output)" in flog, flog[-2000:]
+    modes = [ln for ln in flog.splitlines() if "enabled (" in ln or "disabled" in ln
+             or ": passive" in ln]
+    assert modes and modes[-1].endswith("disabled on request"), flog[-2000:]
+    assert "Traceback" not in flog
 
 
 def test_refused_rail_command_fails_with_the_drivers_reason(executable, ros_domain, tmp_path,

@@ -12,10 +12,16 @@ force (logged once per run).
 
 Contact and depth. The press stalls on the peg's top: the measured tool (FK of
 joint_states) stops above the commanded one (the servos deflect); that height is the
-contact height. The block is down the peg when the command is the full ``press`` below the
-contact height (more than ``depth``) and nothing holds the tool up any more (deflection
-below ``contact_threshold``); the camera then confirms that the block is on the peg's axis
-(within ``align_tolerance``), not down beside it. Encoders do not see the arm's
+contact height. Under force control the z goal then stays at the contact height, so the
+block is pressed with ``force`` alone (stiffness x offset = 0 on the top) while the dither
+moves it, and it is down the peg when the measured tool is ``depth`` below the contact
+height (the force pushes it down by force / stiffness once the hole finds the peg). If the
+force node goes passive on late joint states, the step enables it again (at most 10 times;
+any other passive reason fails the attempt). With the pressing fallback the block is down
+the peg when the command is the full ``press`` below the contact height (more than
+``depth``) and nothing holds the tool up any more (deflection below
+``contact_threshold``). Either way the camera then confirms that the block is on the
+peg's axis (within ``align_tolerance``), not down beside it. Encoders do not see the arm's
 repeatability error, so heights are judged by deflection, not by absolute tool height.
 The depth reported is the measured drop below the contact height. Retries (``retry``)
 rotate and reverse the pattern.
@@ -42,6 +48,7 @@ from . import BuildContext, PoseSpec, Step, StepType, pose_schema, quantity, reg
 STALL_WINDOW = 0.15   # s: the tool stalled if it moved down less than STALL_MOTION in it
 STALL_MOTION = 3e-4   # m  (while the command went down more than twice that)
 CONTACT_WINDOW = 0.01  # m: a stall counts as contact only this close above the nominal top
+MAX_RESUMES = 10      # force control enabled again after it went passive on late joint states
 
 
 @dataclass(frozen=True)
@@ -157,6 +164,8 @@ def run(step: ForceInsert, runner) -> None:
     z_cmd = float(start[2, 3])
     z_ref, t_contact, best, dithering = None, None, 0.0, False
     done_ticks = 0
+    resumed = 0
+    found_xy: np.ndarray | None = None   # force control: measured x-y where the hole found the peg
     history: deque[tuple[float, float, float]] = deque()
     try:
         while True:
@@ -170,8 +179,41 @@ def run(step: ForceInsert, runner) -> None:
             goal = target.copy()
             goal[:3, 3] = target[:3, 3] + off
             goal[2, 3] = z_cmd
+            if found_xy is not None:
+                # down the peg (being confirmed): the peg holds the block where the hole found
+                # it; an x-y goal elsewhere would only push it sideways against the peg
+                goal[:2, 3] = found_xy
             if use_force:
                 from ..runner import HybridCommand
+                passive = robot.force_passive()
+                if passive:     # it holds the arm where it is and ignores goals
+                    kind, why = passive
+                    if kind != "stale" or resumed >= MAX_RESUMES:
+                        runner.metrics["insertion_attempts"] = runner.attempt + 1.0
+                        raise StepFailed("insertion", f"force control went passive during "
+                                         f"the insertion ({why}); best depth "
+                                         f"{best * 1000:.1f} mm")
+                    # late joint states (a loaded machine): the fault is latched until
+                    # someone enables again; the step does, from the pose held now
+                    resumed += 1
+                    robot.log("warn", f"{step.name}: force control went passive ({why}); "
+                                      f"enabling it again ({resumed}/{MAX_RESUMES})")
+                    waited = robot.now()      # it refuses to start on stale joint states
+                    while robot.joint_states_age() > 0.05 and robot.now() - waited < 1.0:
+                        runner.tick()
+                    reason = robot.set_force_control(True)
+                    if reason:
+                        raise StepFailed("driver", f"force control could not be enabled "
+                                         f"again: {reason}")
+                    # a passive hold looks like a stall on the top: find the contact again,
+                    # descending from where the tool is now
+                    z_ref = t_contact = found_xy = None
+                    z_cmd = float(runner.tool_measured()[2, 3])
+                    z_bottom = z_contact - step.press
+                    done_ticks = 0
+                    history.clear()
+                    last = robot.now()
+                    continue
                 robot.send_hybrid(HybridCommand(goal[:3, 3], goal[:3, :3],
                                                 (2000.0, 2000.0, step.stiffness, 50.0, 50.0, 50.0),
                                                 (False, False, True, False, False, False),
@@ -196,7 +238,14 @@ def run(step: ForceInsert, runner) -> None:
             near = z_cmd < z_contact + CONTACT_WINDOW     # contact is only expected here
             if z_ref is None and near and lag > step.contact_threshold and stalled:
                 z_ref, t_contact = z_meas, now           # stalled on the peg's top
-                z_bottom = z_ref - step.press            # press relative to the contact
+                if use_force:
+                    # force control: the z goal stays at the contact height, so the block is
+                    # pressed with the feed-forward force alone (K (X0 - X) = 0 on the top):
+                    # the dither works against friction of mu x force, and the block drops
+                    # by force / K once its hole finds the peg
+                    z_bottom = z_cmd = z_ref
+                else:
+                    z_bottom = z_ref - step.press        # press relative to the contact
             if not dithering and (z_ref is not None or z_cmd <= z_bottom):
                 dithering = True
                 t_contact = t_contact or now
@@ -204,10 +253,20 @@ def run(step: ForceInsert, runner) -> None:
             # holds the tool up (no vertical deflection). The encoders cannot see the arm's
             # repeatability error, but the deflection is the contact itself.
             depth = (z_ref if z_ref is not None else z_contact) - z_meas
-            ok = z_cmd <= z_bottom + 1e-4 and lag < step.contact_threshold
-            if lag < step.contact_threshold:     # depths while held up do not count
+            if use_force:     # the force holds the tool down: down the peg is the depth
+                # (depth from a contact found since the last enable, or from the nominal
+                # top when the whole descent met none: the block went straight down the peg)
+                ok = dithering and depth >= step.depth and (z_ref is not None
+                                                            or z_cmd <= z_bottom + 1e-4)
                 best = max(best, depth)
+            else:
+                ok = z_cmd <= z_bottom + 1e-4 and lag < step.contact_threshold
+                if lag < step.contact_threshold:     # depths while held up do not count
+                    best = max(best, depth)
             done_ticks = done_ticks + 1 if ok else 0
+            if use_force:
+                found_xy = runner.tool_measured()[:2, 3].copy() if ok and found_xy is None \
+                    else (found_xy if ok else None)
             runner.feedback("dithering" if dithering else "descending",
                             min((now - t0) / step.timeout, 0.99), goal[:3, 3], depth)
             if done_ticks >= 10:
