@@ -213,7 +213,15 @@ def _mock_session(launch, rclpy_context, executor, wait_for, tmp_path, mock_para
     arm = MockArm(probe, wait_for)
     arm.q_now()
     wait_for(lambda: probe.cmd_pub.get_subscription_count() > 0, 10.0, what="mock subscribed")
+    _wait_node_reads_states(probe, wait_for)
     return probe, arm, hf
+
+
+def _wait_node_reads_states(probe: ForceProbe, wait_for) -> None:
+    """Until hybrid_force has taken in joint_states (it publishes ee_wrench on each): its
+    services answer as soon as it is up, and an enable before its first joint state is
+    refused ("no joint_states received yet": seen on a loaded machine)."""
+    wait_for(lambda: probe.wrench, 30.0, what="ee_wrench (hybrid_force reading joint_states)")
 
 
 def _window(probe: ForceProbe, arm: MockArm, since: float):
@@ -461,7 +469,9 @@ def test_whole_arm_compliance_closes_around_a_pole(launch, rclpy_context, execut
     probe.command(arm.arm, q_open)
     wait_for(lambda: np.abs(arm.q_now() - q_open).max() < 2e-3, 10.0, what="open posture")
     assert not any(m.status for _, m in contacts[-1:]), "touching in the open posture"
-    assert probe.enable(True).success
+    _wait_node_reads_states(probe, wait_for)
+    res = probe.enable(True)
+    assert res.success, res.message
     assert probe.compliance(True).success
     kin = arm.kin
     for s in (0.25, 0.5, 0.75, 1.0):
