@@ -29,8 +29,8 @@ from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import declare_robot_description, run_node
 
 from .errors import IKError
-from .host import (CompensationConfig, Compensator, DelayEstimator, HostState, RailHost,
-                   ReactionModel, Status)
+from .host import (AccelerationEstimator, CompensationConfig, Compensator, DelayEstimator,
+                   HostPoseTracker, HostState, RailHost, ReactionModel, Status)
 from .kinematics import Kinematics
 from .ros_conversions import pose_to_matrix
 
@@ -52,6 +52,8 @@ PARAMETERS: ParamSpec = {
                            "solution is reported unreachable", Range(1e-6, 0.1)),
     "orientation_tolerance": (_C.orientation_tolerance, "rad, likewise for orientation",
                               Range(1e-5, 1.0)),
+    "profile_lead": (_C.profile_lead, "lead each joint's command by the distance its servo's "
+                     "acceleration-limited profile trails a moving goal, v|v|/(2a)", None),
     "stale_timeout": (0.1, "s without joint_states (or host_pose) before compensation stops "
                       "(latched: enable again)", Range(0.01, 10.0)),
     "reaction_acceleration": ("finite_difference", "joint accelerations in the reaction: "
@@ -77,7 +79,7 @@ class HostCompensationNode(Node):
                 limit_margin=p["limit_margin"], max_horizon=p["max_horizon"],
                 position_tolerance=p["position_tolerance"],
                 orientation_tolerance=p["orientation_tolerance"],
-                posture_gain=p["posture_gain"])
+                posture_gain=p["posture_gain"], profile_lead=p["profile_lead"])
             self._comp = Compensator(Kinematics(arm_desc), cfg)
             self._reaction = ReactionModel(Kinematics(arm_desc))
         except IKError as exc:
@@ -91,18 +93,19 @@ class HostCompensationNode(Node):
         self._rail = RailHost(desc) if source == "rail" else None
         self._rail_name = desc.rail.name if desc.rail is not None else None
         self._arm = list(arm_desc.arm_joint_names)
+        self._arm_set = frozenset(self._arm)
         self._base = desc.base_frame
         self._cache = JointStateCache()
         self._throttle = ReasonThrottle(5.0)
-        self._host: HostState | None = None
-        self._host_time: float | None = None
-        self._host_prev: tuple[float, np.ndarray] | None = None
+        self._tracker = HostPoseTracker()
+        self._host_time: float | None = None     # arrival (node clock) of the newest host_pose
         self._enabled = False
         self._reason = "disabled"
         self._status = "disabled"
         self._last_time: float | None = None
         self._latency = 0.0
-        self._prev_dq: tuple[float, np.ndarray] | None = None
+        self._accel = AccelerationEstimator()
+        self._fd = p["reaction_acceleration"] == "finite_difference"
         self._delay = DelayEstimator(min(p["initial_delay"], p["max_horizon"]))
         self._cycles = 0
         self._compute = 0.0
@@ -113,10 +116,9 @@ class HostCompensationNode(Node):
                                              qos_for(contract.BASE_REACTION))
         self._diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
                                            qos_for(contract.DIAGNOSTICS))
-        states_qos = qos_for(contract.JOINT_STATES)
-        states_qos.depth = 1          # the newest state only: a backlog is a delay
+        # the contract's depth: one command per joint_states message, none skipped
         self.create_subscription(JointState, contract.JOINT_STATES, self._on_joint_states,
-                                 states_qos)
+                                 qos_for(contract.JOINT_STATES))
         self.create_subscription(PoseStamped, contract.HOST_POSE, self._on_host_pose,
                                  qos_for(contract.HOST_POSE))
         self.create_subscription(PoseStamped, contract.HOST_COMP_GOAL, self._on_goal,
@@ -134,41 +136,34 @@ class HostCompensationNode(Node):
         pose = self._world_pose(msg, "host_pose ignored")
         if pose is None:
             return
-        t = self._now()
-        lin = ang = np.zeros(3)
-        if self._host_prev is not None and t > self._host_prev[0]:
-            dt = t - self._host_prev[0]
-            prev = self._host_prev[1]
-            lin = (pose[:3, 3] - prev[:3, 3]) / dt
-            ang = pin.log3(pose[:3, :3] @ prev[:3, :3].T) / dt
+        stamp = _seconds(msg.header.stamp) or self._now()
         try:
-            self._host = HostState(pose, lin, ang)
+            self._tracker.update(stamp, pose)
         except IKError as exc:
             self._warn(f"host_pose ignored: {exc}")
             return
-        self._host_prev, self._host_time = (t, pose), t
+        self._host_time = self._now()
 
     def _on_joint_states(self, msg: JointState) -> None:
+        t0 = time.perf_counter()
         try:
             self._cache.update(msg.name, msg.position, msg.velocity, msg.effort)
         except JointStateError as exc:
             self._warn(f"joint_states ignored: {exc}")
             return
-        if not any(n in self._arm for n in msg.name) or not self._cache.has(self._arm):
-            return
-        t0 = time.perf_counter()
-        now = self._now()
-        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        age = min(max(now - stamp, 0.0), 0.5) if stamp > 0.0 else 0.0   # s, state's age
-        self._latency += 0.1 * (age - self._latency)
         c = self._cache
+        if not any(n in self._arm_set for n in msg.name) or not c.has(self._arm):
+            return
+        now = self._now()
+        stamp = _seconds(msg.header.stamp)
+        age = min(max(now - stamp, 0.0), 0.5) if stamp > 0.0 else 0.0   # s, state's age
         q = np.array([c.position[n] for n in self._arm])
-        dq = np.array([c.velocity.get(n, 0.0) for n in self._arm])
         host = self._host_state()
-        self._publish_reaction(now, q, dq, host, msg.header.stamp)
-        if self._enabled:
-            self._delay.measured(now - age, q)      # when the joints were there
+        if self._enabled:          # the command first: it is what the loop waits for
             self._cycle(now, host, msg.header.stamp, age)
+            self._delay.measured(now - age, q)      # when the joints were there
+        self._latency += 0.1 * (age - self._latency)
+        self._publish_reaction(now, q, host, msg.header.stamp)
         self._last_time = now
         self._compute = time.perf_counter() - t0
 
@@ -178,7 +173,7 @@ class HostCompensationNode(Node):
                 return None
             return self._rail.state(self._cache.position[self._rail_name],
                                     self._cache.velocity.get(self._rail_name, 0.0))
-        return self._host
+        return self._tracker.state
 
     def _cycle(self, now: float, host: HostState | None, stamp, age: float) -> None:
         """One command: for the host pose when the arm will be there, i.e. the state's
@@ -189,7 +184,9 @@ class HostCompensationNode(Node):
             return
         dt = now - self._last_time if self._last_time is not None else 0.01
         dt = min(max(dt, 1e-3), 0.1)
-        step = self._comp.step(host, age + self._delay.delay, dt)
+        # the host state's own age: the joint state's (rail) or the host pose's stamp
+        h_age = age if self._rail is not None else max(now - (self._tracker.stamp or now), 0.0)
+        step = self._comp.step(host, h_age + self._delay.delay, dt)
         self._cycles += 1
         self._err = (step.position_error, step.orientation_error)
         status = step.status.value
@@ -202,8 +199,8 @@ class HostCompensationNode(Node):
             self._reason = step.reason or status
         cmd = JointState()
         cmd.header.stamp = stamp
-        cmd.name = list(self._arm)
-        cmd.position = [float(v) for v in step.q]
+        cmd.name = self._arm
+        cmd.position = step.command.tolist()
         self._cmd.publish(cmd)
         self._delay.commanded(now, step.q)
 
@@ -274,13 +271,10 @@ class HostCompensationNode(Node):
         self._comp.stop()
 
     # -- outputs ----------------------------------------------------------------------------
-    def _publish_reaction(self, now, q, dq, host: HostState | None, stamp) -> None:
-        ddq = None
-        if self._p["reaction_acceleration"] == "finite_difference" and self._prev_dq:
-            dt = now - self._prev_dq[0]
-            if dt > 1e-4:
-                ddq = (dq - self._prev_dq[1]) / dt
-        self._prev_dq = (now, dq)
+    def _publish_reaction(self, now, q, host: HostState | None, stamp) -> None:
+        c = self._cache
+        dq = np.array([c.velocity.get(n, 0.0) for n in self._arm])
+        ddq = self._accel.update(now, dq) if self._fd else None
         r = host.pose[:3, :3] if host is not None else np.eye(3)
         try:
             w = self._reaction.wrench(q, dq, ddq, gravity_base=r.T @ np.array([0, 0, -9.81]))
@@ -317,6 +311,10 @@ class HostCompensationNode(Node):
 
     def _now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
+
+
+def _seconds(stamp) -> float:
+    return stamp.sec + stamp.nanosec * 1e-9
 
 
 def main(args: list[str] | None = None) -> None:

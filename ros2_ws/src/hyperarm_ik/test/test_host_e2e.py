@@ -49,6 +49,10 @@ def _rail_profile(t: float) -> float:
     return WAYPOINTS[-1]
 
 
+def _ns(stamp) -> int:
+    return stamp.sec * 10**9 + stamp.nanosec
+
+
 class Probe:
     """The test's node: joint states with arrival times, arm commands, reactions."""
 
@@ -59,15 +63,17 @@ class Probe:
                          context=context)
         self.lock = threading.Lock()
         self.states: list[tuple[float, dict]] = []
-        self.commands: list[float] = []
+        self.state_stamps: list[int] = []
+        self.commands: set[int] = set()     # the stamps of the arm commands (their state's)
         self.reactions: list[np.ndarray] = []
         self.homed = False
         self.diag: dict = {}
         n = self.node
         n.create_subscription(JointState, contract.JOINT_STATES, self._on_state,
                               qos_for(contract.JOINT_STATES))
-        n.create_subscription(JointState, contract.JOINT_COMMAND, self._on_command,
-                              qos_for(contract.JOINT_COMMAND))
+        deep = qos_for(contract.JOINT_COMMAND)
+        deep.depth = 200      # the test counts every command: it must not drop any itself
+        n.create_subscription(JointState, contract.JOINT_COMMAND, self._on_command, deep)
         n.create_subscription(WrenchStamped, contract.BASE_REACTION, self._on_reaction,
                               qos_for(contract.BASE_REACTION))
         n.create_subscription(DiagnosticArray, contract.DIAGNOSTICS, self._on_diag,
@@ -81,11 +87,12 @@ class Probe:
     def _on_state(self, msg: JointState) -> None:
         with self.lock:
             self.states.append((time.monotonic(), dict(zip(msg.name, msg.position))))
+            self.state_stamps.append(_ns(msg.header.stamp))
 
     def _on_command(self, msg: JointState) -> None:
         if list(msg.name) == ARM:
             with self.lock:
-                self.commands.append(time.monotonic())
+                self.commands.add(_ns(msg.header.stamp))
 
     def _on_reaction(self, msg: WrenchStamped) -> None:
         f, t = msg.wrench.force, msg.wrench.torque
@@ -148,7 +155,7 @@ def test_tool_stays_in_the_world_while_the_rail_moves(launch, rclpy_context, exe
 
     goal = tool(probe.latest())
     with probe.lock:
-        first_state, first_cmd = len(probe.states), len(probe.commands)
+        first_state = len(probe.states)
     duration = sum(abs(b - a) / RAIL_SPEED + DWELL for a, b in zip(WAYPOINTS, WAYPOINTS[1:]))
     t0 = time.monotonic()
     while (t := time.monotonic() - t0) < duration + 0.5:
@@ -157,22 +164,27 @@ def test_tool_stays_in_the_world_while_the_rail_moves(launch, rclpy_context, exe
     with probe.lock:
         states = [q for _t, q in probe.states[first_state:]]
         span = probe.states[-1][0] - probe.states[first_state][0]
-        n_cmd = len(probe.commands) - first_cmd
+        stamps = probe.state_stamps[first_state:-5]    # the last few may be in flight
+        answered = sum(s in probe.commands for s in stamps)
     rails = np.array([q["rail"] for q in states])
     poses = [tool(q) for q in states]
     perr = np.array([np.linalg.norm(p[:3, 3] - goal[:3, 3]) for p in poses])
     oerr = np.array([rotation_angle(goal[:3, :3], p[:3, :3]) for p in poses])
     rms = float(np.sqrt(np.mean(perr ** 2)))
-    rate = n_cmd / span
+    rate = len(states) / span
     summary = (f"host e2e: {len(states)} states, tool error RMS {rms * 1e3:.2f} mm, max "
           f"{perr.max() * 1e3:.2f} mm, orientation max {math.degrees(oerr.max()):.3f} deg; "
-          f"{n_cmd} arm commands in {span:.2f} s ({rate:.0f} Hz); rail {rails.min():.4f}.."
+          f"{answered}/{len(stamps)} states answered by a command ({rate:.0f} Hz states); "
+          f"rail {rails.min():.4f}.."
           f"{rails.max():.4f} m; node: {probe.diag}")
     print(summary)
+    import os
+    if os.environ.get('HOST_E2E_DUMP'):
+        np.savez(os.environ['HOST_E2E_DUMP'], t=np.array([t for t, _q in probe.states[first_state:]]), perr=perr, oerr=oerr, rails=rails)
     assert rails.max() > 0.199 and rails.min() < -0.199, (rails.min(), rails.max())
     assert rms < 3e-3 and perr.max() < 8e-3, summary
     assert math.degrees(oerr.max()) < 2.0, summary
-    assert n_cmd >= 0.9 * len(states), (n_cmd, len(states))
+    assert answered >= 0.99 * len(stamps), summary      # one command per joint state
     out = comp.output()
     assert "unreachable" not in out, out[-2000:]
     assert "Traceback" not in mock.output() + out

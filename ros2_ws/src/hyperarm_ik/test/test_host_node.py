@@ -89,7 +89,7 @@ def test_enable_goal_and_host_pose_rules(rclpy_context, executor, wait_for):
         for _ in range(3):
             host.publish(_pose(contract.WORLD_FRAME))
             send_state()
-        wait_for(lambda: node._host is not None, 5.0, what="host pose taken")
+        wait_for(lambda: node._tracker.state is not None, 5.0, what="host pose taken")
         res = call(True)
         assert res.success, res.message
         wait_for(lambda: (send_state(), commands)[1], 5.0, period=0.02, what="arm commands")

@@ -4,15 +4,19 @@
   :class:`RailHost`) and the per-cycle, warm-started, step-limited IK that keeps tool0 at a
   world pose while the host moves (:class:`Compensator`);
 - ``reaction``: the wrench the arm exerts on its mount from pinocchio's RNEA
-  (:class:`ReactionModel`).
+  (:class:`ReactionModel`);
+- ``redundancy``: IK that uses the three free joints to keep the centre of mass over the
+  mount, lowering the base moment (:class:`ReactionMinimizer`).
 """
 from .compensation import (CompensationConfig, Compensator, CompensationStep, DelayEstimator,
-                           HostState, RailHost, Status)
+                           HostPoseTracker, HostState, RailHost, Status)
 from .errors import (HostConfigError, HostError, HostGoalError, HostStateError,
                      NotStartedError)
-from .reaction import ReactionModel
+from .reaction import AccelerationEstimator, ReactionModel
+from .redundancy import OBJECTIVES, ReactionMinimizer, RedundancyConfig
 
 __all__ = ["CompensationConfig", "Compensator", "CompensationStep", "DelayEstimator",
-           "HostState", "RailHost",
+           "HostState", "HostPoseTracker", "RailHost", "AccelerationEstimator",
+           "ReactionMinimizer", "RedundancyConfig", "OBJECTIVES",
            "Status", "HostConfigError", "HostError", "HostGoalError", "HostStateError",
            "NotStartedError", "ReactionModel"]
