@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import pinocchio as pin
@@ -52,8 +53,8 @@ class RedundancyConfig:
     limit_margin / limit_band: rad kept from every limit / within which joints are pushed away.
     """
 
-    gain: float = 4.0
-    max_null_step: float = 0.004
+    gain: float = 50.0
+    max_null_step: float = 0.01
     null_steps: int = 1
     max_iterations: int = 50
     position_tolerance: float = 1e-4
@@ -154,12 +155,16 @@ class ReactionMinimizer:
                             f"{np.linalg.norm(e[:3]) * 1e3:.2f} mm, "
                             f"{math.degrees(float(np.linalg.norm(e[3:]))):.3f} deg")
 
-    def plan(self, poses, seed) -> np.ndarray:
-        """(n, 9) joints for the (n, 4, 4) poses, each seeded with the previous solution.
-        Raises :class:`HostGoalError` naming the first pose that is not met."""
+    def plan(self, poses, seed, on_waypoint: Callable[[int], object] | None = None
+             ) -> np.ndarray:
+        """(n, 9) joints for the (n, 4, 4) poses, each seeded with the previous solution
+        (``on_waypoint(k)`` is called before pose k: progress, cancel checks). Raises
+        :class:`HostGoalError` naming the first pose that is not met."""
         out = []
         q = self._q(seed)
         for k, pose in enumerate(poses):
+            if on_waypoint is not None:
+                on_waypoint(k)
             try:
                 q = self.solve(pose, q)
             except HostGoalError as exc:
@@ -167,21 +172,80 @@ class ReactionMinimizer:
             out.append(q)
         return np.array(out)
 
-    def reconfigure(self, pose, q_start, max_steps: int = 2000,
-                    tolerance: float = 1e-3) -> np.ndarray:
-        """(m, 9) joint path at the fixed tool ``pose`` from ``q_start`` (included) towards
-        the minimising posture: null-space steps of at most ``max_null_step`` rad until the
-        static moment improves by less than ``tolerance`` (fraction) over 20 steps."""
-        q = self.solve(pose, q_start, null_steps=0)
-        path = [self._q(q_start), q]
-        history = [self.static_moment(q)]
-        for _ in range(max_steps):
-            q = self.solve(pose, q, null_steps=1)
+    def reconfigure(self, pose, q_start, starts: int = 16, max_steps: int = 2000,
+                    tolerance: float = 1e-4) -> np.ndarray:
+        """(m, 9) joint path at the fixed tool ``pose`` from ``q_start`` (included) to a
+        posture that minimises the static moment; consecutive rows differ by a few
+        ``max_null_step`` at most (streamed over time, no jump) and every row but the first
+        meets the pose.
+
+        The objective has several local minima over the arm's self-motion (e.g. a posture
+        in one vertical plane is a minimum among planar postures, far above the best
+        non-planar ones), so besides the descent from ``q_start`` it tries ``starts``
+        postures from fixed pseudo-random seeds (deterministic) and keeps the lowest
+        (coarse descents of 5 x ``max_null_step``, the final one of 2 x). To
+        get there it walks in joint space from the present posture to that one, re-solving
+        the pose at every small step (the tool stays put); if that walk breaks (a pose not
+        met, a jump), the local descent is used. The path then descends (null-space steps)
+        until the moment improves by less than ``tolerance`` (fraction) over 20 steps."""
+        q0 = self.solve(pose, q_start, null_steps=0)
+        path = [self._q(q_start), q0]
+        far = self._best_start(pose, starts)
+        if far is not None and self._descend(pose, q0, 150, scale=5.0)[-1][1] > 1.02 * far[1]:
+            walk = self._walk(pose, q0, far[0])
+            if walk is not None:
+                path += walk
+        for q, _m in self._descend(pose, path[-1], max_steps, tolerance, scale=2.0):
             path.append(q)
-            history.append(self.static_moment(q))
-            if len(history) > 20 and history[-21] - history[-1] < tolerance * history[-21]:
-                break
         return np.array(path)
+
+    def _descend(self, pose, q, steps: int, tolerance: float = 0.0, scale: float = 1.0):
+        """[(q, static moment)] of up to ``steps`` null-space steps (``scale`` x the cap)
+        from ``q``; stops early when the moment improves by less than ``tolerance`` over 20
+        steps (0: never)."""
+        out = []
+        target = self._pose(pose)
+        for _ in range(steps):
+            q = self.solve(target, self._iterate(q, target, scale * self._null_step(q)),
+                           null_steps=0)
+            out.append((q, self.static_moment(q)))
+            if tolerance > 0.0 and len(out) > 20 \
+                    and out[-21][1] - out[-1][1] < tolerance * out[-21][1]:
+                break
+        return out
+
+    def _best_start(self, pose, starts: int):
+        """(q, moment) of the lowest of ``starts`` descents from seeded postures, or None."""
+        rng = np.random.default_rng(15)
+        best = None
+        for _ in range(starts):
+            seed = rng.uniform(0.8 * self.lower, 0.8 * self.upper)
+            try:
+                q = self.solve(pose, seed, null_steps=0)
+            except HostGoalError:
+                continue
+            q, m = self._descend(pose, q, 150, scale=5.0)[-1]    # coarse, fast
+            if best is None or m < best[1]:
+                best = (q, m)
+        return best
+
+    def _walk(self, pose, qa: np.ndarray, qb: np.ndarray) -> list[np.ndarray] | None:
+        """Joint-space walk qa -> qb with the pose re-solved at every step (max_null_step
+        apart), or None if a step does not meet the pose or jumps."""
+        cap = self.config.max_null_step
+        n = max(1, int(math.ceil(2.0 * float(np.abs(qb - qa).max()) / cap)))
+        out, prev = [], qa
+        for k in range(1, n + 1):
+            s = k / n
+            try:
+                q = self.solve(pose, (1.0 - s) * qa + s * qb, null_steps=0)
+            except HostGoalError:
+                return None
+            if float(np.abs(q - prev).max()) > 5.0 * cap:
+                return None
+            out.append(q)
+            prev = q
+        return out
 
     # -- internals ------------------------------------------------------------------------
     def _null_step(self, q: np.ndarray) -> np.ndarray:
