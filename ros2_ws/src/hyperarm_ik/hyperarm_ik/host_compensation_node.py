@@ -29,8 +29,9 @@ from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import declare_robot_description, run_node
 
 from .errors import IKError
-from .host import (AccelerationEstimator, CompensationConfig, Compensator, DelayEstimator,
-                   HostPoseTracker, HostState, RailHost, ReactionModel, Status)
+from .host import (AccelerationEstimator, CompensationConfig, CompensationLoop, Compensator,
+                   DelayEstimator, HostPoseTracker, HostState, RailHost, ReactionModel)
+from .host.reaction import STANDARD_GRAVITY
 from .kinematics import Kinematics
 from .ros_conversions import pose_to_matrix
 
@@ -64,15 +65,19 @@ PARAMETERS: ParamSpec = {
 
 
 class HostCompensationNode(Node):
-    """Thin ROS wrapper around :class:`Compensator` and :class:`ReactionModel`."""
+    """Thin ROS wrapper around :class:`CompensationLoop` and :class:`ReactionModel`."""
 
     def __init__(self, **kwargs) -> None:
         kwargs.setdefault("namespace", contract.DEFAULT_NAMESPACE)
         super().__init__("host_compensation", **kwargs)
         desc = declare_robot_description(self)
         p = declare_parameters(self, PARAMETERS)
-        self._p = p
         arm_desc = dataclasses.replace(desc, variant="arm", rail=None)
+        source = p["host_source"]
+        if source == "auto":
+            source = "rail" if desc.rail is not None else "host_pose"
+        if source == "rail" and desc.rail is None:
+            raise SystemExit("host_compensation: host_source 'rail' needs variant rail_arm")
         try:
             cfg = CompensationConfig(
                 iterations=p["iterations"], speed_scale=p["speed_scale"],
@@ -80,15 +85,13 @@ class HostCompensationNode(Node):
                 position_tolerance=p["position_tolerance"],
                 orientation_tolerance=p["orientation_tolerance"],
                 posture_gain=p["posture_gain"], profile_lead=p["profile_lead"])
-            self._comp = Compensator(Kinematics(arm_desc), cfg)
+            self._loop = CompensationLoop(
+                Compensator(Kinematics(arm_desc), cfg),
+                DelayEstimator(min(p["initial_delay"], p["max_horizon"])),
+                p["stale_timeout"], host_from_states=source == "rail")
             self._reaction = ReactionModel(Kinematics(arm_desc))
         except IKError as exc:
             raise SystemExit(f"host_compensation: {exc}") from exc
-        source = p["host_source"]
-        if source == "auto":
-            source = "rail" if desc.rail is not None else "host_pose"
-        if source == "rail" and desc.rail is None:
-            raise SystemExit("host_compensation: host_source 'rail' needs variant rail_arm")
         self._source = source
         self._rail = RailHost(desc) if source == "rail" else None
         self._rail_name = desc.rail.name if desc.rail is not None else None
@@ -99,17 +102,9 @@ class HostCompensationNode(Node):
         self._throttle = ReasonThrottle(5.0)
         self._tracker = HostPoseTracker()
         self._host_time: float | None = None     # arrival (node clock) of the newest host_pose
-        self._enabled = False
-        self._reason = "disabled"
-        self._status = "disabled"
-        self._last_time: float | None = None
-        self._latency = 0.0
         self._accel = AccelerationEstimator()
         self._fd = p["reaction_acceleration"] == "finite_difference"
-        self._delay = DelayEstimator(min(p["initial_delay"], p["max_horizon"]))
-        self._cycles = 0
         self._compute = 0.0
-        self._err = (0.0, 0.0)
         self._cmd = self.create_publisher(JointState, contract.JOINT_COMMAND,
                                           qos_for(contract.JOINT_COMMAND))
         self._wrench = self.create_publisher(WrenchStamped, contract.BASE_REACTION,
@@ -125,7 +120,8 @@ class HostCompensationNode(Node):
                                  qos_for(contract.HOST_COMP_GOAL))
         self.create_service(SetBool, contract.HOST_COMP_ENABLE, self._on_enable)
         self.create_timer(p["diagnostics_period"], self._publish_diagnostics)
-        self.create_timer(min(0.05, p["stale_timeout"] / 2.0), self._check_stale)
+        self.create_timer(min(0.05, p["stale_timeout"] / 2.0),
+                          lambda: self._log(self._loop.check_stale(self._now())))
         self.get_logger().info(f"host_compensation: {desc.variant}, host from {source}; "
                                f"disabled until {contract.HOST_COMP_ENABLE} true")
 
@@ -136,13 +132,13 @@ class HostCompensationNode(Node):
         pose = self._world_pose(msg, "host_pose ignored")
         if pose is None:
             return
-        stamp = _seconds(msg.header.stamp) or self._now()
+        now = self._now()
         try:
-            self._tracker.update(stamp, pose)
+            self._tracker.update(_seconds(msg.header.stamp) or now, pose)
         except IKError as exc:
             self._warn(f"host_pose ignored: {exc}")
             return
-        self._host_time = self._now()
+        self._host_time = now
 
     def _on_joint_states(self, msg: JointState) -> None:
         t0 = time.perf_counter()
@@ -155,16 +151,18 @@ class HostCompensationNode(Node):
         if not any(n in self._arm_set for n in msg.name) or not c.has(self._arm):
             return
         now = self._now()
-        stamp = _seconds(msg.header.stamp)
-        age = min(max(now - stamp, 0.0), 0.5) if stamp > 0.0 else 0.0   # s, state's age
         q = np.array([c.position[n] for n in self._arm])
         host = self._host_state()
-        if self._enabled:          # the command first: it is what the loop waits for
-            self._cycle(now, host, msg.header.stamp, age)
-            self._delay.measured(now - age, q)      # when the joints were there
-        self._latency += 0.1 * (age - self._latency)
+        command, log = self._loop.on_state(now, _seconds(msg.header.stamp), q, host,
+                                           self._tracker.stamp, self._host_time)
+        if command is not None:      # the command first: it is what the loop waits for
+            cmd = JointState()
+            cmd.header.stamp = msg.header.stamp
+            cmd.name = self._arm
+            cmd.position = command.tolist()
+            self._cmd.publish(cmd)
+        self._log(log)
         self._publish_reaction(now, q, host, msg.header.stamp)
-        self._last_time = now
         self._compute = time.perf_counter() - t0
 
     def _host_state(self) -> HostState | None:
@@ -175,44 +173,15 @@ class HostCompensationNode(Node):
                                     self._cache.velocity.get(self._rail_name, 0.0))
         return self._tracker.state
 
-    def _cycle(self, now: float, host: HostState | None, stamp, age: float) -> None:
-        """One command: for the host pose when the arm will be there, i.e. the state's
-        age plus the measured delay from a command to the joints reaching it."""
-        if host is None or (self._source == "host_pose" and self._host_time is not None
-                            and now - self._host_time > self._p["stale_timeout"]):
-            self._disable("host pose stale or missing: compensation stopped")
-            return
-        dt = now - self._last_time if self._last_time is not None else 0.01
-        dt = min(max(dt, 1e-3), 0.1)
-        # the host state's own age: the joint state's (rail) or the host pose's stamp
-        h_age = age if self._rail is not None else max(now - (self._tracker.stamp or now), 0.0)
-        step = self._comp.step(host, h_age + self._delay.delay, dt)
-        self._cycles += 1
-        self._err = (step.position_error, step.orientation_error)
-        status = step.status.value
-        if status != self._status:
-            if step.status is Status.UNREACHABLE:
-                self.get_logger().warn(step.reason)
-            elif self._status == Status.UNREACHABLE.value:
-                self.get_logger().info(f"goal reachable again: {status}")
-            self._status = status
-            self._reason = step.reason or status
-        cmd = JointState()
-        cmd.header.stamp = stamp
-        cmd.name = self._arm
-        cmd.position = step.command.tolist()
-        self._cmd.publish(cmd)
-        self._delay.commanded(now, step.q)
-
     def _on_goal(self, msg: PoseStamped) -> None:
-        if not self._enabled:
+        if not self._loop.enabled:
             self._warn(f"{contract.HOST_COMP_GOAL} ignored: not enabled")
             return
         goal = self._world_pose(msg, "goal rejected")
         if goal is None:
             return
         try:
-            self._comp.set_goal(goal)
+            self._loop.comp.set_goal(goal)
         except IKError as exc:
             self._warn(f"goal rejected: {exc}")
             return
@@ -234,41 +203,21 @@ class HostCompensationNode(Node):
 
     def _on_enable(self, req: SetBool.Request, res: SetBool.Response) -> SetBool.Response:
         if not req.data:
-            self._disable("disabled on request")
+            self._log(self._loop.disable("disabled on request"))
             res.success, res.message = True, "disabled"
             return res
-        host = self._host_state()
-        fresh = (self._last_time is not None
-                 and self._now() - self._last_time <= self._p["stale_timeout"])
-        if host is None or not fresh or not self._cache.has(self._arm):
-            res.success = False
-            res.message = ("cannot enable: no fresh joint_states" if not fresh else
-                           f"cannot enable: no host pose yet ({self._source})")
-            self.get_logger().error(res.message)
+        q = (np.array([self._cache.position[n] for n in self._arm])
+             if self._cache.has(self._arm) else None)
+        ok, message, goal = self._loop.enable(self._now(), q, self._host_state(), self._source)
+        res.success = ok
+        if not ok:
+            res.message = message
+            self.get_logger().error(message)
             return res
-        q = [self._cache.position[n] for n in self._arm]
-        goal = self._comp.start(q, host)
-        self._delay.reset()
-        self._enabled, self._status, self._reason = True, "tracking", "enabled"
-        res.success = True
         res.message = (f"holding tool0 at {np.round(goal[:3, 3], 4).tolist()} m in "
                        f"{contract.WORLD_FRAME}")
         self.get_logger().info(res.message)
         return res
-
-    def _check_stale(self) -> None:
-        """Joint states stopped while enabled: stop (latched) rather than resume later
-        from an old command."""
-        if self._enabled and self._last_time is not None \
-                and self._now() - self._last_time > self._p["stale_timeout"]:
-            self._disable(f"no joint_states for {self._p['stale_timeout']:g} s: "
-                          "compensation stopped")
-
-    def _disable(self, why: str) -> None:
-        if self._enabled:
-            self.get_logger().warn(f"host compensation off: {why}")
-        self._enabled, self._status, self._reason = False, "disabled", why
-        self._comp.stop()
 
     # -- outputs ----------------------------------------------------------------------------
     def _publish_reaction(self, now, q, host: HostState | None, stamp) -> None:
@@ -277,7 +226,7 @@ class HostCompensationNode(Node):
         ddq = self._accel.update(now, dq) if self._fd else None
         r = host.pose[:3, :3] if host is not None else np.eye(3)
         try:
-            w = self._reaction.wrench(q, dq, ddq, gravity_base=r.T @ np.array([0, 0, -9.81]))
+            w = self._reaction.wrench(q, dq, ddq, gravity_base=r.T @ STANDARD_GRAVITY)
         except IKError as exc:
             self._warn(f"reaction skipped: {exc}")
             return
@@ -289,21 +238,23 @@ class HostCompensationNode(Node):
         self._wrench.publish(msg)
 
     def _publish_diagnostics(self) -> None:
-        level = 1 if self._status == "unreachable" else 0
-        values = {"enabled": self._enabled, "status": self._status, "reason": self._reason,
-                  "host_source": self._source, "cycles": self._cycles,
-                  "latency_ms": f"{self._latency * 1e3:.2f}",
-                  "loop_delay_ms": f"{self._delay.delay * 1e3:.2f}",
-                  "compute_ms": f"{self._compute * 1e3:.3f}",
-                  "position_error_m": f"{self._err[0]:.5f}",
-                  "orientation_error_rad": f"{self._err[1]:.5f}"}
-        st = DiagnosticStatus(level=bytes([level]), name="host_compensation",
-                              hardware_id="host_compensation",
-                              message=f"{self._status}: {self._reason}",
+        loop = self._loop
+        values = dict(loop.diagnostics(), host_source=self._source,
+                      compute_ms=f"{self._compute * 1e3:.3f}")
+        st = DiagnosticStatus(level=bytes([1 if loop.status == "unreachable" else 0]),
+                              name="host_compensation", hardware_id="host_compensation",
+                              message=f"{loop.status}: {loop.reason}",
                               values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
         arr = DiagnosticArray(status=[st])
         arr.header.stamp = self.get_clock().now().to_msg()
         self._diag.publish(arr)
+
+    def _log(self, lines) -> None:
+        for level, text in lines:    # one call site per severity (rclpy's rule)
+            if level == "warn":
+                self.get_logger().warn(text)
+            else:
+                self.get_logger().info(text)
 
     def _warn(self, text: str) -> None:
         if (shown := self._throttle.message(text)):

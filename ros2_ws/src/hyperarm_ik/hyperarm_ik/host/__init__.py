@@ -3,6 +3,8 @@
 - ``compensation``: the host's pose and twist (:class:`HostState`, from the rail joint by
   :class:`RailHost`) and the per-cycle, warm-started, step-limited IK that keeps tool0 at a
   world pose while the host moves (:class:`Compensator`);
+- ``loop``: the node's per-message sequencing (enable, horizon, silence) on top of it
+  (:class:`CompensationLoop`);
 - ``reaction``: the wrench the arm exerts on its mount from pinocchio's RNEA
   (:class:`ReactionModel`);
 - ``redundancy``: IK that uses the three free joints to keep the centre of mass over the
@@ -12,11 +14,12 @@ from .compensation import (CompensationConfig, Compensator, CompensationStep, De
                            HostPoseTracker, HostState, RailHost, Status)
 from .errors import (HostConfigError, HostError, HostGoalError, HostStateError,
                      NotStartedError)
+from .loop import CompensationLoop
 from .reaction import AccelerationEstimator, ReactionModel
 from .redundancy import OBJECTIVES, ReactionMinimizer, RedundancyConfig
 
 __all__ = ["CompensationConfig", "Compensator", "CompensationStep", "DelayEstimator",
            "HostState", "HostPoseTracker", "RailHost", "AccelerationEstimator",
-           "ReactionMinimizer", "RedundancyConfig", "OBJECTIVES",
+           "ReactionMinimizer", "RedundancyConfig", "OBJECTIVES", "CompensationLoop",
            "Status", "HostConfigError", "HostError", "HostGoalError", "HostStateError",
            "NotStartedError", "ReactionModel"]
