@@ -1,86 +1,45 @@
 """Core tier: the reaction-minimising redundancy option (issue 15) on the figure-8 task.
 
 The shipped figure-8 task (hyperarm_tasks, step ``track_path``) runs twice on the mock's
-simulation (no ROS, simulated time, repeatability 0): as shipped, and with the step's
-``redundancy: min_reaction`` (a task YAML a user would write). The base moment is what the
+simulation (no ROS, simulated time, repeatability 0; ``host_sim.figure8_task``): as
+shipped, and with the step's ``redundancy: min_reaction`` (a task YAML a user would write). The base moment is what the
 node publishes on ``base_reaction``: :class:`ReactionModel` on the measured joint states
 (finite-difference accelerations), over the figure-8's traversal. The option must lower
 its peak by at least 10 % while at least 99 % of the 1,000 waypoints stay within 1 mm.
 """
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
 from hyperarm_description.model import load_description
-from hyperarm_ik.host import (AccelerationEstimator, HostConfigError, HostGoalError,
-                              HostStateError, ReactionMinimizer, ReactionModel,
-                              RedundancyConfig)
+from hyperarm_ik.host import (HostConfigError, HostGoalError, HostStateError,
+                              ReactionMinimizer, ReactionModel, RedundancyConfig)
 from hyperarm_ik.kinematics import Kinematics
 from hyperarm_ik.paths import FIGURE8, hold_orientation
 
 pytestmark = [pytest.mark.core]
-
-ARM = [f"joint{i}" for i in range(1, 10)]
-
 
 @pytest.fixture(scope="module")
 def kin():
     return Kinematics(variant="arm")
 
 
-def _figure8_task(tmp_path, desc, redundancy: str | None):
+def _figure8_task(tmp_path, desc, redundancy: str):
     from hyperarm_tasks.sequence import find_task, load_task
 
-    text = find_task("figure8").read_text()
-    if redundancy is not None:
-        text = text.replace("    min_reached: 0.999", f"    redundancy: {redundancy}\n"
-                            "    min_reached: 0.999")
-        assert "redundancy:" in text
+    text = find_task("figure8").read_text().replace(
+        "    min_reached:", f"    redundancy: {redundancy}\n    min_reached:", 1)
     (tmp_path / "fig8.yaml").write_text(text)
     return load_task("fig8", desc, [tmp_path])
 
 
-def _run(tmp_path, desc, kin, redundancy):
-    from hyperarm_driver.mock.config import load_mock_config
-    from hyperarm_driver.mock.joint_sim import JointSim
-    from hyperarm_tasks.runner import Runner
-    from hyperarm_tasks.testing import SimRobot
-
-    cfg = load_mock_config()
-    cfg = dataclasses.replace(cfg, imperfections=dataclasses.replace(
-        cfg.imperfections, repeatability=0.0))
-    sim = JointSim(desc, cfg)
-    robot = SimRobot(sim)
-    phase = {"now": ""}
-    trace: list[tuple[float, np.ndarray, np.ndarray]] = []
-    step = robot.sleep
-
-    def sleep(seconds: float) -> None:      # record the measured states while tracking
-        step(seconds)
-        if phase["now"] == "tracking":
-            s = sim.state()
-            idx = [sim.names.index(n) for n in ARM]
-            trace.append((s.stamp, s.position[idx].copy(), s.velocity[idx].copy()))
-
-    robot.sleep = sleep
-    runner = Runner(robot, kin, _figure8_task(tmp_path, desc, redundancy),
-                    on_feedback=lambda fb: phase.update(now=fb.phase))
-    result = runner.run()
-    assert result.success, result.message
-    reaction, accel = ReactionModel(kin), AccelerationEstimator()
-    moments = [np.linalg.norm(reaction.wrench(q, dq, accel.update(t, dq))[3:])
-               for t, q, dq in trace]
-    return result.metrics, np.array(moments)
-
-
 @pytest.mark.slow
-def test_min_reaction_lowers_the_peak_base_moment_on_the_figure8(tmp_path, kin):
-    desc = load_description(variant="arm")
-    base, m_base = _run(tmp_path, desc, kin, None)
-    low, m_low = _run(tmp_path, desc, kin, "min_reaction")
+def test_min_reaction_lowers_the_peak_base_moment_on_the_figure8():
+    from hyperarm_ik.benchmark.host_sim import figure8_task
+
+    runs = figure8_task(None), figure8_task("min_reaction")
+    (base, m_base), (low, m_low) = ((r["metrics"], r["moment"]) for r in runs)
     ratio = m_low.max() / m_base.max()
     summary = (f"peak base moment {m_base.max():.3f} -> {m_low.max():.3f} N·m "
                f"({100 * (1 - ratio):.1f} % lower); reached "
