@@ -36,7 +36,7 @@ if TYPE_CHECKING:
     from .model import RobotDescription
 
 __all__ = ["run_node", "declare_robot_description", "ROBOT_PARAMETERS", "usage_text",
-           "wants_help"]
+           "wants_help", "EXECUTORS", "make_executor"]
 
 #: The parameters every node that loads the robot description declares (see
 #: :func:`declare_robot_description`).
@@ -47,6 +47,22 @@ ROBOT_PARAMETERS: ParamSpec = {
 }
 
 _SPIN_PERIOD = 0.1  # s: how often the spin loop looks at the stop flag
+
+#: Executors :func:`run_node` can build by name: ``single`` (rclpy's
+#: SingleThreadedExecutor, the default) and ``events`` (rclpy.experimental.EventsExecutor:
+#: the wait and the dispatch in C++, far less Python per callback; no guard conditions).
+EXECUTORS = ("single", "events")
+
+
+def make_executor(name: str, context: "rclpy.context.Context | None" = None) -> Executor:
+    """The executor called ``name`` (one of :data:`EXECUTORS`) on ``context``."""
+    if name == "single":
+        return SingleThreadedExecutor(context=context)
+    if name == "events":
+        from rclpy.experimental import EventsExecutor
+
+        return EventsExecutor(context=context)
+    raise ValueError(f"executor {name!r}: one of {', '.join(EXECUTORS)}")
 
 
 def wants_help(args: list[str] | None = None) -> bool:
@@ -120,12 +136,14 @@ class _Stop:
 
 
 def run_node(factory: Callable[[], Node], args: list[str] | None = None,
-             executor: Callable[[], Executor] | None = None, *,
+             executor: Callable[[], Executor] | str | None = None, *,
              parameters: ParamSpec | None = None, summary: str | None = None,
              robot_description: bool = True) -> None:
     """Spin the node made by ``factory`` until SIGINT/SIGTERM; ``executor`` builds a custom
-    executor. ``parameters`` (the node's table), ``summary`` (default: the first paragraph
-    of the node module's docstring) and ``robot_description`` (the node declares
+    executor, or names one of :data:`EXECUTORS` (opt-in; default: ``single``, rclpy's
+    SingleThreadedExecutor); with a name, a node that declares a string parameter
+    ``executor`` chooses by its value (validate it in the node). ``parameters`` (the node's table), ``summary`` (default: the
+    first paragraph of the node module's docstring) and ``robot_description`` (the node declares
     ``variant`` and ``description_file``) make its ``--help``.
 
     The executor spins in a thread of its own; the main thread only waits for a signal (a
@@ -152,9 +170,17 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None,
     try:
         node = factory()
         stop.building = False
-        ex = executor() if executor is not None else SingleThreadedExecutor(context=context)
+        if isinstance(executor, str) and node.has_parameter("executor"):
+            executor = str(node.get_parameter("executor").value)  # the node's own choice
+        if executor is None or isinstance(executor, str):
+            ex = make_executor(executor or "single", context)
+        else:
+            ex = executor()
         ex.add_node(node)
-        wake = node.create_guard_condition(lambda: None, ReentrantCallbackGroup())
+        if isinstance(ex, Executor):
+            wake = node.create_guard_condition(lambda: None, ReentrantCallbackGroup()).trigger
+        else:   # the EventsExecutor (not an rclpy Executor): no guard conditions, wake()
+            wake = ex.wake
 
         def spin() -> None:
             try:
@@ -184,7 +210,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None,
         stop.event.set()  # from here on, signals are ignored
         if spinner is not None:
             if wake is not None:
-                wake.trigger()
+                wake()
             spinner.join(timeout=2.0)
         if ex is not None:
             ex.shutdown(timeout_sec=2.0)

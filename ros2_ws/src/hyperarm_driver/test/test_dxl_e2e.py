@@ -185,10 +185,20 @@ def test_e2e_torque_fuzz_near_limits_and_mode_switches(launch, tmp_path, wait_fo
         return control("stats")["instructions"].get("0x83", 0)
     first, t_end = writes(), time.monotonic() + 60.0
     effort = np.zeros(2)
-    for k in itertools.count():      # 300 driver cycles = 3 s of servo time
-        if k % 20 == 0 and writes() - first >= 300:
+
+    def limit_zone_reached() -> bool:    # the brake commanded joint5 near its upper limit
+        return any(r["id"] == 5 and r["register"] == "goal_position" and r["inst"] == 0x83
+                   and r["value"] >= j5.tick_limits[1] - 60
+                   for r in control("write_log")["log"])
+
+    # at least 300 driver cycles (3 s of servo time), and on until the random torques have
+    # driven joint5 into its limit zone (so the brake is exercised, whatever the load did
+    # to the pace of this command stream)
+    for k in itertools.count():
+        if k % 20 == 0 and writes() - first >= 300 and limit_zone_reached():
             break
-        assert time.monotonic() < t_end, "the driver did not cycle 300 times in 60 s"
+        assert time.monotonic() < t_end, ("the driver did not cycle 300 times with joint5 "
+                                          "driven into its limit zone in 60 s")
         if rng.random() < 0.1:       # random torques, three times in four toward the limit
             toward = np.where(rng.random(2) < 0.75, 1.0, -1.0) * np.array([1.0, -1.0])
             effort = toward * rng.uniform(0.1, 5.0, 2)

@@ -8,6 +8,7 @@ in ``hyperarm_ik.force`` (no ROS); this node converts messages and keeps time.
 from __future__ import annotations
 
 import time
+from array import array
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -67,6 +68,7 @@ class HybridForceNode(Node):
         self.add_on_set_parameters_callback(self._on_parameters)
         self._cmd = self.create_publisher(JointState, contract.JOINT_COMMAND,
                                           qos_for(contract.JOINT_COMMAND))
+        self._cmd_msg = JointState(name=list(self._ctl.arm_names))
         self._w_tool = self.create_publisher(WrenchStamped, contract.EE_WRENCH,
                                              qos_for(contract.EE_WRENCH))
         self._w_base = self.create_publisher(WrenchStamped, contract.EE_WRENCH_BASE,
@@ -140,12 +142,12 @@ class HybridForceNode(Node):
         if not self._input.merge(msg):
             return
         if any(n in self._ctl.arm_names for n in msg.name):
-            self._state_time = self._now()          # staleness counts from the arrival
+            self._state_time = now = self._now()    # staleness counts from the arrival
             self._stamp = msg.header.stamp
             if not self._timer_trigger:
-                self._cycle()
+                self._cycle(now)
 
-    def _cycle(self) -> None:
+    def _cycle(self, now: float | None = None) -> None:
         names = self._ctl.names
         if self._state_time is None or not self._cache.has(names):
             return
@@ -155,19 +157,21 @@ class HybridForceNode(Node):
         effort = [c.effort[n] for n in self._ctl.arm_names if n in c.effort]
         t0 = time.perf_counter()
         try:
-            out, event = self._ctl.step(self._now(), q, dq, effort, self._state_time)
+            out, event = self._ctl.control(self._now() if now is None else now, q, dq,
+                                           effort, self._state_time)
         except ForceError as exc:
             if (text := self._log_throttle.message(f"control cycle skipped: {exc}")):
                 self.get_logger().warn(text)
             return
-        self._compute_time = time.perf_counter() - t0
         if out.positions is not None or out.efforts is not None:
-            cmd = JointState()        # stamped with the joint state it was computed from
+            cmd = self._cmd_msg       # one message (names set once), stamped with the state;
+            # array('d'): rclpy's setters skip their per-element checks
             cmd.header.stamp = self._stamp or self.get_clock().now().to_msg()
-            cmd.name = out.names
-            cmd.position = out.positions or []
-            cmd.effort = out.efforts or []
+            cmd.position = array("d", out.positions or ())
+            cmd.effort = array("d", out.efforts or ())
             self._cmd.publish(cmd)
+        self._ctl.estimate(out)       # after the command: not on its latency path
+        self._compute_time = time.perf_counter() - t0
         self._handle(event)
         self._publish_wrench(out, self._stamp)
 
@@ -290,7 +294,7 @@ class HybridForceNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node(HybridForceNode, args, parameters=PARAMETERS)
+    run_node(HybridForceNode, args, executor="events", parameters=PARAMETERS)
 
 
 if __name__ == "__main__":

@@ -14,6 +14,7 @@ from typing import Callable, Mapping, Protocol, Sequence
 import numpy as np
 import pinocchio as pin
 
+from hyperarm_ik.collision import CollisionModel
 from hyperarm_ik.kinematics import Kinematics
 from hyperarm_ik.solvers import make_solver
 
@@ -123,12 +124,18 @@ class Runner:
 
     def __init__(self, robot: Robot, kin: Kinematics, task: Task,
                  params: RunnerParams | None = None,
-                 on_feedback: Callable[[Feedback], None] | None = None) -> None:
+                 on_feedback: Callable[[Feedback], None] | None = None,
+                 collisions: CollisionModel | None = None) -> None:
         self.robot, self.kin, self.task = robot, kin, task
+        # the IK library's collision model (self-collisions and the work cell): every planned
+        # joint path is checked before it is sent (None: not checked)
+        self.collisions = collisions
         self.params = params or RunnerParams()
         self.period = 1.0 / self.params.command_rate
         self.desc = kin.desc
         self.solver = make_solver(self.params.solver, kin)
+        if collisions is not None:
+            self.solver.use_collision_model(collisions)
         self.on_feedback = on_feedback or (lambda fb: None)
         self.fb = Feedback(count=len(task.steps))
         self.step: Step | None = None
@@ -244,8 +251,10 @@ class Runner:
 
     # --- IK and motion ---------------------------------------------------------------------
     def ik(self, pose: np.ndarray, seed: np.ndarray):
+        mode = "avoid" if self.collisions is not None else "ignore"
         return self.solver.solve(pose[:3, 3], pose[:3, :3], seed, position_tolerance=1e-4,
-                                 orientation_tolerance=1e-3, timeout=0.1)
+                                 orientation_tolerance=1e-3, timeout=0.1, collisions=mode,
+                                 held=self.holding is not None)
 
     def plan_line(self, target: np.ndarray, spacing: float, allow_fallback: bool,
                   label: str) -> tuple[list[np.ndarray], np.ndarray]:
@@ -268,10 +277,26 @@ class Runner:
                          f"({', '.join(f'{v:.3f}' for v in pose[:3, 3])}) m: {res.message}")
                 if k < n and final.success and allow_fallback:
                     self.robot.log("warn", f"{where}; falling back to a joint-space move")
+                    self.check_collisions(label, q, final.q)
                     return [q, final.q], target
-                raise StepFailed("ik", where)
+                raise StepFailed("collision" if res.contacts else "ik", where)
             qs.append(res.q)
+        self.check_collisions(label, *qs)
         return qs, target
+
+    def check_collisions(self, label: str, *qs: np.ndarray) -> None:
+        """StepFailed("collision") if the joint path through ``qs`` (straight joint-space
+        segments between them, sampled every 0.02 rad) hits the arm itself or the work cell
+        (the held block included while a grasp is held). Nothing is sent before the check."""
+        if self.collisions is None or len(qs) == 0:
+            return
+        held = self.holding is not None
+        segments = list(zip(qs[:-1], qs[1:])) or [(qs[0], qs[0])]
+        for k, (a, b) in enumerate(segments):
+            chk = self.collisions.check_path(a, b, held=held)
+            if not chk.free:
+                raise StepFailed("collision", f"{label}: the planned path would collide "
+                                 f"(segment {k + 1}/{len(segments)}): {chk.message}")
 
     def stream(self, qs: list[np.ndarray], duration: float, phase: str,
                efforts: Mapping[str, float] | None = None, waypoints=None) -> None:
@@ -354,6 +379,10 @@ class Runner:
         reason = self.robot.fault(names)
         if reason:
             raise StepFailed("driver", f"driver refused: {reason}")
+        chain_goal = [goal.get(n) for n in self.chain]
+        if all(v is not None for v in chain_goal):
+            self.check_collisions(f"{self.step.name if self.step else 'move'} (joint goal)",
+                                  self.q_measured(), np.array(chain_goal, dtype=float))
         t0 = self.robot.now()
         last, still_since = None, None
         while True:

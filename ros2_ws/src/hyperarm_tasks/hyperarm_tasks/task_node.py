@@ -19,6 +19,8 @@ from rclpy.node import Node
 from hyperarm_description import contract
 from hyperarm_description.params import ParamSpec, Range, declare_parameters
 from hyperarm_description.ros_main import declare_robot_description, run_node
+from hyperarm_description.world import load_world
+from hyperarm_ik.collision import CollisionModel
 from hyperarm_ik.kinematics import Kinematics
 from hyperarm_ik.solvers import solver_names
 from hyperarm_interfaces.action import RunTask
@@ -42,6 +44,13 @@ PARAMETERS: ParamSpec = {
     "detection_outlier": (0.01, "m: detections this far from the median are rejected",
                           Range(0.0005, 1.0)),
     "solver": ("", "IK solver ('' = the default; see hyperarm_ik)", None),
+    "collision_check": (False, "IK avoids, and every planned joint path (move_to, "
+                               "move_joints, retreat) is checked for, collisions of the arm "
+                               "with itself and the work cell before it is sent (hyperarm_ik's "
+                               "collision model; a colliding path fails the step, kind "
+                               "'collision'); off by default, see docs/tasks.md", None),
+    "world_file": ("", "work-cell YAML whose world: mapping (table, pegs, poles) the paths "
+                       "are checked against ('' = the arm's self-collisions only)", None),
 }
 
 
@@ -54,8 +63,16 @@ class TaskNode(Node):
             raise SystemExit(f"task_node: parameter solver={p['solver']!r} not one of "
                              f"{', '.join(solver_names(self._desc.variant))}")
         self._dirs = [d for d in p.pop("tasks_dir").split(":") if d]
+        check, world_file = p.pop("collision_check"), p.pop("world_file")
         self._params = RunnerParams(**p)
         self._kin = Kinematics(self._desc)
+        self._collisions = None
+        if check:
+            try:
+                world = load_world(world_file) if world_file else None
+            except (OSError, ValueError) as exc:
+                raise SystemExit(f"task_node: parameter world_file: {exc}") from None
+            self._collisions = CollisionModel(self._kin, world)
         self._robot = RosRobot(self, self._desc)
         self._lock = threading.Lock()
         self._busy: str | None = None
@@ -63,8 +80,11 @@ class TaskNode(Node):
             self, RunTask, contract.RUN_TASK, execute_callback=self._execute,
             goal_callback=self._on_goal, cancel_callback=self._on_cancel,
             callback_group=ReentrantCallbackGroup())
+        checked = ("off" if self._collisions is None else
+                   f"work cell {world_file}" if world_file else "self-collisions only")
         self.get_logger().info(f"task_node ready: action {contract.RUN_TASK}, tasks from "
-                               f"{', '.join(self._dirs + [str(packaged_tasks_dir())])}")
+                               f"{', '.join(self._dirs + [str(packaged_tasks_dir())])}; "
+                               f"path collision check: {checked}")
 
     def _on_goal(self, goal: RunTask.Goal) -> GoalResponse:
         with self._lock:
@@ -139,7 +159,8 @@ class TaskNode(Node):
             handle.publish_feedback(msg)
 
         self.get_logger().info(f"task {name!r}: {len(task.steps)} steps from {task.source}")
-        self._runner = Runner(self._robot, self._kin, task, self._params, feedback)
+        self._runner = Runner(self._robot, self._kin, task, self._params, feedback,
+                              collisions=self._collisions)
         out = self._runner.run()
         result.success, result.message, result.failure_kind = (out.success, out.message,
                                                                out.failure_kind)

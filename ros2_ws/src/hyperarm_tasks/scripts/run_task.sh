@@ -16,7 +16,8 @@
 #   --variant V          arm (default) or rail_arm
 #   --hardware PARAMS    real drivers (dynamixel_driver; pmac_rail_driver on rail_arm) with
 #                        this ROS parameters file instead of the mock
-#   --workcell FILE      the mock's work-cell YAML (default: its packaged one)
+#   --workcell FILE      the work-cell YAML: the mock's cell (default: its packaged one), and
+#                        the table/pegs/poles the task node checks its paths against
 #   --seed N             the mock's imperfection and camera seeds (a copy of the work cell)
 #   --force-node         also start hybrid_force: force_insert then uses hybrid force control
 #                        instead of its pressing fallback (experimental, see docs/tasks.md)
@@ -110,8 +111,10 @@ if [ -n "$hardware" ]; then
   fi
 else
   mock=("${ros[@]}")
+  # the mock's work cell: the task node checks its paths against the same table and pegs
+  workcell="${workcell:-$(python3 -c "from ament_index_python.packages import get_package_share_directory as g; print(g('hyperarm_driver'))")/config/workcell.yaml}"
   if [ -n "$seed" ]; then
-    src="${workcell:-$(python3 -c "from ament_index_python.packages import get_package_share_directory as g; print(g('hyperarm_driver'))")/config/workcell.yaml}"
+    src="$workcell"
     workcell="$logs/workcell-seed$seed.yaml"
     python3 - "$src" "$workcell" "$seed" <<'PY' || exit 2
 import sys, yaml
@@ -129,6 +132,7 @@ if [ "$force_node" = 1 ]; then
   start hybrid_force "$(exe hyperarm_ik hybrid_force)" --ros-args "${ros[@]}"
 fi
 task_args=("${ros[@]}")
+[ -z "$workcell" ] || task_args+=(-p "world_file:=$workcell")
 [ -z "$tasks_dir" ] || task_args+=(-p "tasks_dir:=$tasks_dir")
 start task_node "$(exe hyperarm_tasks task_node)" --ros-args "${task_args[@]}"
 if [ -n "$record" ]; then

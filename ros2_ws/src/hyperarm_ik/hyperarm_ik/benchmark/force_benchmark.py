@@ -5,8 +5,12 @@
    p90; what a loaded machine does not inflate) and wall time (median).
 2. ``latency``: joint_states in -> joint_command out through ROS, the installed
    ``hybrid_force`` in its own process, driven ping-pong by a probe (one joint state, wait
-   for the command computed from it: it carries the state's stamp), with ``trigger`` joint_states and timer (p50, p90,
-   p99). ``stale_timeout`` 1 s: the probe sends a state only every ~10 ms plus the answer.
+   for the command computed from it: it carries the state's stamp), p50, p90, p99, for
+   both triggers and both executors, and the floor: the same probe against an echo node
+   (``force_echo``: copies joint_states to joint_command, no law). Included: the probe's
+   publish, DDS, the node's executor, deserialisation, the cycle, the command's publish,
+   DDS back and the probe's EventsExecutor up to its callback (perf_counter there).
+   ``stale_timeout`` 1 s: the probe sends a state only every ~10 ms plus the answer.
 3. ``outputs``: 'position' vs 'torque' on the mock (installed ``mock_driver`` +
    ``hybrid_force``): a 2 cm goal step on the position axes (overshoot, final error, hold
    drift), plotted to a PNG with ``--plot``.
@@ -123,48 +127,151 @@ def _stop(proc: subprocess.Popen) -> None:
         os.killpg(proc.pid, signal.SIGKILL)
 
 
-def bench_latency(samples: int, domain: int, tmp: Path) -> dict:
-    q = [0.0, 0.5, 0.0, 0.6, 0.0, 0.5, 0.0, -1.0, 0.0]
-    out = {}
-    for trigger in ("joint_states", "timer"):
-        proc = _launch("hybrid_force", domain, {"trigger": trigger, "stale_timeout": 1.0},
-                       tmp / f"hf-{trigger}.log")
-        ros = _Ros(domain, driver=True)
-        p = ros.probe
-        try:
-            p.q = np.array(q)
-            p.driving = True
-            _wait(lambda: p.enable_cli.service_is_ready(), 20.0, "hybrid_force")
-            time.sleep(0.3)
-            assert p.enable(True).success
-            p.driving = False
-            time.sleep(0.05)
-            lat = []
-            for k in range(samples):
-                # the command answering this state carries its stamp (a timer may first send
-                # one computed from the previous state)
-                with p.lock:
-                    n = len(p.commands)
-                t0 = time.monotonic()
-                p.publish_state(q)
-                stamp = p.last_published
+class _LatencyProbe:
+    """The latency benchmark's probe, on a fast path of its own: an EventsExecutor (wait and
+    dispatch in C++), only a joint_states publisher, a joint_command subscription whose
+    callback takes the arrival time (perf_counter) and wakes the waiting main thread, the
+    enable client and a ``hold`` service. Nothing else is subscribed, so the probe's own
+    receive path is as short as rclpy allows (its share is the echo figure's)."""
 
-                def answered():
-                    with p.lock:
-                        for t, m in p.commands[n:]:
-                            if abs(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
-                                   - stamp) < 1e-6:
-                                return t
-                    return None
-                got = _wait(answered, 1.0, "command")
-                lat.append(got - t0)
+    def __init__(self, domain: int) -> None:
+        import rclpy
+        from rclpy.context import Context
+        from sensor_msgs.msg import JointState
+        from std_srvs.srv import SetBool, Trigger
+
+        from hyperarm_description import contract
+        from hyperarm_description.qos import qos_for
+        from hyperarm_description.ros_main import make_executor
+
+        os.environ["ROS_DOMAIN_ID"] = str(domain)
+        os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+        self.ctx = Context()
+        rclpy.init(context=self.ctx, domain_id=domain)
+        self.node = rclpy.create_node("force_latency_probe", context=self.ctx,
+                                      namespace=contract.DEFAULT_NAMESPACE)
+        self.ex = make_executor("events", self.ctx)
+        self.names = list(contract.ARM_JOINTS)
+        self.want, self.arrived = -1, threading.Event()
+        self.t_arrival = 0.0
+        self.node.create_subscription(JointState, contract.JOINT_COMMAND, self._on_command,
+                                      qos_for(contract.JOINT_COMMAND))
+        self.pub = self.node.create_publisher(JointState, contract.JOINT_STATES,
+                                              qos_for(contract.JOINT_STATES))
+        self.enable_cli = self.node.create_client(SetBool, contract.HYBRID_ENABLE)
+        self.node.create_service(Trigger, contract.HOLD, lambda _q, r: r)
+        self._setbool = SetBool
+        self.msg = JointState(name=self.names, velocity=[0.0] * 9, effort=[0.0] * 9)
+        self.stop = threading.Event()
+        self.ex.add_node(self.node)
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self) -> None:
+        while not self.stop.is_set() and self.ctx.ok():
+            self.ex.spin_once(timeout_sec=0.05)
+
+    def _on_command(self, msg) -> None:
+        t = time.perf_counter()
+        if msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec == self.want:
+            self.t_arrival = t
+            self.arrived.set()
+
+    def send(self, stamp_ns: int, q) -> None:
+        self.msg.header.stamp.sec, self.msg.header.stamp.nanosec = divmod(stamp_ns,
+                                                                           1_000_000_000)
+        self.msg.position = [float(v) for v in q]
+        self.pub.publish(self.msg)
+
+    def round_trip(self, stamp_ns: int, q, timeout: float = 1.0) -> float | None:
+        """Publish a state stamped ``stamp_ns``; seconds until the command carrying that
+        stamp arrived (None: none within ``timeout``)."""
+        self.want = stamp_ns
+        self.arrived.clear()
+        t0 = time.perf_counter()
+        self.send(stamp_ns, q)
+        return self.t_arrival - t0 if self.arrived.wait(timeout) else None
+
+    def enable(self, q, first_stamp: int) -> int:
+        """Feed states at 100 Hz until hybrid_force is enabled; returns the next stamp."""
+        _wait(self.enable_cli.service_is_ready, 20.0, "hybrid_force's enable service")
+        _wait(lambda: self.pub.get_subscription_count() > 0, 20.0, "hybrid_force's "
+              "joint_states subscription")
+        k = first_stamp
+        for _ in range(20):
+            self.send(k, q)
+            k += 1
+            time.sleep(0.01)
+        fut = self.enable_cli.call_async(self._setbool.Request(data=True))
+        while not fut.done():
+            self.send(k, q)
+            k += 1
+            time.sleep(0.01)
+        if not fut.result().success:
+            raise RuntimeError(f"hybrid_force not enabled: {fut.result().message}")
+        return k
+
+    def close(self) -> None:
+        import rclpy
+        self.stop.set()
+        self.thread.join(2.0)
+        self.node.destroy_node()
+        self.ex.shutdown(timeout_sec=1.0)
+        rclpy.try_shutdown(context=self.ctx)
+
+
+#: (label, what runs on the other side) of the latency benchmark, in print order
+LATENCY_CASES = (("trigger joint_states, executor events (default)", "hybrid_force",
+                  {"trigger": "joint_states", "executor": "events"}),
+                 ("trigger joint_states, executor single", "hybrid_force",
+                  {"trigger": "joint_states", "executor": "single"}),
+                 ("trigger timer 100 Hz, executor events", "hybrid_force",
+                  {"trigger": "timer", "executor": "events"}),
+                 ("floor: echo node, executor events", "echo", {"executor": "events"}),
+                 ("floor: echo node, executor single", "echo", {"executor": "single"}))
+
+
+def bench_latency(samples: int, domain: int, tmp: Path) -> dict:
+    """Round trips probe -> node -> probe: the probe publishes one joint state, waits for
+    the joint_command that carries its stamp, pauses 5-15 ms (random: a fixed pause would
+    phase-lock with the timer trigger's 10 ms period), ``samples`` times per case."""
+    q = [0.0, 0.5, 0.0, 0.6, 0.0, 0.5, 0.0, -1.0, 0.0]
+    rng = np.random.default_rng(1)
+    out = {}
+    for i, (label, what, params) in enumerate(LATENCY_CASES):
+        log = tmp / f"latency-{i}.log"
+        if what == "echo":
+            env = dict(os.environ, ROS_DOMAIN_ID=str(domain),
+                       ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+            proc = subprocess.Popen([sys.executable, "-m", "hyperarm_ik.benchmark.force_echo",
+                                     params["executor"], "--ros-args"], env=env,
+                                    stdout=open(log, "wb"), stderr=subprocess.STDOUT,
+                                    start_new_session=True)
+        else:
+            proc = _launch("hybrid_force", domain, {**params, "stale_timeout": 1.0}, log)
+        probe = _LatencyProbe(domain)
+        try:
+            k = 1_000
+            if what == "hybrid_force":
+                k = probe.enable(q, k)
+            else:
+                _wait(lambda: probe.pub.get_subscription_count() > 0, 20.0, "echo node")
+            for _ in range(20):                      # warm-up (discovery, first messages)
+                k += 1
+                probe.round_trip(k, q)
                 time.sleep(0.01)
-                if p.mode() == "passive":
-                    raise RuntimeError("went passive during the latency benchmark")
+            lat = []
+            for _ in range(samples):
+                k += 1
+                dt = probe.round_trip(k, q)
+                if dt is None:
+                    raise RuntimeError(f"{label}: no command within 1 s (passive?); see {log}")
+                lat.append(dt)
+                time.sleep(rng.uniform(0.005, 0.015))
             t = np.array(lat) * 1e3
-            out[trigger] = tuple(float(np.percentile(t, k)) for k in (50, 90, 99))
+            out[label] = tuple(float(np.percentile(t, p)) for p in (50, 90, 99))
         finally:
-            ros.close()
+            probe.close()
             _stop(proc)
     return out
 
@@ -240,7 +347,7 @@ def main(argv: list[str] | None = None) -> None:
                   f"p90 {p90:.3f} ms (wall median {wall:.3f} ms) over {a.cycles} cycles")
     if a.only in (None, "latency"):
         for name, (p50, p90, p99) in bench_latency(a.samples, a.domain, tmp).items():
-            print(f"joint_states -> joint_command (trigger {name}): p50 {p50:.2f} ms, "
+            print(f"joint_states -> joint_command ({name}): p50 {p50:.2f} ms, "
                   f"p90 {p90:.2f} ms, p99 {p99:.2f} ms over {a.samples} samples")
     if a.only in (None, "outputs"):
         for name, (ov, err, other) in bench_outputs(a.domain, tmp, a.plot).items():

@@ -49,14 +49,17 @@ class Event:
 
 @dataclass
 class Output:
-    """One cycle: the arm command (None unless ACTIVE) and the wrench estimate."""
+    """One cycle: the arm command (None unless ACTIVE) and the wrench estimate (None until
+    :meth:`ForceController.estimate` ran on it; :meth:`ForceController.step` runs both)."""
 
     names: list[str]
     positions: list[float] | None
     efforts: list[float] | None
-    wrench_root: np.ndarray
-    wrench_tool: np.ndarray
+    wrench_root: np.ndarray | None = None
+    wrench_tool: np.ndarray | None = None
     command: Command | None = None
+    q: np.ndarray | None = None          # the joint state the cycle ran on (chain order)
+    effort: object = None                # its arm efforts (N·m), for the estimate
 
 
 @dataclass(frozen=True)
@@ -206,7 +209,14 @@ class ForceController:
         the estimate) received at ``now``, measured at ``stamp`` (0: unknown). Staleness
         counts from the older of the two, so a backlog of old states is stale too. Returns
         the output (a command only while ACTIVE) and an event when a joint near its limit
-        made it passive."""
+        made it passive. :meth:`control` then :meth:`estimate`."""
+        out, event = self.control(now, q, dq, effort, stamp)
+        return self.estimate(out), event
+
+    def control(self, now: float, q, dq, effort,
+                stamp: float = 0.0) -> tuple[Output, Event | None]:
+        """The command part of :meth:`step` (the node publishes it at once, then calls
+        :meth:`estimate`: the wrench estimate is not on the command's latency path)."""
         q = np.asarray(q, dtype=float)
         dq = np.asarray(dq, dtype=float) if len(dq) else np.zeros_like(q)
         if q.shape != (len(self.names),) or dq.shape != q.shape or not \
@@ -227,34 +237,48 @@ class ForceController:
                     min(max(now - self._last_cycle, 1e-3), self.config.max_dt)
                 self._last_cycle = now
                 assert self.goal is not None
-                cmd = self.law.step(q, dq, self.goal, dt, self.compliance, self.config.output)
+                cmd = self.law.step_checked(q, dq, self.goal, dt, self.compliance,
+                                            self.config.output)
                 self._count(cmd)
-        est, r = self._estimate(q, effort, cmd)
-        self.last_estimate, self._last_rotation = est, r
-        w_tool, _ = to_tool(est.wrench, r)
         positions = efforts = None
         if cmd is not None:
             cal = self.calibration
+            exact = not cal.joints
             if self.config.output == "torque":
-                efforts = cal.command(self.arm_names, cmd.tau).tolist()
+                efforts = (cmd.tau if exact else cal.command(self.arm_names, cmd.tau)).tolist()
             else:
                 positions = cmd.q_cmd.tolist()
-                efforts = cal.command(self.arm_names, cmd.effort_limit).tolist()
-        return Output(self.arm_names, positions, efforts, est.wrench, w_tool, cmd), event
+                efforts = (cmd.effort_limit if exact else
+                           cal.command(self.arm_names, cmd.effort_limit)).tolist()
+        return Output(self.arm_names, positions, efforts, command=cmd, q=q,
+                      effort=effort), event
+
+    def estimate(self, out: Output) -> Output:
+        """Fill ``out``'s wrench estimate (root and tool0 axes) from its joint state."""
+        est, r = self._estimate(out.q, out.effort, out.command)
+        self.last_estimate, self._last_rotation = est, r
+        out.wrench_root = est.wrench
+        out.wrench_tool = to_tool(est.wrench, r)[0]
+        return out
 
     def _estimate(self, q: np.ndarray, effort,
                   cmd: Command | None) -> tuple[WrenchEstimate, np.ndarray]:
         if cmd is not None:            # the law's kinematics and gravity at this q
-            j, r, g = cmd.jacobian, cmd.rotation, cmd.gravity
+            j, r, g, jjt = cmd.jacobian, cmd.rotation, cmd.gravity, cmd.jjt
         else:
             arm = self.law.arm
             _, r, j_full = self.kin.pose_jacobian_view(q)
             r = r.copy()
-            j = j_full[:, arm].copy()
+            j = j_full[:, arm]
             g = self.law.gravity.torques(q, self.law.payload, j_full, r)[arm]
+            jjt = None
         e = np.asarray(effort, dtype=float)
-        tau = self.calibration.correct(self.arm_names, e) if e.shape == g.shape else g
-        return self.estimator.update(j, tau, g), r
+        if e.shape != g.shape:
+            tau = g
+        else:
+            tau = e if not self.calibration.joints else \
+                self.calibration.correct(self.arm_names, e)
+        return self.estimator.update(j, tau, g, jjt), r
 
     def covariance_tool(self) -> np.ndarray | None:
         """Covariance (6, 6) of the last estimate in tool0 axes (N², N²·m², N²·m²)."""

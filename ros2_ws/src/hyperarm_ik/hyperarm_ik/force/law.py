@@ -263,12 +263,6 @@ def scale_into_limits(base: np.ndarray, delta: np.ndarray,
     return np.clip(b + s * delta, -limit, limit), s
 
 
-def _cap(v: np.ndarray, bound: float) -> tuple[np.ndarray, bool]:
-    """``v`` scaled down to norm ``bound`` if longer."""
-    n = math.sqrt(float(v @ v))
-    return (v * (bound / n), True) if n > bound else (v, False)
-
-
 def rate_limit(target: np.ndarray, previous: np.ndarray,
                max_step: float) -> tuple[np.ndarray, bool]:
     """``target`` with each entry at most ``max_step`` from ``previous``; and whether any
@@ -326,10 +320,17 @@ class Command:
     rate_limited: bool = False
     jacobian: np.ndarray | None = None   # (6, na) arm Jacobian at q (LWA)
     rotation: np.ndarray | None = None   # tool0's rotation at q
+    jjt: np.ndarray | None = None        # (6, 6) J J^T (undamped), for the estimate
 
 
 class HybridLaw:
-    """The controller's state and per-cycle law. Build once; :meth:`reset` at enable."""
+    """The controller's state and per-cycle law. Build once; :meth:`reset` at enable.
+
+    The cycle is the controller's hot path (target: well under 0.3 ms in Python): it does
+    one pinocchio pass for pose and Jacobian and one for gravity, one 6 x 6 inverse and
+    one 6 x 6 solve, works on views (the arm joints are a slice of the chain), caches what
+    depends only on the goal or the configuration, and never forms the 9 x 9 null-space
+    projector (N v = v - J^T (J J^T + l^2 I)^-1 J v)."""
 
     def __init__(self, kin: Kinematics | None = None, config: LawConfig | None = None,
                  desc: RobotDescription | None = None) -> None:
@@ -338,8 +339,12 @@ class HybridLaw:
         self.gravity = GravityModel(self.kin)
         desc = self.kin.desc
         self.arm_names = list(desc.arm_joint_names)
-        self.arm = np.array([n in self.arm_names for n in self.kin.joint_names])
-        self.na = int(self.arm.sum())
+        mask = np.array([n in self.arm_names for n in self.kin.joint_names])
+        idx = np.flatnonzero(mask)
+        contiguous = len(idx) > 0 and idx[-1] - idx[0] + 1 == len(idx)
+        # a slice (views, no copies) when the arm joints are contiguous in the chain
+        self.arm = slice(int(idx[0]), int(idx[-1]) + 1) if contiguous else mask
+        self.na = int(mask.sum())
         self.limit = np.array([j.effort for j in desc.joints]) * self.config.torque_margin
         self.lower = self.kin.lower[self.arm]
         self.upper = self.kin.upper[self.arm]
@@ -355,16 +360,23 @@ class HybridLaw:
         self.payload = Payload()
         self._ref_p: np.ndarray | None = None
         self._ref_r: np.ndarray | None = None
+        self._ref_at: HybridGoal | None = None     # the reference has reached this goal
         self._tau_prev = np.zeros(self.na)
         self._q_cmd = np.zeros(self.na)
         self._compliance_posture = self.posture.copy()
-        self._d = np.asarray(self.config.damping)
-        self._k_pos = np.asarray(self.config.position_stiffness)
-        self._eye6 = np.eye(6)
-        self._diag6 = np.diag_indices(6)
+        cfg = self.config
+        self._d = np.asarray(cfg.damping)
+        self._k_pos = np.asarray(cfg.position_stiffness)
+        self._damp6 = cfg.singular_damping ** 2 * np.eye(6)
         self._gains_for: HybridGoal | None = None
-        self._gains = (np.zeros(6), np.zeros(6), np.zeros(6, dtype=bool))
-        self._eye_n = np.eye(self.na)
+        self._gains: tuple = ()
+        # the limit spring of the null-space term: k_l (clamp(q, lo + m, hi - m) - q)
+        self._push_lo = self.lower + cfg.limit_margin
+        self._push_hi = self.upper - cfg.limit_margin
+        if np.any(self._push_lo > self._push_hi):
+            raise ForceConfigError(f"limit_margin {cfg.limit_margin:g} rad: more than half "
+                                   "of a joint's range")
+        self._guard: tuple[float, np.ndarray, np.ndarray] | None = None
 
     # -- state ---------------------------------------------------------------------------
     def _state(self, q, dq) -> tuple[np.ndarray, np.ndarray]:
@@ -392,10 +404,11 @@ class HybridLaw:
         """Start from the present pose: the previous torque is the gravity torque at ``q``
         (no drop, no jump), the pseudo-goal is ``q`` itself, the compliance posture too."""
         q, _ = self._state(q, np.zeros_like(np.asarray(q, dtype=float)))
-        self._tau_prev = self.gravity.torques(q, self.payload)[self.arm]
+        self._tau_prev = self.gravity.torques(q, self.payload)[self.arm].copy()
         self._q_cmd = q[self.arm].copy()
         self._compliance_posture = q[self.arm].copy()
         self._ref_p = self._ref_r = None
+        self._ref_at = None
 
     def set_compliance_posture(self, q) -> None:
         """Joint angles (chain order) the compliance springs pull towards."""
@@ -407,6 +420,12 @@ class HybridLaw:
              output: str = "torque") -> Command:
         """One control cycle at joint state (``q`` rad/m, ``dq``) with period ``dt`` (s)."""
         q, dq = self._state(q, dq)
+        return self.step_checked(q, dq, goal, dt, compliance, output)
+
+    def step_checked(self, q: np.ndarray, dq: np.ndarray, goal: HybridGoal, dt: float,
+                     compliance: bool = False, output: str = "torque") -> Command:
+        """:meth:`step` on states the caller has checked already (float arrays of the
+        chain's length, finite)."""
         if not (dt > 0.0 and math.isfinite(dt)):
             raise StateError(f"dt must be > 0 s, got {dt!r}")
         cfg = self.config
@@ -419,21 +438,19 @@ class HybridLaw:
         ref_p, ref_r = self._reference(goal, p, r, dt)
         err = pose_error(ref_p, ref_r, p, r)
         twist = j @ dqa
-        # damped pseudo-inverse and null-space projector N = I - J+ J
         jjt = j @ j.T
-        jjt[self._diag6] += cfg.singular_damping ** 2
-        jjt_inv = np.linalg.inv(jjt)
-        null = self._eye_n - j.T @ (jjt_inv @ j)
-        tau0 = cfg.posture_stiffness * (self.posture - qa) + self._limit_push(qa)
+        jjt_inv = np.linalg.inv(jjt + self._damp6)      # damped: (J J^T + l^2 I)^-1
         limit = self.limit
         if compliance:
             limit = np.minimum(limit, np.abs(g) + cfg.compliance_effort)
         if output == "position":
-            return self._pseudo_goal(goal, qa, j, r, jjt_inv, null, g, err, twist, tau0, limit,
+            return self._pseudo_goal(goal, qa, j, r, jjt, jjt_inv, g, err, twist, limit,
                                      compliance, dt)
+        tau0 = self._posture_torque(qa, 1.0)
         f = goal.stiffness * err - self._d * twist + goal.wrench
         f, wscale = scale_wrench(f, cfg.max_force, cfg.max_moment)
-        delta = j.T @ f + null @ tau0 - cfg.joint_damping * dqa
+        # J^T F + N tau0 - d_j dq, N tau0 = tau0 - J^T (J J^T + l^2)^-1 J tau0
+        delta = j.T @ (f - jjt_inv @ (j @ tau0)) + tau0 - cfg.joint_damping * dqa
         if compliance:
             delta += cfg.compliance_stiffness * (self._compliance_posture - qa)
         tau, jscale = scale_into_limits(g, delta, limit)
@@ -442,20 +459,32 @@ class HybridLaw:
         self._tau_prev = tau
         return Command(tau=tau, gravity=g, q_cmd=qa.copy(), effort_limit=np.abs(tau),
                        wrench=f, error=err, wrench_scale=wscale, joint_scale=jscale,
-                       rate_limited=limited, jacobian=j, rotation=r)
+                       rate_limited=limited, jacobian=j, rotation=r, jjt=jjt)
 
-    def _goal_gains(self, goal: HybridGoal) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per axis, for the pseudo-goal: the stiffness (position axes at least
-        ``position_stiffness``) and the update gain; cached per goal."""
+    def _posture_torque(self, qa: np.ndarray, scale: float) -> np.ndarray:
+        """``scale`` x the null-space term's torque tau_0 (N·m x scale): the posture spring
+        plus the push away from the limits within ``limit_margin``."""
+        cfg = self.config
+        clamped = np.minimum(np.maximum(qa, self._push_lo), self._push_hi)
+        return (scale * cfg.posture_stiffness) * (self.posture - qa) + \
+            (scale * cfg.limit_stiffness) * (clamped - qa)
+
+    def _goal_gains(self, goal: HybridGoal) -> tuple:
+        """Per axis, for the pseudo-goal, cached per goal: the tracking stiffness k
+        (position axes at least ``position_stiffness``, force axes the goal's K), K - k,
+        the update gain, the selection, whether any axis is force-controlled, diag(k)."""
         if self._gains_for is not goal:
             s = goal.force_axes
             k = np.where(s, np.maximum(goal.stiffness, 1e-3),
                          np.maximum(goal.stiffness, self._k_pos))
             gain = np.where(s, self.config.force_filter, self.config.position_filter)
-            self._gains_for, self._gains = goal, (k, gain, s)
+            dk = np.where(s, 0.0, goal.stiffness - k)
+            kk = np.where(s, goal.stiffness, k)
+            self._gains_for = goal
+            self._gains = (k, kk, dk, gain, s, bool(s.any()), np.diag(k))
         return self._gains
 
-    def _pseudo_goal(self, goal, qa, j, r, jjt_inv, null, g, err, twist, tau0, limit,
+    def _pseudo_goal(self, goal, qa, j, r, jjt, jjt_inv, g, err, twist, limit,
                      compliance, dt) -> Command:
         """The 'position' output: pseudo-goal q_cmd and current limit (see docs/force.md).
 
@@ -469,70 +498,94 @@ class HybridLaw:
         (they track X0)."""
         cfg = self.config
         ks = cfg.servo_stiffness
-        k, gain, s = self._goal_gains(goal)
-        # force axes: the law's wrench, limited; position axes: tracking (their force is
-        # bounded by the joints' current limits, not by the wrench limit)
-        f_law, wscale = scale_wrench(goal.stiffness * err - self._d * twist + goal.wrench,
-                                     cfg.max_force, cfg.max_moment)
-        f = np.where(s, f_law, k * err - self._d * twist)
+        k, kk, dk, gain, s, any_force, diag_k = self._goal_gains(goal)
+        # position axes: tracking, k err - D v (their force is bounded by the joints'
+        # current limits, not by the wrench limit); force axes: the law's wrench
+        # K err - D v + F_d, scaled into the wrench limit as a whole 6-D wrench
+        dtw = self._d * twist
+        f = kk * err - dtw
+        wscale = 1.0
+        if any_force:
+            f_law, wscale = scale_wrench(f + dk * err + goal.wrench, cfg.max_force,
+                                         cfg.max_moment)
+            f = np.where(s, f_law, f)
         f_s = jjt_inv @ (j @ (ks * (self._q_cmd - qa)))
-        a = ks * jjt_inv
-        a[self._diag6] += k
-        dx = gain * np.linalg.solve(a, f - f_s)
+        dx = gain * np.linalg.solve(ks * jjt_inv + diag_k, f - f_s)
         # the pseudo-goal moves at max_speed / max_angular_speed at most (a force axis
         # with K = 0 and F_d would otherwise accelerate the tool in free space)
-        dx[:3], _ = _cap(dx[:3], cfg.max_speed * dt)
-        dx[3:], _ = _cap(dx[3:], cfg.max_angular_speed * dt)
-        step = j.T @ (jjt_inv @ dx) + null @ ((cfg.position_filter / ks) * tau0)
+        _cap_into(dx, 0, cfg.max_speed * dt)
+        _cap_into(dx, 3, cfg.max_angular_speed * dt)
+        # J^+ dx + N v with v = (position_filter / k_s) tau_0: v + J^T M^-1 (dx - J v)
+        v = self._posture_torque(qa, cfg.position_filter / ks)
+        step = v + j.T @ (jjt_inv @ (dx - j @ v))
         if compliance:
             step += (cfg.position_filter * cfg.compliance_stiffness / ks) * (
                 self._compliance_posture - self._q_cmd)
         # torque-rate limit: at a given q the servo torque changes by k_s * step
         max_step = cfg.torque_rate * dt / ks
         step = np.minimum(np.maximum(step, -max_step), max_step)
-        self._q_cmd = np.minimum(np.maximum(self._q_cmd + step, self.lower), self.upper)
+        q_cmd = self._q_cmd + step
+        np.maximum(q_cmd, self.lower, out=q_cmd)
+        np.minimum(q_cmd, self.upper, out=q_cmd)
+        self._q_cmd = q_cmd
         # the current limit covers gravity and the pressing torque without letting one
         # cancel the other: if a contact vanishes the joint still holds its own weight
-        push = ks * (self._q_cmd - qa)
-        effort = np.minimum(np.maximum(np.abs(g) + np.abs(push) + cfg.effort_headroom, 0.05),
-                            limit)
+        push = ks * (q_cmd - qa)
+        effort = np.abs(g)
+        effort += np.abs(push)
+        effort += cfg.effort_headroom
+        np.maximum(effort, 0.05, out=effort)
+        np.minimum(effort, limit, out=effort)
         if cfg.servo_holds_gravity:
-            q_out = self._q_cmd.copy()
+            q_out = q_cmd.copy()
         else:
-            q_out = np.minimum(np.maximum(self._q_cmd + g / ks, self.lower), self.upper)
-        tau = np.minimum(np.maximum(g + push, -limit), limit)   # what the servos exert
+            q_out = np.minimum(np.maximum(q_cmd + g / ks, self.lower), self.upper)
+        tau = g + push                                  # what the servos exert
+        np.maximum(tau, -limit, out=tau)
+        np.minimum(tau, limit, out=tau)
         self._tau_prev = tau
         return Command(tau=tau, gravity=g, q_cmd=q_out, effort_limit=effort, wrench=f,
-                       error=err, wrench_scale=wscale, jacobian=j, rotation=r)
+                       error=err, wrench_scale=wscale, jacobian=j, rotation=r, jjt=jjt)
 
     def _reference(self, goal: HybridGoal, p: np.ndarray, r: np.ndarray,
                    dt: float) -> tuple[np.ndarray, np.ndarray]:
         """The pose the law pulls towards: it follows the goal's X0 at ``max_speed`` m/s and
         ``max_angular_speed`` rad/s at most (a goal step becomes a ramp), starting from the
-        present pose at :meth:`reset`."""
+        present pose at :meth:`reset`. Once it has reached a goal it stays there (the
+        goal's own arrays, not copied) until the goal changes."""
+        if self._ref_at is goal:
+            return goal.position, goal.rotation
         if self._ref_p is None:
             self._ref_p, self._ref_r = p.copy(), r.copy()
         d = goal.position - self._ref_p
         n = math.sqrt(float(d @ d))
         step = self.config.max_speed * dt
-        self._ref_p = goal.position.copy() if n <= step else self._ref_p + d * (step / n)
+        at_p = n <= step
+        self._ref_p = goal.position.copy() if at_p else self._ref_p + d * (step / n)
         w = pin.log3(goal.rotation @ self._ref_r.T)
         a = math.sqrt(float(w @ w))
         step = self.config.max_angular_speed * dt
-        self._ref_r = goal.rotation.copy() if a <= step else pin.exp3(w * (step / a)) @ self._ref_r
+        at_r = a <= step
+        self._ref_r = goal.rotation.copy() if at_r else pin.exp3(w * (step / a)) @ self._ref_r
+        if at_p and at_r:
+            self._ref_at = goal
         return self._ref_p, self._ref_r
-
-    def _limit_push(self, qa: np.ndarray) -> np.ndarray:
-        """Spring away from the joint limits within ``limit_margin`` (N·m)."""
-        m, k = self.config.limit_margin, self.config.limit_stiffness
-        low = np.maximum(self.lower + m - qa, 0.0)
-        high = np.maximum(qa - (self.upper - m), 0.0)
-        return k * (low - high)
 
     def near_limit(self, q, margin: float) -> list[str]:
         """Arm joints within ``margin`` rad of a limit at chain positions ``q``."""
+        if self._guard is None or self._guard[0] != margin:
+            self._guard = (margin, self.lower + margin, self.upper - margin)
+        _, lo, hi = self._guard
         qa = np.asarray(q, dtype=float)[self.arm]
-        near = (qa < self.lower + margin) | (qa > self.upper - margin)
+        near = (qa < lo) | (qa > hi)
         if not near.any():
             return []
         return [n for n, b in zip(self.arm_names, near) if b]
+
+
+def _cap_into(v: np.ndarray, i: int, bound: float) -> None:
+    """Scale ``v[i:i+3]`` in place down to norm ``bound`` if it is longer."""
+    x, y, z = v[i], v[i + 1], v[i + 2]
+    n = math.sqrt(x * x + y * y + z * z)
+    if n > bound:
+        v[i:i + 3] *= bound / n

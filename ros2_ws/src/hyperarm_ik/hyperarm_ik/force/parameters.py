@@ -18,6 +18,8 @@ from .wrench import EstimatorConfig
 __all__ = ["PARAMETERS", "DYNAMIC", "build", "TRIGGERS"]
 
 TRIGGERS = ("joint_states", "timer")
+#: hyperarm_description.ros_main.EXECUTORS (that module imports rclpy; a node test checks)
+EXECUTORS = ("events", "single")
 _L, _E, _C = LawConfig(), EstimatorConfig(), ControllerConfig()
 
 # name -> (default, description, check): hyperarm_description.params' table format (also
@@ -27,6 +29,9 @@ PARAMETERS: ParamSpec = {
                "'torque' (effort-only joint_command, current mode)", OneOf(OUTPUTS)),
     "trigger": ("joint_states", "compute on each joint_states message ('joint_states') or on "
                 "a timer at 'rate' ('timer')", OneOf(TRIGGERS)),
+    "executor": ("events", "rclpy executor of the node: 'events' (rclpy.experimental."
+                 "EventsExecutor, the lower latency) or 'single' (SingleThreadedExecutor)",
+                 OneOf(EXECUTORS)),
     "rate": (100.0, "Hz, control rate with trigger 'timer'", Range(1.0, 1000.0)),
     "stale_timeout": (_C.stale_timeout, "s without joint_states before going passive",
                       Range(0.01, 10.0)),

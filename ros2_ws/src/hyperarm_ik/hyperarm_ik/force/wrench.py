@@ -58,10 +58,11 @@ class WrenchEstimate:
 def to_tool(wrench: np.ndarray, rotation: np.ndarray,
             covariance: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """A wrench about tool0's origin from root axes to tool0 axes (R^T per 3-block)."""
-    rt = rotation.T
-    out = np.concatenate((rt @ wrench[:3], rt @ wrench[3:]))
+    # rows of (2 x 3) @ R are (R^T f)^T and (R^T m)^T: both blocks in one product
+    out = (wrench.reshape(2, 3) @ rotation).reshape(6)
     if covariance is None:
         return out, None
+    rt = rotation.T
     big = np.zeros((6, 6))
     big[:3, :3] = big[3:, 3:] = rt
     return out, big @ covariance @ big.T
@@ -78,37 +79,40 @@ class WrenchEstimator:
         self.bias = np.zeros(n)
         self._f: np.ndarray | None = None
         self._last_residual = np.zeros(n)
-        self._r: np.ndarray | None = None
+        self._started = False
         a = self.config.filter
         # variance of a first-order filter's output over its input's (white noise)
         self._var_gain = a / (2.0 - a)
-        self._diag = np.diag_indices(6)
+        self._sigma2 = self.config.effort_noise ** 2 * self._var_gain
+        self._damp6 = self.config.singular_damping ** 2 * np.eye(6)
 
     def reset(self) -> None:
         self._f = None
-        self._r = None
+        self._started = False
 
     def residual(self, tau_measured: np.ndarray, tau_gravity: np.ndarray) -> np.ndarray:
         return np.asarray(tau_measured, dtype=float) - tau_gravity - self.bias
 
-    def update(self, j: np.ndarray, tau_measured: np.ndarray,
-               tau_gravity: np.ndarray) -> WrenchEstimate:
-        """One cycle with the arm Jacobian ``j`` (6 x n, LWA) and efforts (n,) in N·m."""
-        tau_measured = np.asarray(tau_measured, dtype=float)
-        res = tau_measured - tau_gravity
-        # the residual low-passed like the estimate: what tare takes as the bias
-        self._last_residual = res if self._r is None else self._last_residual + \
-            self.config.filter * (res - self._last_residual)
-        self._r = res
-        r = res - self.bias
-        jjt = j @ j.T
-        jjt[self._diag] += self.config.singular_damping ** 2
-        p = np.linalg.solve(jjt, j)                               # (J^T)^+, 6 x n
-        raw = p @ r
+    def update(self, j: np.ndarray, tau_measured: np.ndarray, tau_gravity: np.ndarray,
+               jjt: np.ndarray | None = None) -> WrenchEstimate:
+        """One cycle with the arm Jacobian ``j`` (6 x n, LWA) and efforts (n,) in N·m;
+        ``jjt``: J J^T if known already (the law's)."""
+        res = np.asarray(tau_measured, dtype=float) - tau_gravity
         a = self.config.filter
-        self._f = raw.copy() if self._f is None else self._f + a * (raw - self._f)
-        return WrenchEstimate(wrench=self._f.copy(), raw=raw, pinv_t=p,
-                              sigma2=self.config.effort_noise ** 2 * self._var_gain)
+        # the residual low-passed like the estimate: what tare takes as the bias
+        if self._started:
+            self._last_residual += a * (res - self._last_residual)
+        else:
+            self._last_residual = res.copy()
+            self._started = True
+        m = (j @ j.T if jjt is None else jjt) + self._damp6
+        p = np.linalg.solve(m, j)                                 # (J^T)^+, 6 x n
+        raw = p @ (res - self.bias)
+        if self._f is None:
+            self._f = raw.copy()
+        else:
+            self._f += a * (raw - self._f)
+        return WrenchEstimate(wrench=self._f.copy(), raw=raw, pinv_t=p, sigma2=self._sigma2)
 
     def tare(self, j: np.ndarray | None = None, known: np.ndarray | None = None) -> np.ndarray:
         """Take the (low-passed) residual as the bias, so that the estimate reads ``known``

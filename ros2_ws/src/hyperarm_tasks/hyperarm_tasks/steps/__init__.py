@@ -20,8 +20,8 @@ __all__ = ["Step", "StepType", "BuildContext", "PoseSpec", "Retry", "STEP_TYPES"
            "task_schema", "quantity", "pose_schema", "register"]
 
 # Failure kinds a retry rule may name (StepFailed.kind).
-FAILURE_KINDS = ("ik", "grasp", "grasp_lost", "insertion", "detection", "driver", "timeout",
-                 "joint_fault", "condition", "tracking")
+FAILURE_KINDS = ("ik", "collision", "grasp", "grasp_lost", "insertion", "detection", "driver",
+                 "timeout", "joint_fault", "condition", "tracking")
 
 
 def quantity(dimension: str, description: str = "") -> dict:
