@@ -26,7 +26,7 @@ from hyperarm_description.joints import JointStateCache, JointStateError
 from hyperarm_description.log_throttle import ReasonThrottle
 from hyperarm_description.params import OneOf, ParamSpec, Range, declare_parameters
 from hyperarm_description.qos import qos_for
-from hyperarm_description.ros_main import declare_robot_description, run_node
+from hyperarm_description.ros_main import EXECUTORS, declare_robot_description, run_node
 
 from .errors import IKError
 from .host import (AccelerationEstimator, CompensationConfig, CompensationLoop, Compensator,
@@ -61,6 +61,9 @@ PARAMETERS: ParamSpec = {
                               "'finite_difference' of the measured velocities, or 'zero'",
                               OneOf(("finite_difference", "zero"))),
     "diagnostics_period": (1.0, "s between diagnostics", Range(0.05, 60.0)),
+    "executor": ("events", "rclpy executor: 'events' (rclpy.experimental.EventsExecutor, the "
+                 "least overhead per message) or 'single' (SingleThreadedExecutor)",
+                 OneOf(EXECUTORS)),
 }
 
 
@@ -269,7 +272,7 @@ def _seconds(stamp) -> float:
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node(HostCompensationNode, args, parameters=PARAMETERS)
+    run_node(HostCompensationNode, args, executor="events", parameters=PARAMETERS)
 
 
 if __name__ == "__main__":

@@ -329,6 +329,7 @@ class Compensator:
         q = self.q.copy()
         prev = math.inf
         stalled = False
+        at_q = None                 # (position error, orientation error, J) evaluated at q
         for it in range(c.iterations):
             p, r, j = kin.pose_jacobian_view(q)
             e = np.concatenate((pt - p, pin.log3(rt @ r.T)))
@@ -337,6 +338,7 @@ class Compensator:
                 stalled = True
             prev = cost
             if math.sqrt(cost) < 1e-7:
+                at_q = (float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:])), j)
                 break
             lam = c.damping + cost
             # first iteration: a pull towards the posture at start, in the task's null space
@@ -348,14 +350,19 @@ class Compensator:
                 j[:, out] = 0.0
                 dq = self._dls(j, e, lam, None if z is None else np.where(out, 0.0, z))
             q = np.clip(q + dq, self.lower, self.upper)
-        perr_ik, oerr_ik = self._errors(q, pt, rt)
+        if at_q is None:
+            p, r, j = kin.pose_jacobian_view(q)
+            at_q = (float(np.linalg.norm(pt - p)), rotation_angle(rt, r), j)
+        perr_ik, oerr_ik, j_q = at_q
         delta = q - self.q
         ratio = float(np.max(np.abs(delta) / (self.speed * dt)))
         limited = ratio > 1.0
         if limited:
             delta /= ratio
-        self.q = np.clip(self.q + delta, self.lower, self.upper)
-        perr, oerr = self._errors(self.q, pt, rt)
+            self.q = np.clip(self.q + delta, self.lower, self.upper)
+            perr, oerr = self._errors(self.q, pt, rt)
+        else:
+            self.q, perr, oerr = q, perr_ik, oerr_ik
         ok = perr_ik <= c.position_tolerance and oerr_ik <= c.orientation_tolerance
         # a miss that no longer shrinks (1 %) for stall_cycles cycles, not step-limited
         residual = perr_ik + c.orientation_scale * oerr_ik
@@ -365,7 +372,7 @@ class Compensator:
             self._stuck += 1
         unreachable = excess > 0.0 or self._stuck >= c.stall_cycles
         velocity = (np.zeros(kin.nq) if unreachable or limited
-                    else self._feed_forward(host, predicted))
+                    else self._feed_forward(host, predicted, j_q))
         command = self.q.copy()
         if c.profile_lead:
             command = np.clip(command + velocity * np.abs(velocity) / (2.0 * self.acceleration),
@@ -383,17 +390,18 @@ class Compensator:
         return CompensationStep(self.q.copy(), status, "", perr, oerr, limited, command,
                                 velocity)
 
-    def _feed_forward(self, host: HostState, predicted: np.ndarray) -> np.ndarray:
+    def _feed_forward(self, host: HostState, predicted: np.ndarray,
+                      j: np.ndarray) -> np.ndarray:
         """Joint speeds (rad/s) that keep tool0 on the goal while the host moves at its
         twist: the goal's velocity in base_link (position -R^T (v + w x (p_goal - p_host)),
-        angular -R^T w) through the weighted damped least squares at the command."""
+        angular -R^T w) through the weighted damped least squares with ``j``, the
+        Jacobian at the command."""
         if not (host.linear.any() or host.angular.any()):
             return np.zeros(self.kin.nq)
         r = predicted[:3, :3]
         lever = self.goal[:3, 3] - predicted[:3, 3]
         twist = np.concatenate((-r.T @ (host.linear + np.cross(host.angular, lever)),
                                 -r.T @ host.angular))
-        _p, _r, j = self.kin.pose_jacobian_view(self.q)
         j = j.copy()
         j[:, (self.q <= self.lower + 1e-9) | (self.q >= self.upper - 1e-9)] = 0.0
         return self._dls(j, twist, self.config.damping)
