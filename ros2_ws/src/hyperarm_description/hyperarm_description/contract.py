@@ -33,6 +33,7 @@ CLOCK = "/clock"                       # rosgraph_msgs/Clock, mock with sim time
 HOST_POSE = "host_pose"                # geometry_msgs/PoseStamped: base_link in world
 BASE_REACTION = "base_reaction"        # geometry_msgs/WrenchStamped: arm on its mount, base_link
 HOST_COMP_GOAL = "host_compensation/goal"  # geometry_msgs/PoseStamped: tool0 goal in world
+TOOL_POSE_TRUTH = "debug/tool_pose_truth"  # mock only: true tool0 in world (PoseStamped)
 
 # Services (relative to the namespace)
 SOLVE_IK = "solve_ik"                  # hyperarm_interfaces/SolveIK
@@ -51,6 +52,9 @@ HYBRID_TARE = "hybrid_force/tare"      # std_srvs/Trigger: capture the wrench es
 HYBRID_COMPLIANCE = "hybrid_force/compliance"  # std_srvs/SetBool: whole-arm compliance mode
 # Host-motion compensation. While enabled it is the only publisher of arm joint_command.
 HOST_COMP_ENABLE = "host_compensation/enable"  # std_srvs/SetBool: true = hold tool0 in world
+# Mock only: its scripted host motion (parameter host_motion). true = start (ramped in),
+# false = ramp out and stop at rest.
+HOST_MOTION_ENABLE = "host_motion/enable"      # std_srvs/SetBool
 
 # Actions (relative to the namespace)
 RUN_TASK = "run_task"                  # hyperarm_interfaces/RunTask
@@ -74,6 +78,7 @@ QOS = {
     HOST_POSE: {"reliability": "reliable", "durability": "volatile", "depth": 1},
     BASE_REACTION: {"reliability": "reliable", "durability": "volatile", "depth": 10},
     HOST_COMP_GOAL: {"reliability": "reliable", "durability": "volatile", "depth": 1},
+    TOOL_POSE_TRUTH: {"reliability": "reliable", "durability": "volatile", "depth": 10},
 }
 
 # Joint naming

@@ -15,12 +15,13 @@ from __future__ import annotations
 import threading
 import time
 import traceback
+from dataclasses import replace
 
 import numpy as np
 import pinocchio as pin
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import Pose, WrenchStamped
+from geometry_msgs.msg import Pose, PoseStamped, WrenchStamped
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
@@ -42,6 +43,7 @@ from .common import (OneOf, ParamSpec, Range, answer_reboot, answer_set_torque,
 from .mock.camera import Camera, Frame, pose_from_xyz_rpy
 from .mock.config import MockError, load_mock_config
 from .mock.diagnostics import BusStats, mock_diagnostics
+from .mock.host_motion import HostMotion, HostMotionError, load_host_motion
 from .mock.joint_sim import JointSim
 
 class _SimSpeed:
@@ -53,6 +55,17 @@ class _SimSpeed:
 
     def text(self) -> str:
         return " (0, or 0.1..100)"
+
+
+class _Repeatability:
+    """-1 (the work-cell file's value) or a standard deviation within 0..0.1 rad."""
+
+    def check(self, value: float) -> str | None:
+        return None if value == -1.0 or 0.0 <= value <= 0.1 else \
+            "must be -1 (the work-cell file's) or within 0..0.1 rad"
+
+    def text(self) -> str:
+        return " (-1, or 0..0.1)"
 
 
 PARAMETERS: ParamSpec = {
@@ -69,6 +82,12 @@ PARAMETERS: ParamSpec = {
     "workcell_file": ("", "work-cell YAML ('' = the packaged config/workcell.yaml)", None),
     "sim_speed": (0.0, "0 = real time; > 0 = run at this multiple of real time and publish "
                        "/clock", _SimSpeed()),  # type: ignore[dict-item]
+    "host_motion": ("", "scripted host motion: a host-motion YAML path or the name of a shipped "
+                        "one (rail_sweep, uav_sway, uav_sway_passive); '' = none. Starts with "
+                        "host_motion/enable true (docs/mock.md)", None),
+    "repeatability": (-1.0, "hidden joint offset drawn per move, rad (std): overrides the work "
+                            "cell's imperfections.repeatability; -1 = the file's value, 0 = the "
+                            "tool truth is FK of joint_states", _Repeatability()),  # type: ignore[dict-item]
 }
 
 # Simulation events logged as warnings (a task relying on them would fail on the robot); the
@@ -103,8 +122,13 @@ class MockDriver(Node):
         p = self._declare_parameters()
         try:
             cfg = load_mock_config(p["workcell_file"] or None)
+            if p["repeatability"] >= 0.0:
+                cfg = replace(cfg, imperfections=replace(cfg.imperfections,
+                                                         repeatability=p["repeatability"]))
             self._sim = JointSim(desc, cfg, effort_timeout=p["command_timeout"],
                                  require_homing=p["require_homing"])
+            if p["host_motion"]:
+                self._sim.host = HostMotion(load_host_motion(p["host_motion"]), self._sim)
         except (MockError, ValueError) as exc:
             raise SystemExit(f"mock_driver: {exc}") from exc
         self._camera = Camera(cfg.camera, pose_from_xyz_rpy(desc.camera.xyz, desc.camera.rpy))
@@ -136,6 +160,12 @@ class MockDriver(Node):
                                                qos_for(contract.CONTACTS_TRUTH),
                                                event_callbacks=quiet)
         self._touching = False
+        self._tool_truth = self.create_publisher(PoseStamped, contract.TOOL_POSE_TRUTH,
+                                                 qos_for(contract.TOOL_POSE_TRUTH),
+                                                 event_callbacks=quiet)
+        self._host_pub = None if self._sim.host is None else self.create_publisher(
+            PoseStamped, contract.HOST_POSE, qos_for(contract.HOST_POSE), event_callbacks=quiet)
+        self.create_service(SetBool, contract.HOST_MOTION_ENABLE, self._on_host_motion)
         self._clock_pub = None
         if self._speed > 0.0:
             self._clock_pub = self.create_publisher(ClockMsg, contract.CLOCK, QoSProfile(
@@ -171,9 +201,12 @@ class MockDriver(Node):
                 "node's clock stays at 0; set sim_speed > 0 to run on simulated time")
         timing = (f"sim time x{self._speed:g}, publishing {contract.CLOCK}" if self._speed > 0.0
                   else "real time")
+        host = "" if self._sim.host is None else \
+            f"; host motion {self._sim.host.spec.source} (host_motion/enable true to start)"
         self.get_logger().info(
             f"mock_driver: {desc.variant}, {len(self._sim.names)} joints at {p['rate']:g} Hz, "
-            f"{timing}; work cell {cfg.source}; torque {'on' if p['torque_on_start'] else 'off'}")
+            f"{timing}; work cell {cfg.source}; torque {'on' if p['torque_on_start'] else 'off'}"
+            f"{host}")
 
     def _declare_parameters(self) -> dict:
         # the real drivers' helper: wrong types and values end the node with a clear message
@@ -218,6 +251,7 @@ class MockDriver(Node):
             self._sim.step(self._dt)
             for frame in self._camera.step(self._sim.time, self._sim.truth):
                 self._publish_frame(frame)
+            self._publish_poses()
         if steps == 0:
             return
         if self._clock_pub is not None:
@@ -246,6 +280,18 @@ class MockDriver(Node):
             self._log_event(event.kind, event.detail)
         self._stats.cycles += 1
         self._stats.cycle_times.append(time.monotonic() - start)
+
+    def _publish_poses(self) -> None:
+        """Per step, in world: the true tool0 (debug/tool_pose_truth) and, with a host
+        motion, base_link (host_pose)."""
+        msg = PoseStamped()
+        msg.header.stamp = self._time(self._sim.time)
+        msg.header.frame_id = contract.WORLD_FRAME
+        msg.pose = _pose(self._sim.tool_pose())
+        self._tool_truth.publish(msg)
+        if self._host_pub is not None:
+            host = PoseStamped(header=msg.header, pose=_pose(self._sim.host.base_pose))
+            self._host_pub.publish(host)
 
     def _log_event(self, kind: str, detail: str) -> None:
         """One call site per severity: rclpy raises if one call site logs at two."""
@@ -324,10 +370,29 @@ class MockDriver(Node):
 
     def _on_rail_hold(self, req: Trigger.Request, res: Trigger.Response) -> Trigger.Response:
         with self._lock:
+            if self._sim.host is not None and self._sim.host.drives_rail:
+                self._sim.host.abort("rail/hold: the rail sweep stopped")
             held = self._sim.hold([self._sim.rail])
         res.success = bool(held)
         res.message = "rail holding its present position" if held else \
             "rail amplifier not enabled: rail/set_torque true first"
+        return res
+
+    def _on_host_motion(self, req: SetBool.Request, res: SetBool.Response) -> SetBool.Response:
+        host = self._sim.host
+        if host is None:
+            res.success, res.message = False, "no host motion configured (parameter host_motion)"
+            self.get_logger().error(f"host_motion/enable: {res.message}")
+            return res
+        try:
+            with self._lock:
+                res.message = host.enable() if req.data else host.disable()
+        except HostMotionError as exc:
+            res.success, res.message = False, f"host_motion/enable: {exc}"
+            self.get_logger().error(res.message)
+            return res
+        res.success = True
+        self.get_logger().info(res.message)
         return res
 
     def _on_reboot(self, req: Reboot.Request, res: Reboot.Response) -> Reboot.Response:

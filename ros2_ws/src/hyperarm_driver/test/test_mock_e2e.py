@@ -130,7 +130,7 @@ def test_mock_and_dynamixel_driver_expose_the_same_interface(launch, rclpy_conte
     # driver user needs.
     extra = set(mock["publishers"]) - set(real["publishers"])
     assert extra == {contract.DETECTIONS, contract.DETECTIONS_TRUTH, contract.TOOL_WRENCH_TRUTH,
-                     contract.CONTACTS_TRUTH}
+                     contract.CONTACTS_TRUTH, contract.TOOL_POSE_TRUTH}
     cmp.same_diagnostics("dynamixel_driver",
                          ["bus"] + [f"joint{i}" for i in range(1, 10)] + ["gripper"])
 

@@ -93,6 +93,14 @@ def mock_diagnostics(sim: JointSim, stats: BusStats, period: float, sim_speed: f
                     "fatal_following_error": "false", "warning_following_error": "false",
                     "status_word": "mock", "round_trip_ms": "0.0", "reconnects": "0",
                     "rejected_setpoints": str(stats.rejected_setpoints), "last_error": ""}))
+    if sim.host is not None:   # the scripted host motion (host_motion.py)
+        hs = sim.host.status()
+        out.append(DiagStatus(
+            name=f"{node}: host_motion", hardware_id="mock",
+            level=WARN if hs["last_abort"] else OK,
+            message=f"{hs['name']}: {hs['phase']}" + (f" ({hs['last_abort']})"
+                                                      if hs["last_abort"] else ""),
+            values=hs))
     w = sim.world
     f = sim.contact_force
     out.append(DiagStatus(

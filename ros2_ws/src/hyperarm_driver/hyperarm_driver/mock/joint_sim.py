@@ -203,6 +203,7 @@ class JointSim:
         self.require_homing = bool(require_homing)
         self.homed = self.rail is None
         self.homing = False
+        self.host = None   # a host_motion.HostMotion: moves the root in world (set by its user)
         self._tool = np.eye(4)
         self._update_tool()
         self._record()
@@ -360,6 +361,9 @@ class JointSim:
         a position; a setpoint outside its range; before homing (``require_homing``)."""
         if self.rail is None or (self.rail not in goals and self.rail not in torques):
             return ""
+        if self.host is not None and self.host.drives_rail:
+            return (f"{self.rail} follows the scripted host motion: host_motion/enable false "
+                    "first")
         if self.rail in torques and (self.rail not in goals or torques[self.rail] != 0.0):
             return (f"effort {torques[self.rail]:g} for {self.rail!r} refused: the rail is "
                     "position-controlled (send 0 or no effort)")
@@ -477,6 +481,8 @@ class JointSim:
         self.time += dt
         while self._pending and self._pending[0][0] <= self.time + 1e-12:
             self._pending.popleft()[1]()
+        if self.host is not None:
+            self.host.before_step(dt)
         self._watchdog()
         gapped = self._gap > 0.0   # torque off during a mode switch (this step)
         held = np.array([m in _HOLDING for m in self.mode]) & ~gapped
@@ -525,6 +531,8 @@ class JointSim:
                 self._gap_hold[i] = False
         self._report_efforts(gapped)
         self.events.extend(self.world.take_events())
+        if self.host is not None:
+            self.host.after_step(dt)
         self._record()
 
     def _report_efforts(self, gapped: np.ndarray) -> None:
@@ -1064,7 +1072,8 @@ class JointSim:
         return StateSample(t, p.copy(), v.copy(), e.copy())
 
     def tool_pose(self) -> np.ndarray:
-        """True pose of tool0 (repeatability offsets included) in the root frame."""
+        """True pose of tool0 (repeatability offsets included) in the root frame (in world,
+        the root frame at rest, when a host motion moves the root)."""
         return self._tool.copy()
 
     def truth(self) -> dict[str, np.ndarray]:
@@ -1078,3 +1087,14 @@ class JointSim:
     def take_events(self) -> list[WorldEvent]:
         out, self.events = self.events, []
         return out
+
+    def contact_wrench(self) -> np.ndarray:
+        """Wrench (N, N·m) the work cell's contacts (block and poles) exert on the robot in
+        the last step, at the root's origin in its axes: force then moment."""
+        rows = self._last_rows
+        if rows is None:
+            return np.zeros(6)
+        dirs, points, owner, f, _ = rows
+        d = np.asarray(dirs, dtype=float).reshape(-1, 3) * np.asarray(f)[:, None]
+        p = np.asarray([points[o] for o in owner], dtype=float).reshape(-1, 3)
+        return np.r_[d.sum(axis=0), np.cross(p, d).sum(axis=0)]
