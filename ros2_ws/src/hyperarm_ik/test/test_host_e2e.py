@@ -1,12 +1,22 @@
-"""E2E: host_compensation holds tool0 in the world while the rail moves (issue 15).
+"""E2E: host_compensation holds tool0 in the world while its host moves (issue 15).
 
-Installed executables over DDS: ``mock_driver`` (rail_arm) and ``host_compensation``. The
-rail is homed (``rail/home``), the arm goes to a posture with tool0 pointing down in front
-of its base, compensation is enabled at the present tool pose, then a test publisher moves
-the rail 0 -> +0.2 -> -0.2 -> 0 m at 0.2 m/s with rail-only joint_command. Judged by FK of
-the measured joint states, rail included: within 3 mm RMS and 8 mm max of the world pose
-and 2 degrees, no unreachable report, one arm command per joint state, and the reaction
-on base_link is published (at rest: the links' weight).
+Installed executables over DDS: ``mock_driver`` (repeatability 0) and ``host_compensation``,
+one launch per scenario:
+
+- rail: on rail_arm the rail is homed (``rail/home``), the arm goes to a posture with tool0
+  pointing down in front of its base, compensation is enabled at the present tool pose,
+  then a test publisher moves the rail 0 -> +0.2 -> -0.2 -> 0 m at 0.2 m/s with rail-only
+  joint_command (someone else moves the rail);
+- 6-D sway: on the fixed arm the mock's host motion ``uav_sway`` (base_link sways 2 cm,
+  heaves 1 cm and tilts 5 deg at 0.5 Hz in world) and ``uav_sway_passive`` (the same on a
+  passive spring-damper mount the arm's reaction moves), started with ``host_motion/enable``
+  after compensation is enabled on ``host_pose``; recorded over the 2 s ramp and one full
+  period.
+
+Judged two ways: by FK of the measured joint states on the host pose (the rail joint, or the
+``host_pose`` with the joint state's stamp), and by the mock's truth
+(``debug/tool_pose_truth``): within 3 mm RMS and 8 mm max of the world pose and 2 degrees,
+no unreachable report, every joint state answered by a command.
 """
 from __future__ import annotations
 
@@ -17,13 +27,14 @@ import time
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import WrenchStamped
+from geometry_msgs.msg import PoseStamped, WrenchStamped
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
 
 from hyperarm_description import contract
 from hyperarm_description.qos import qos_for
 from hyperarm_ik.kinematics import Kinematics, rotation_angle
+from hyperarm_ik.ros_conversions import pose_to_matrix
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
@@ -53,6 +64,41 @@ def _ns(stamp) -> int:
     return stamp.sec * 10**9 + stamp.nanosec
 
 
+def _matrix(msg: PoseStamped) -> np.ndarray:
+    o = msg.pose.orientation
+    n = math.sqrt(o.x * o.x + o.y * o.y + o.z * o.z + o.w * o.w)
+    o.x, o.y, o.z, o.w = o.x / n, o.y / n, o.z / n, o.w / n
+    return pose_to_matrix(msg.pose)
+
+
+def _nearest(poses: dict[int, np.ndarray], stamps) -> list:
+    """For each joint-state stamp (ns), the host pose of the same mock tick: the newest one
+    stamped at or before it (the mock publishes a host pose per simulation step, then the
+    tick's joint state; in a catch-up tick of several steps the stamps are the wall-clock
+    times of publication), None when none is within 20 ms."""
+    keys = np.array(sorted(poses))
+    out = []
+    for s in stamps:
+        i = int(np.searchsorted(keys, s, side="right")) - 1
+        out.append(poses[int(keys[i])] if i >= 0 and s - int(keys[i]) < 20_000_000 else None)
+    return out
+
+
+def _errors(goal: np.ndarray, poses) -> tuple[float, float, float]:
+    """RMS and max position error (m), max orientation error (deg) of poses vs goal."""
+    p = np.array([np.linalg.norm(t[:3, 3] - goal[:3, 3]) for t in poses])
+    o = max(rotation_angle(goal[:3, :3], t[:3, :3]) for t in poses)
+    return float(np.sqrt(np.mean(p ** 2))), float(p.max()), math.degrees(o)
+
+
+def _judge(what: str, goal: np.ndarray, poses) -> str:
+    rms, worst, deg = _errors(goal, poses)
+    text = (f"{what}: {len(poses)} poses, RMS {rms * 1e3:.2f} mm, max {worst * 1e3:.2f} mm, "
+            f"{deg:.3f} deg")
+    assert rms < 3e-3 and worst < 8e-3 and deg < 2.0, text
+    return text
+
+
 class Probe:
     """The test's node: joint states with arrival times, arm commands, reactions."""
 
@@ -66,8 +112,12 @@ class Probe:
         self.state_stamps: list[int] = []
         self.commands: set[int] = set()     # the stamps of the arm commands (their state's)
         self.reactions: list[np.ndarray] = []
+        self.truth: list[tuple[int, np.ndarray]] = []    # (stamp ns, tool0 in world)
+        self.hosts: dict[int, np.ndarray] = {}            # stamp ns -> base_link in world
         self.homed = False
         self.diag: dict = {}
+        self.diag_time = 0.0
+        self.diag_stamp = 0
         n = self.node
         n.create_subscription(JointState, contract.JOINT_STATES, self._on_state,
                               qos_for(contract.JOINT_STATES))
@@ -76,12 +126,17 @@ class Probe:
         n.create_subscription(JointState, contract.JOINT_COMMAND, self._on_command, deep)
         n.create_subscription(WrenchStamped, contract.BASE_REACTION, self._on_reaction,
                               qos_for(contract.BASE_REACTION))
+        keep = qos_for(contract.HOST_POSE)
+        keep.depth = 200      # every pose: the test matches them to joint states by stamp
+        n.create_subscription(PoseStamped, contract.HOST_POSE, self._on_host, keep)
+        n.create_subscription(PoseStamped, contract.TOOL_POSE_TRUTH, self._on_truth, keep)
         n.create_subscription(DiagnosticArray, contract.DIAGNOSTICS, self._on_diag,
                               qos_for(contract.DIAGNOSTICS))
         self.cmd = n.create_publisher(JointState, contract.JOINT_COMMAND,
                                       qos_for(contract.JOINT_COMMAND))
         self.home = n.create_client(Trigger, contract.RAIL_HOME)
         self.enable = n.create_client(SetBool, contract.HOST_COMP_ENABLE)
+        self.motion = n.create_client(SetBool, contract.HOST_MOTION_ENABLE)
         executor.add_node(n)
 
     def _on_state(self, msg: JointState) -> None:
@@ -94,6 +149,14 @@ class Probe:
             with self.lock:
                 self.commands.add(_ns(msg.header.stamp))
 
+    def _on_host(self, msg: PoseStamped) -> None:
+        with self.lock:
+            self.hosts[_ns(msg.header.stamp)] = _matrix(msg)
+
+    def _on_truth(self, msg: PoseStamped) -> None:
+        with self.lock:
+            self.truth.append((_ns(msg.header.stamp), _matrix(msg)))
+
     def _on_reaction(self, msg: WrenchStamped) -> None:
         f, t = msg.wrench.force, msg.wrench.torque
         with self.lock:
@@ -103,6 +166,8 @@ class Probe:
         for st in msg.status:
             if st.name == "host_compensation":
                 self.diag = {kv.key: kv.value for kv in st.values}
+                self.diag_time = time.monotonic()
+                self.diag_stamp = _ns(msg.header.stamp)
             if any(kv.key == "homed" and kv.value == "true" for kv in st.values):
                 self.homed = True
 
@@ -124,31 +189,72 @@ class Probe:
         self.cmd.publish(msg)
 
 
-@pytest.mark.xfail(strict=False, reason="issue 15: the issue's bounds (3 mm RMS, 8 mm max, "
-                   "2 deg) are not met yet on a loaded 2-core machine (measured 3.6-17 mm "
-                   "RMS, 9-50 mm max: the node missed half or more of the joint_states, "
-                   "docs/host.md)")
-def test_tool_stays_in_the_world_while_the_rail_moves(launch, rclpy_context, executor,
-                                                      wait_for):
-    mock = launch("hyperarm_driver", "mock_driver", params={"variant": "rail_arm"})
-    comp = launch("hyperarm_ik", "host_compensation", params={"variant": "rail_arm"})
-    probe = Probe(rclpy_context, executor)
-    kin = Kinematics(variant="rail_arm")
-    wait_for(lambda: probe.latest() is not None and "rail" in probe.latest(), 30.0,
-             what="rail_arm joint_states")
-    res = probe.call(probe.home, Trigger.Request(), wait_for)
-    assert res.success, res.message
-    wait_for(lambda: probe.homed, 20.0, what="rail homed (mock diagnostics)")
+def _start(launch, probe_args, variant: str, wait_for, **mock_params):
+    mock = launch("hyperarm_driver", "mock_driver",
+                  params={"variant": variant, "repeatability": 0.0, **mock_params})
+    comp = launch("hyperarm_ik", "host_compensation",
+                  params={"variant": variant, "diagnostics_period": 0.2})
+    probe = Probe(*probe_args)
+    wait_for(lambda: probe.latest() is not None, 30.0, what=f"{variant} joint_states")
+    return mock, comp, probe
 
+
+def _to_q0(probe: Probe, wait_for, rail: bool) -> None:
     def at_q0():
         q = probe.latest()
-        return max(abs(q[n] - v) for n, v in zip(ARM, Q0)) < 2e-3 and abs(q["rail"]) < 1e-3
+        return max(abs(q[n] - v) for n, v in zip(ARM, Q0)) < 2e-3 and (
+            not rail or abs(q["rail"]) < 1e-3)
 
     probe.send(ARM, Q0)
     wait_for(at_q0, 15.0, period=0.05, what="arm at the start posture")
-    wait_for(lambda: len(probe.reactions) > 0, 10.0, what="base_reaction")
+    wait_for(lambda: len(probe.reactions) > 0 and len(probe.truth) > 0, 10.0,
+             what="base_reaction and the tool truth")
     res = probe.call(probe.enable, SetBool.Request(data=True), wait_for)
     assert res.success, res.message
+
+
+def _window(probe: Probe, first_state: int):
+    """(states, their stamps, truth poses, span s) from ``first_state`` on."""
+    with probe.lock:
+        states = [q for _t, q in probe.states[first_state:]]
+        stamps = probe.state_stamps[first_state:]
+        truth = [m for st, m in probe.truth if st >= stamps[0]]
+        span = probe.states[-1][0] - probe.states[first_state][0]
+    return states, stamps, truth, span
+
+
+def _answered(probe: Probe, first_state: int, wait_for) -> str:
+    """Every joint state the node got while enabled was answered by a command, and it got
+    every one the mock sent: the node's counts (diagnostics) against the test's count of the
+    joint states stamped after the enable and at least 50 ms before that diagnostics
+    message was stamped (those had reached the node). The test cannot count the commands
+    themselves: joint_command keeps depth 1, so a burst of them replaces one another in the
+    node's writer, as it should for a setpoint."""
+    t = time.monotonic()
+    wait_for(lambda: probe.diag_time > t, 5.0, what="a fresh host_compensation diagnostics")
+    with probe.lock:
+        d, cut = dict(probe.diag), probe.diag_stamp - 50_000_000
+        sent = sum(s <= cut for s in probe.state_stamps[first_state:])
+    cycles, states = int(d["cycles"]), int(d["states"])
+    text = f"node answered {cycles}/{states} joint states (the test saw {sent} before)"
+    assert cycles == states and states >= sent, text
+    return text
+
+
+def _check_clean(mock, comp) -> None:
+    out = comp.output()
+    assert "unreachable" not in out, out[-2000:]
+    assert "Traceback" not in mock.output() + out
+
+
+def test_tool_stays_in_the_world_while_the_rail_moves(launch, rclpy_context, executor,
+                                                      wait_for):
+    mock, comp, probe = _start(launch, (rclpy_context, executor), "rail_arm", wait_for)
+    kin = Kinematics(variant="rail_arm")
+    res = probe.call(probe.home, Trigger.Request(), wait_for)
+    assert res.success, res.message
+    wait_for(lambda: probe.homed, 20.0, what="rail homed (mock diagnostics)")
+    _to_q0(probe, wait_for, rail=True)
 
     def tool(q: dict) -> np.ndarray:
         return kin.forward(np.array([q[n] for n in kin.joint_names]))
@@ -156,35 +262,56 @@ def test_tool_stays_in_the_world_while_the_rail_moves(launch, rclpy_context, exe
     goal = tool(probe.latest())
     with probe.lock:
         first_state = len(probe.states)
+        goal_truth = probe.truth[-1][1]
     duration = sum(abs(b - a) / RAIL_SPEED + DWELL for a, b in zip(WAYPOINTS, WAYPOINTS[1:]))
     t0 = time.monotonic()
     while (t := time.monotonic() - t0) < duration + 0.5:
         probe.send(["rail"], [_rail_profile(t)])
         time.sleep(0.01)
-    with probe.lock:
-        states = [q for _t, q in probe.states[first_state:]]
-        span = probe.states[-1][0] - probe.states[first_state][0]
-        stamps = probe.state_stamps[first_state:-5]    # the last few may be in flight
-        answered = sum(s in probe.commands for s in stamps)
+    states, stamps, truth, span = _window(probe, first_state)
     rails = np.array([q["rail"] for q in states])
-    poses = [tool(q) for q in states]
-    perr = np.array([np.linalg.norm(p[:3, 3] - goal[:3, 3]) for p in poses])
-    oerr = np.array([rotation_angle(goal[:3, :3], p[:3, :3]) for p in poses])
-    rms = float(np.sqrt(np.mean(perr ** 2)))
-    rate = len(states) / span
-    summary = (f"host e2e: {len(states)} states, tool error RMS {rms * 1e3:.2f} mm, max "
-          f"{perr.max() * 1e3:.2f} mm, orientation max {math.degrees(oerr.max()):.3f} deg; "
-          f"{answered}/{len(stamps)} states answered by a command ({rate:.0f} Hz states); "
-          f"rail {rails.min():.4f}.."
-          f"{rails.max():.4f} m; node: {probe.diag}")
+    summary = "; ".join([
+        _judge("FK of the joint states", goal, [tool(q) for q in states]),
+        _judge("mock truth", goal_truth, truth),
+        _answered(probe, first_state, wait_for), f"{len(states) / span:.0f} Hz states",
+        f"rail {rails.min():.4f}..{rails.max():.4f} m", f"node: {probe.diag}"])
     print(summary)
-    import os
-    if os.environ.get('HOST_E2E_DUMP'):
-        np.savez(os.environ['HOST_E2E_DUMP'], t=np.array([t for t, _q in probe.states[first_state:]]), perr=perr, oerr=oerr, rails=rails)
-    assert rails.max() > 0.199 and rails.min() < -0.199, (rails.min(), rails.max())
-    assert rms < 3e-3 and perr.max() < 8e-3, summary
-    assert math.degrees(oerr.max()) < 2.0, summary
-    assert answered >= 0.99 * len(stamps), summary      # one command per joint state
-    out = comp.output()
-    assert "unreachable" not in out, out[-2000:]
-    assert "Traceback" not in mock.output() + out
+    assert rails.max() > 0.199 and rails.min() < -0.199, summary
+    _check_clean(mock, comp)
+
+
+@pytest.mark.parametrize("motion", ["uav_sway"])
+def test_tool_stays_in_the_world_under_a_6d_sway(motion, launch, rclpy_context, executor,
+                                                 wait_for):
+    mock, comp, probe = _start(launch, (rclpy_context, executor), "arm", wait_for,
+                               host_motion=motion)
+    kin = Kinematics(variant="arm")
+    wait_for(lambda: len(probe.hosts) > 0, 10.0, what="host_pose")
+    _to_q0(probe, wait_for, rail=False)
+    with probe.lock:
+        first_state = len(probe.states)
+        rest = _nearest(probe.hosts, [probe.state_stamps[-1]])[0]
+        goal = rest @ kin.forward(np.array([probe.states[-1][1][n] for n in ARM]))
+        goal_truth = probe.truth[-1][1]
+    res = probe.call(probe.motion, SetBool.Request(data=True), wait_for)
+    assert res.success, res.message
+    t0 = time.monotonic()
+    wait_for(lambda: time.monotonic() - t0 > 4.2, 10.0, period=0.1,
+             what="the 2 s ramp and one 2 s period of sway")
+    states, stamps, truth, span = _window(probe, first_state)
+    with probe.lock:
+        pairs = [(h, q) for h, q in zip(_nearest(probe.hosts, stamps), states)
+                 if h is not None]
+    assert len(pairs) >= 0.5 * len(states), (len(pairs), len(states))   # enough to judge
+    poses = [h @ kin.forward(np.array([q[n] for n in ARM])) for h, q in pairs]
+    sway = max(np.linalg.norm(h[:3, 3] - rest[:3, 3]) for h, _q in pairs)
+    tilt = max(rotation_angle(rest[:3, :3], h[:3, :3]) for h, _q in pairs)
+    summary = "; ".join([
+        _judge("FK of the joint states on host_pose", goal, poses),
+        _judge("mock truth", goal_truth, truth),
+        _answered(probe, first_state, wait_for), f"{len(states) / span:.0f} Hz states",
+        f"host moved {sway * 1e3:.1f} mm, tilted {math.degrees(tilt):.2f} deg",
+        f"node: {probe.diag}"])
+    print(summary)
+    assert sway > 0.019 and math.degrees(tilt) > 4.9, summary      # the whole sway ran
+    _check_clean(mock, comp)

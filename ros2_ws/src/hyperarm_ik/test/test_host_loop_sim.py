@@ -43,3 +43,35 @@ def test_rail_sweep_on_the_simulated_servos_meets_the_issue_bounds_with_the_lead
     print(f"first 1.5 s with: RMS {rms1 * 1e3:.2f} mm, {deg1:.2f} deg; without: RMS "
           f"{rms0 * 1e3:.2f} mm, max {worst0 * 1e3:.2f} mm, {deg0:.2f} deg")
     assert rms1 < 0.5 * rms0 and deg1 < 0.5 * deg0, (summary, rms0, deg0)
+
+
+def test_uav_sway_on_the_simulated_robot_meets_the_bounds_both_ways():
+    """The mock's ``uav_sway`` (2 cm, 1 cm heave, 5 deg tilt at 0.5 Hz) over its ramp and one
+    period: judged by FK of the joint states on the mock's host pose and by its truth."""
+    from hyperarm_ik.benchmark.host_sim import sway
+
+    run = sway("uav_sway")
+    for kind in ("", "truth_"):
+        p = run[f"{kind}position_error"]
+        rms, worst = float(np.sqrt(np.mean(p ** 2))), float(p.max())
+        deg = math.degrees(float(run[f"{kind}orientation_error"].max()))
+        assert rms < 3e-3 and worst < 8e-3 and deg < 2.0, (kind, rms, worst, deg)
+    tilt = max(math.degrees(math.acos(min(1.0, h[2, 2]))) for h in run["host"])
+    assert tilt > 4.9, tilt                                       # the whole sway ran
+
+
+def test_host_pose_tracker_twist_ignores_bursts_of_equal_stamps():
+    """Poses published in a burst (a driver catching up: 10 ms of motion apart, stamps
+    microseconds apart) do not make the twist spike; it is the motion over the baseline."""
+    from hyperarm_ik.host import HostPoseTracker
+
+    tracker = HostPoseTracker(baseline=0.02)
+    v = 0.05                                                      # m/s along x
+    for k in range(30):
+        stamp = k * 0.01 if k % 3 else k * 0.01 - 0.0099          # every third one early
+        pose = np.eye(4)
+        pose[0, 3] = v * k * 0.01
+        state = tracker.update(stamp, pose)
+        if k > 5:
+            assert abs(state.linear[0] - v) < 0.5 * v, (k, state.linear)
+    assert tracker.stamp == pytest.approx(0.29)

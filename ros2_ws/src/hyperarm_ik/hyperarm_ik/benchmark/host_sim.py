@@ -26,9 +26,10 @@ from hyperarm_description.model import load_description
 
 from ..host import (AccelerationEstimator, CompensationConfig, CompensationLoop, Compensator,
                     DelayEstimator, RailHost, ReactionModel)
+from ..host.reaction import STANDARD_GRAVITY as _GRAVITY
 from ..kinematics import Kinematics, rotation_angle
 
-__all__ = ["rail_sweep", "figure8_task", "Q0", "DT"]
+__all__ = ["rail_sweep", "sway", "figure8_task", "Q0", "DT"]
 
 ARM = [f"joint{i}" for i in range(1, 10)]
 #: tool0 pointing down 0.2 m in front of the base (reachable while the base moves)
@@ -111,6 +112,81 @@ def rail_sweep(lead: bool = True, duration: float = 5.2,
     res = {k: np.array(v) for k, v in out.items() if v}
     res["answered"] = np.array(answered / n)
     return res
+
+
+def sway(motion: str = "uav_sway", duration: float = 4.2, lead: bool = True,
+         delay_steps: int = 1, config: CompensationConfig | None = None
+         ) -> dict[str, np.ndarray]:
+    """The mock's host motion ``motion`` (``uav_sway``, ``uav_sway_passive``) on the fixed
+    arm, compensated by :class:`CompensationLoop` on the host pose the mock publishes
+    (base_link in world, one per step): ``t``, the tool errors judged by FK of the joint
+    states on the host pose (``position_error``, ``orientation_error``) and by the mock's
+    truth (``truth_position_error``, ``truth_orientation_error``), ``wrench`` (the
+    reaction the node publishes), ``host`` ((n, 4, 4) host poses). Commands reach the
+    simulation ``delay_steps`` steps after the state they answer."""
+    from hyperarm_driver.mock.host_motion import HostMotion, load_host_motion
+
+    desc = load_description(variant="arm")
+    sim = _sim(desc)
+    sim.host = HostMotion(load_host_motion(motion), sim)
+    sim.command(ARM, Q0)
+    for _ in range(200):
+        sim.step(DT)
+    arm = Kinematics(variant="arm")
+    cfg = config if config is not None else CompensationConfig(profile_lead=lead)
+    loop = CompensationLoop(Compensator(arm, cfg), DelayEstimator(0.04), 0.1,
+                            host_from_states=False)
+    from ..host import HostPoseTracker
+
+    tracker = HostPoseTracker()
+    model, accel = ReactionModel(arm), AccelerationEstimator()
+    idx = [sim.names.index(n) for n in ARM]
+
+    def measured():
+        s = sim.state()
+        tracker.update(sim.time, sim.host.base_pose)
+        return s, s.position[idx]
+
+    s, q = measured()
+    loop.on_state(sim.time, s.stamp, q, tracker.state, tracker.stamp, sim.time)
+    ok, why, goal = loop.enable(sim.time, q, tracker.state, "host_pose")
+    if not ok:
+        raise RuntimeError(why)
+    goal_truth = sim.tool_pose().copy()
+    sim.host.enable()
+    out: dict[str, list] = {k: [] for k in ("t", "position_error", "orientation_error",
+                                            "truth_position_error",
+                                            "truth_orientation_error", "wrench", "host",
+                                            "mount")}
+    pending: list[np.ndarray] = []
+    t0 = sim.time
+    for _ in range(int(duration / DT)):
+        if len(pending) >= delay_steps and pending:
+            sim.command(ARM, pending.pop(0))
+        sim.step(DT)
+        s, q = measured()
+        command, _log = loop.on_state(sim.time, s.stamp, q, tracker.state, tracker.stamp,
+                                      sim.time)
+        if command is None:
+            raise RuntimeError(f"compensation stopped: {loop.reason}")
+        pending.append(command)
+        host = sim.host.base_pose            # the measured host pose (not the filtered one)
+        tool = host @ arm.forward(q)
+        truth = sim.tool_pose()
+        dq = s.velocity[idx]
+        out["t"].append(sim.time - t0)
+        out["position_error"].append(float(np.linalg.norm(tool[:3, 3] - goal[:3, 3])))
+        out["orientation_error"].append(rotation_angle(goal[:3, :3], tool[:3, :3]))
+        out["truth_position_error"].append(float(np.linalg.norm(truth[:3, 3]
+                                                                 - goal_truth[:3, 3])))
+        out["truth_orientation_error"].append(rotation_angle(goal_truth[:3, :3],
+                                                             truth[:3, :3]))
+        out["wrench"].append(model.wrench(q, dq, accel.update(sim.time, dq),
+                                          gravity_base=host[:3, :3].T @ _GRAVITY))
+        out["host"].append(host.copy())
+        mount = getattr(sim.host, "mount", None)
+        out["mount"].append(np.zeros(6) if mount is None else mount.displacement.copy())
+    return {k: np.array(v) for k, v in out.items()}
 
 
 def figure8_task(redundancy: str | None = None) -> dict[str, object]:

@@ -136,24 +136,28 @@ class RailHost:
 
 class HostPoseTracker:
     """:class:`HostState` from a stream of stamped host poses (e.g. ``host_pose`` from
-    motion capture or the mock): the twist is the finite difference of the last two poses
-    over their stamps (s), smoothed exponentially with ``smoothing`` (1 = the newest
-    difference only). A pose whose stamp is not after the previous one replaces it without
-    changing the twist. :attr:`stamp` is the newest pose's stamp (s): the host state is
-    that old, so a prediction's horizon counts from it."""
+    motion capture or the mock). The twist is the difference between the newest pose and
+    the newest one at least ``baseline`` s older (by stamp), over their stamps' difference:
+    poses that come in bursts with nearly equal stamps (a driver catching up) do not make
+    it spike, and noise is averaged over the baseline. A pose whose stamp is not after the
+    previous one replaces it. :attr:`stamp` is the newest pose's stamp (s): the host state
+    is that old, so a prediction's horizon counts from it; the twist is the one of
+    ``baseline / 2`` s before it (a lag the prediction's horizon does not include)."""
 
-    def __init__(self, smoothing: float = 1.0, max_gap: float = 0.5) -> None:
-        for name, v, lo, hi in (("smoothing", smoothing, 1e-3, 1.0), ("max_gap", max_gap,
-                                                                         1e-3, 10.0)):
+    def __init__(self, baseline: float = 0.02, max_gap: float = 0.5) -> None:
+        for name, v, lo, hi in (("baseline", baseline, 1e-3, 1.0), ("max_gap", max_gap,
+                                                                       1e-3, 10.0)):
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
                     or not lo <= v <= hi:
                 raise HostConfigError(f"host pose tracker {name} must be in {lo:g}..{hi:g}, "
                                       f"got {v!r}")
-        self.smoothing, self.max_gap = float(smoothing), float(max_gap)
+        self.baseline, self.max_gap = float(baseline), float(max_gap)
+        self._history: list[tuple[float, np.ndarray]] = []
         self.state: HostState | None = None
         self.stamp: float | None = None
 
     def reset(self) -> None:
+        self._history.clear()
         self.state = self.stamp = None
 
     def update(self, stamp: float, pose) -> HostState:
@@ -162,17 +166,22 @@ class HostPoseTracker:
         pose = check_pose(pose, "host pose")
         if not math.isfinite(stamp):
             raise HostStateError(f"host pose stamp is not finite: {stamp!r}")
+        h = self._history
+        while h and h[-1][0] >= stamp:          # not newer: replaces what it overtakes
+            h.pop()
+        if h and stamp - h[-1][0] > self.max_gap:
+            h.clear()                            # after a gap: no twist from unrelated poses
+        h.append((float(stamp), pose))
+        while len(h) > 2 and h[1][0] <= stamp - self.baseline:
+            h.pop(0)                             # keep one pose at least baseline s older
         lin, ang = np.zeros(3), np.zeros(3)
-        prev = self.state
-        if prev is not None and self.stamp is not None:
-            dt = stamp - self.stamp
-            if dt <= 0.0:
-                lin, ang = prev.linear, prev.angular
-            elif dt <= self.max_gap:     # after a gap: no twist from two unrelated poses
-                a = self.smoothing
-                lin = (1 - a) * prev.linear + a * (pose[:3, 3] - prev.pose[:3, 3]) / dt
-                ang = (1 - a) * prev.angular + a * pin.log3(
-                    pose[:3, :3] @ prev.pose[:3, :3].T) / dt
+        t0, p0 = h[0]
+        if t0 <= stamp - self.baseline:         # the same test as the pruning above
+            dt = stamp - t0
+            lin = (pose[:3, 3] - p0[:3, 3]) / dt
+            ang = pin.log3(pose[:3, :3] @ p0[:3, :3].T) / dt
+        elif self.state is not None and len(h) > 1:
+            lin, ang = self.state.linear, self.state.angular   # too short yet: keep it
         self.state = HostState.trusted(pose, lin, ang)
         self.stamp = float(stamp)
         return self.state
@@ -455,14 +464,20 @@ class DelayEstimator:
             self._q.pop(0)
 
     def measured(self, t: float, q: np.ndarray) -> float:
-        """Update with joints measured (arriving) at ``t``; returns the delay (s)."""
+        """Update with joints measured (arriving) at ``t``; returns the delay (s). A sample
+        counts only where the match is sharp: the commands around the nearest one move
+        (between its neighbours) at least 3 times the miss, so a measured posture near a
+        turning point, where commands before and after the turn look alike, is no sample."""
         if len(self._q) < 3:
             return self.delay
         hist = np.array(self._q)
         if float(np.abs(hist[-1] - hist[0]).max()) < self.min_motion:
             return self.delay
-        i = int(np.argmin(np.abs(hist - np.asarray(q, dtype=float)).max(axis=1)))
-        if i > 0:     # the oldest entry may be older still: no sample from it
+        miss = np.abs(hist - np.asarray(q, dtype=float)).max(axis=1)
+        i = int(np.argmin(miss))
+        # the oldest entry may be older still, the newest is the command just sent: no sample
+        if 0 < i < len(hist) - 1 and \
+                float(np.abs(hist[i + 1] - hist[i - 1]).max()) >= 3.0 * float(miss[i]):
             sample = t - self._t[i]
             self.delay += self.gain * (min(max(sample, 0.0), self.window) - self.delay)
             self.samples += 1

@@ -35,7 +35,8 @@ class CompensationLoop:
         self.host_from_states = host_from_states
         self.enabled = False
         self.status, self.reason = "disabled", "disabled"
-        self.cycles = 0
+        self.cycles = 0                    # commands since enabled
+        self.states = 0                    # joint states received while enabled
         self.latency = 0.0                 # s, smoothed age of the joint states on arrival
         self.last_state: float | None = None   # s, arrival of the last joint state
         self.error = (0.0, 0.0)            # m, rad of the last command (predicted goal)
@@ -48,6 +49,7 @@ class CompensationLoop:
         age = min(max(now - stamp, 0.0), 0.5) if stamp > 0.0 else 0.0
         command, log = None, []
         if self.enabled:
+            self.states += 1
             if host is None or (not self.host_from_states and (
                     host_arrival is None or now - host_arrival > self.stale_timeout)):
                 log += self.disable("host pose stale or missing: compensation stopped")
@@ -87,6 +89,7 @@ class CompensationLoop:
             return False, f"cannot enable: no host pose yet ({source})", None
         goal = self.comp.start(q, host)
         self.delay.reset()
+        self.cycles = self.states = 0
         self.enabled, self.status, self.reason = True, "tracking", "enabled"
         return True, "", goal
 
@@ -108,7 +111,7 @@ class CompensationLoop:
     def diagnostics(self) -> dict[str, object]:
         """Figures for the node's diagnostics (status, counts, ms)."""
         return {"enabled": self.enabled, "status": self.status, "reason": self.reason,
-                "cycles": self.cycles, "latency_ms": f"{self.latency * 1e3:.2f}",
+                "cycles": self.cycles, "states": self.states, "latency_ms": f"{self.latency * 1e3:.2f}",
                 "loop_delay_ms": f"{self.delay.delay * 1e3:.2f}",
                 "position_error_m": f"{self.error[0]:.5f}",
                 "orientation_error_rad": f"{self.error[1]:.5f}"}
