@@ -6,7 +6,11 @@
    ``host_compensation`` (rail_arm) in its own process, driven ping-pong by a probe (one
    joint state with a unique stamp, wait for the command carrying that stamp): p50, p90, p99.
 
+3. ``--plots DIR``: the PNG figures of docs/host.md (tool error, reaction over time) from
+   the mock's simulation (``host_plots``), instead of the timings.
+
 Usage: host_benchmark [--cycles N] [--samples N] [--only core|latency] [--domain D]
+                      [--plots DIR]
 """
 from __future__ import annotations
 
@@ -143,7 +147,15 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--samples", type=int, default=300)
     ap.add_argument("--only", choices=("core", "latency"))
     ap.add_argument("--domain", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", "0")))
+    ap.add_argument("--plots", type=Path, metavar="DIR",
+                    help="write the PNG figures into DIR (e.g. docs/benchmarks/img) and exit")
     a = ap.parse_args(argv)
+    if a.plots is not None:
+        from .host_plots import write_plots
+
+        for path in write_plots(a.plots):
+            print(f"wrote {path}")
+        return
     print(f"load average {os.getloadavg()[0]:.1f}")
     if a.only in (None, "core"):
         med, p90 = bench_core(a.cycles)
