@@ -5,8 +5,9 @@ one launch per scenario:
 
 - rail: on rail_arm the rail is homed (``rail/home``), the arm goes to a posture with tool0
   pointing down in front of its base, compensation is enabled at the present tool pose,
-  then a test publisher moves the rail 0 -> +0.2 -> -0.2 -> 0 m at 0.2 m/s with rail-only
-  joint_command (someone else moves the rail);
+  then the mock's host motion ``rail_sweep`` moves the rail (someone else moves it: +-0.2 m
+  at 0.2 m/s, 0.5 m/s^2 at the turnarounds), recorded from its start until it has been at
+  +0.2 m and then at -0.2 m;
 - 6-D sway: on the fixed arm the mock's host motion ``uav_sway`` (base_link sways 2 cm,
   heaves 1 cm and tilts 5 deg at 0.5 Hz in world), started with ``host_motion/enable``
   after compensation is enabled on ``host_pose``; recorded over the 2 s ramp and one full
@@ -42,24 +43,6 @@ ARM = list(contract.ARM_JOINTS)
 # tool0 pointing down 0.2 m in front of the base (its wrist stays inside its reach while
 # the base moves +-0.2 m; see test_host_core)
 Q0 = [1.367, 0.62, -1.871, 0.548, 1.726, -1.732, 1.335, -0.596, 0.726]
-RAIL_SPEED = 0.2           # m/s
-WAYPOINTS = [0.0, 0.2, -0.2, 0.0]
-DWELL = 0.3                # s at each turning point (the rail's lag reaches it)
-
-
-def _rail_profile(t: float) -> float:
-    """Rail setpoint (m) at t (s): the waypoints at RAIL_SPEED, DWELL s at each."""
-    for a, b in zip(WAYPOINTS, WAYPOINTS[1:]):
-        d = abs(b - a) / RAIL_SPEED
-        if t <= d:
-            return a + math.copysign(RAIL_SPEED * t, b - a)
-        t -= d
-        if t <= DWELL:
-            return b
-        t -= DWELL
-    return WAYPOINTS[-1]
-
-
 def _ns(stamp) -> int:
     return stamp.sec * 10**9 + stamp.nanosec
 
@@ -249,7 +232,8 @@ def _check_clean(mock, comp) -> None:
 
 def test_tool_stays_in_the_world_while_the_rail_moves(launch, rclpy_context, executor,
                                                       wait_for):
-    mock, comp, probe = _start(launch, (rclpy_context, executor), "rail_arm", wait_for)
+    mock, comp, probe = _start(launch, (rclpy_context, executor), "rail_arm", wait_for,
+                               host_motion="rail_sweep")
     kin = Kinematics(variant="rail_arm")
     res = probe.call(probe.home, Trigger.Request(), wait_for)
     assert res.success, res.message
@@ -263,11 +247,16 @@ def test_tool_stays_in_the_world_while_the_rail_moves(launch, rclpy_context, exe
     with probe.lock:
         first_state = len(probe.states)
         goal_truth = probe.truth[-1][1]
-    duration = sum(abs(b - a) / RAIL_SPEED + DWELL for a, b in zip(WAYPOINTS, WAYPOINTS[1:]))
-    t0 = time.monotonic()
-    while (t := time.monotonic() - t0) < duration + 0.5:
-        probe.send(["rail"], [_rail_profile(t)])
-        time.sleep(0.01)
+    res = probe.call(probe.motion, SetBool.Request(data=True), wait_for)
+    assert res.success, res.message
+
+    def swept():          # +0.2 m reached, then -0.2 m
+        with probe.lock:
+            rails = [q["rail"] for _t, q in probe.states[first_state:]]
+        top = next((i for i, r in enumerate(rails) if r > 0.199), None)
+        return top is not None and min(rails[top:]) < -0.199
+
+    wait_for(swept, 15.0, period=0.05, what="the rail sweep to +0.2 m, then to -0.2 m")
     states, stamps, truth, span = _window(probe, first_state)
     rails = np.array([q["rail"] for q in states])
     summary = "; ".join([
