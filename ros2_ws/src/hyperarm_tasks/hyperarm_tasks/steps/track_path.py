@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hyperarm_ik.host import HostError, ReactionMinimizer
+from hyperarm_ik.host import OBJECTIVES, HostError, ReactionMinimizer
 from hyperarm_ik.paths import FIGURE8_WAYPOINTS, PATHS, Figure8, hold_orientation
 
 from ..errors import StepFailed
@@ -245,7 +245,7 @@ register(StepType(
      "reach": quantity("length", "a waypoint is reached within this"),
      "min_reached": {"type": "number", "minimum": 0, "maximum": 1,
                      "description": "fraction of the waypoints that must be reached"},
-     "redundancy": {"enum": ["none", "min_reaction"],
+     "redundancy": {"enum": list(OBJECTIVES),
                     "description": "min_reaction: the free joints keep the centre of mass "
                                    "over the mount (lower base moment; fixed arm)"}},
     ("path",), build, run, "track a reference path's waypoints at a speed"))
