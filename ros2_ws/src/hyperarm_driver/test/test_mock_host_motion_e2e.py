@@ -1,10 +1,11 @@
 """End-to-end tier: the mock's scripted host motion through the installed mock_driver.
 
 host_pose (base_link in world) is published per step once a host motion is configured, at
-rest until host_motion/enable true; the true tool pose (debug/tool_pose_truth, world) moves
-with the base while the arm holds still (repeatability 0: exactly host_pose times the tool's
-pose at rest); enable false ramps it out back to rest; a bad host-motion YAML is refused with
-its field named.
+rest until host_motion/enable true; with repeatability 0 the true tool pose
+(debug/tool_pose_truth, world) after a move is FK of joint_states (judging), and while the
+base sways with the arm holding still it is exactly host_pose times that pose; enable false
+ramps it out back to rest (diagnostics show the phases); a bad host-motion YAML is refused
+with its field named.
 """
 from __future__ import annotations
 
@@ -44,7 +45,10 @@ def test_host_pose_and_tool_truth_follow_the_scripted_sway(launch, rclpy_context
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import PoseStamped
+    from sensor_msgs.msg import JointState
     from std_srvs.srv import SetBool
+
+    from hyperarm_description import load_description
 
     launch("hyperarm_driver", "mock_driver",
            params={"host_motion": "uav_sway", "repeatability": 0.0, "sim_speed": 4.0})
@@ -68,10 +72,26 @@ def test_host_pose_and_tool_truth_follow_the_scripted_sway(launch, rclpy_context
                                 for kv in st.values if kv.key == "phase"),
         qos_for(contract.DIAGNOSTICS))
     enable = probe.create_client(SetBool, contract.HOST_MOTION_ENABLE)
+    states: list = []
+    probe.create_subscription(JointState, contract.JOINT_STATES, states.append,
+                              qos_for(contract.JOINT_STATES))
+    cmd = probe.create_publisher(JointState, contract.JOINT_COMMAND,
+                                 qos_for(contract.JOINT_COMMAND))
     executor.add_node(probe)
     wait_for(lambda: host and tool, 30.0, what="host_pose and debug/tool_pose_truth")
     # at rest before the motion is enabled: world = base_link
-    assert np.allclose(host[-1][1], np.eye(4), atol=1e-12)
+    assert np.allclose(host[-1][1], np.eye(4), rtol=0.0, atol=1e-12)
+    # a move (a new hidden offset per move, unless repeatability is 0): the truth is FK
+    q = np.array([0.4, 0.3, 0.0, -0.3, 0.0, 0.2, 0.0, 0.0, 0.0])
+    desc = load_description()
+    fk = desc.dh_forward(q)
+    wait_for(lambda: cmd.get_subscription_count() > 0, 10.0, what="mock_driver subscribed")
+    cmd.publish(JointState(name=list(contract.ARM_JOINTS), position=q.tolist()))
+    wait_for(lambda: states and np.allclose(
+        [states[-1].position[states[-1].name.index(n)] for n in contract.ARM_JOINTS], q,
+        rtol=0.0, atol=1e-12), 20.0, what="joint_states at the commanded joints")
+    wait_for(lambda: np.allclose(tool[-1][1], fk, rtol=0.0, atol=1e-12), 5.0,
+             what="the true tool pose at FK of the joint states")
     rest = tool[-1][1].copy()
 
     res = _call(probe, enable, True, wait_for)
@@ -91,14 +111,15 @@ def test_host_pose_and_tool_truth_follow_the_scripted_sway(launch, rclpy_context
     moved = max(np.linalg.norm(tools[t][:3, 3] - rest[:3, 3]) for t in stamps)
     assert moved > 0.01
     for t in stamps:
-        assert np.allclose(tools[t], hosts[t] @ rest, atol=1e-9), t
+        error = np.abs(tools[t] - hosts[t] @ rest).max()
+        assert error < 1e-9, f"at {t} s: {error:.3g}"
 
     res = _call(probe, enable, False, wait_for)
     assert res.success, res.message
     # ramped out (2 s of sim time): back at rest, and it stays there
-    wait_for(lambda: np.allclose(host[-1][1], np.eye(4), atol=1e-12), 20.0,
+    wait_for(lambda: np.allclose(host[-1][1], np.eye(4), rtol=0.0, atol=1e-12), 20.0,
              what="host_pose back at rest")
-    wait_for(lambda: np.allclose(tool[-1][1], rest, atol=1e-9), 5.0,
+    wait_for(lambda: np.allclose(tool[-1][1], rest, rtol=0.0, atol=1e-9), 5.0,
              what="the true tool pose back where it was")
     wait_for(lambda: phases[-1] == "off", 10.0, what="diagnostics: host_motion off")
     assert "ramping_in" in phases or "ramping_out" in phases

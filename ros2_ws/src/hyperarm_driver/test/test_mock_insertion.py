@@ -1,8 +1,13 @@
 """Core tier: physical invariants of insertion (issue 9, item 2), as properties over drawn
 commands (hypothesis), on the ROS-free simulation core.
 
-- a misaligned block pressed onto a peg's top, to any depth (even below the table) and with
-  or without a current limit, penetrates the top at most 2 mm, and never threads;
+- a misaligned block pressed down to any depth (even below the table), in position mode or
+  current-limited, penetrates neither the table nor a peg by more than 2 mm after any
+  step, a threaded one stays within the clearance (+2 mm of wall), and it is never flung:
+  it moves at most as fast as the arm's joints can move it; settled, the limited joints
+  exert at most their limits against the contact;
+- torque (effort-only) presses never fling the block (their penetration: a known gap,
+  strict xfail);
 - a block let go threaded rests within the radial clearance of the peg's axis; let go on
   the top with its centre over the top's disc, it stays on the top where it was;
 - the repeatability offset is drawn once per move: streamed small setpoints (an approach, a
@@ -18,6 +23,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, Phase, example, given, settings
 from hypothesis import strategies as st
+import pinocchio as pin
 
 from hyperarm_description.model import load_description
 from hyperarm_driver.mock.config import load_mock_config
@@ -63,86 +69,151 @@ def _depth(sim) -> float:
     return max((c.depth for c in cs), default=0.0)
 
 
-@pytest.mark.xfail(strict=False, reason="issue 9 item 2 not finished: (1) pressed straight "
-                   "down, this arm's servo springs push the block sideways at 0.78 x the "
-                   "normal force (> friction 0.5): it slides as friction allows, off the top "
-                   "or over the hole (then it threads), so 'stays on the top' is not the "
-                   "physics for deep presses; (2) current-limited deep presses: the yielding "
-                   "joints' linear solve can still put the block into the peg or fling it")
+class _Watch:
+    """Checks after every simulation step of ``sim``: the worst penetration of the held
+    block into the table or a peg (World.penetration: the geometry alone, no contact
+    memory; on the peg it is threaded on, the excess over the radial clearance), and the
+    block's largest step against what the arm can do: the block's displacement over a
+    step divided by the bound dt·Σ_i |∂p/∂q_i|·vmax_i (every joint at its velocity limit,
+    at the true joints)."""
+
+    def __init__(self, sim) -> None:
+        self.sim, self.data = sim, sim.model.createData()
+        self.penetration, self.speed = 0.0, 0.0
+        self.last = self._block()
+        step = sim.step
+
+        def checked(dt):
+            step(dt)
+            self.penetration = max(self.penetration, sim.world.penetration(sim.tool_pose()))
+            b = self._block()
+            if b is not None and self.last is not None:
+                self.speed = max(self.speed, float(np.linalg.norm(b - self.last))
+                                 / (dt * self._bound()))
+            self.last = b
+
+        sim.step = checked
+
+    def _block(self):
+        s = self.sim
+        return s.world.block_pose(s.tool_pose())[:3, 3].copy() \
+            if s.world.state is BlockState.HELD else None
+
+    def _bound(self) -> float:
+        s, nk = self.sim, self.sim.nk
+        q = s.position[:nk] + s.offset[:nk]
+        j = pin.computeFrameJacobian(s.model, self.data, q, s.tool_id,
+                                     pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+        r = self.last - s.tool_pose()[:3, 3]
+        jp = j[:3] + np.cross(j[3:].T, r).T          # the block centre's linear Jacobian
+        return float(np.linalg.norm(jp, axis=0) @ s.vmax[:nk])
+
+
 @settings(max_examples=8, deadline=None, derandomize=True, phases=NO_SHRINK,
           suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(off=st.floats(0.003, 0.007), angle=st.floats(0.0, 2.0 * math.pi),
+@given(off=st.floats(0.003, 0.03), angle=st.floats(0.0, 2.0 * math.pi),
        depth=st.floats(0.0, 0.12), limited=st.booleans())
-def test_misaligned_press_never_penetrates_nor_threads(held, off, angle, depth, limited):
+@example(off=0.005, angle=0.5 * math.pi, depth=0.12, limited=False)   # went through the
+@example(off=0.005, angle=0.5 * math.pi, depth=0.09, limited=False)   # peg (issue 9)
+@example(off=0.003, angle=math.pi, depth=0.12, limited=False)
+@example(off=0.005, angle=0.5 * math.pi, depth=0.12, limited=True)    # 90 mm in, flung
+@example(off=0.005, angle=0.0, depth=0.12, limited=True)              # 79 mm in, 62 m/s
+def test_press_never_penetrates_nor_flings(held, off, angle, depth, limited):
+    """Issue 9 item 2, after every simulation step: a misaligned block pressed down to any
+    depth (4 cm under the table at most), in position mode or current-limited (current-
+    based position, a limit just above each joint's load), penetrates neither the table nor
+    a peg by more than 2 mm (whether it stays on the top, slides over the hole and threads:
+    then within the clearance, or slides off the top and comes down beside the peg: this
+    arm's springs push a block pressed straight down sideways at ~0.78 x the normal force,
+    more than the friction 0.5), and is never flung: it moves at most as fast as the arm
+    can move it. Settled, each current-limited joint exerts at most its limit against the
+    contact: the contact's generalized force is what the limited joints can give."""
     sc0, above, half, top = held
     sc = copy.deepcopy(sc0)
     sim = sc.sim
     d = np.array([off * math.cos(angle), off * math.sin(angle), 0.0])
     sc.move_tool(above + d, 1.0)
-    target = above + d
-    target[2] = top + half - depth                    # down to 12 cm: 4 cm under the table
-    effort = np.abs(sim.effort[:9]) + 0.5 if limited else None
-    worst = 0.0
-    sc.tool_target = above + d
-    n = 12
-    for k in range(1, n + 1):
-        sc.move_tool(above + d + (target - above - d) * k / n, 0.15, effort=effort)
-        worst = max(worst, _depth(sim))
-    sc.run(0.5)
-    worst = max(worst, _depth(sim))
-    assert sim.world.state is BlockState.HELD and sim.world.peg is None
-    assert worst <= MAX_PENETRATION, worst
-    bottom = sc.block_xyz()[2] - half
-    assert bottom >= top - MAX_PENETRATION
-
-
-@settings(max_examples=6, deadline=None, derandomize=True,
-          suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(off=st.floats(0.003, 0.007), angle=st.floats(0.0, 2.0 * math.pi),
-       depth=st.floats(0.0, 0.12))
-@example(off=0.005, angle=0.5 * math.pi, depth=0.12)   # went through the peg (issue 9)
-@example(off=0.005, angle=0.5 * math.pi, depth=0.09)
-@example(off=0.003, angle=math.pi, depth=0.12)
-def test_position_mode_press_never_interpenetrates(held, off, angle, depth):
-    """The invariant, checked after every simulation step: a misaligned block pressed down
-    in position mode to any depth (4 cm under the table at most) penetrates neither the
-    table nor a peg by more than 2 mm (World.penetration: the geometry alone, no contact
-    memory), whether it stays on the top, slides over the hole and threads, or slides off
-    the top's edge and comes down beside the peg."""
-    sc0, above, half, top = held
-    sc = copy.deepcopy(sc0)
-    sim = sc.sim
-    d = np.array([off * math.cos(angle), off * math.sin(angle), 0.0])
-    sc.move_tool(above + d, 1.0)
-    worst = [0.0]
-    step = sim.step
-
-    def checked(dt):
-        step(dt)
-        worst[0] = max(worst[0], sim.world.penetration(sim.tool_pose()))
-
-    sim.step = checked
     target = above + d
     target[2] = top + half - depth
+    effort = np.abs(sim.effort[:9]) + 0.5 if limited else None
+    watch = _Watch(sim)
     sc.tool_target = above + d
     for k in range(1, 13):
-        sc.move_tool(above + d + (target - above - d) * k / 12, 0.15)
+        sc.move_tool(above + d + (target - above - d) * k / 12, 0.15, effort=effort)
     sc.run(0.5)
     assert sim.world.state is BlockState.HELD
-    assert worst[0] <= MAX_PENETRATION, worst[0]
+    assert watch.penetration <= MAX_PENETRATION, watch.penetration
+    assert watch.speed <= 1.0, watch.speed
+    # settled: the joints' torques against the contact within their limits (2 %: the
+    # yield converges over the steps)
+    nk = sim.nk
+    q = sim.position[:nk] + sim.offset[:nk]
+    j = pin.computeFrameJacobian(sim.model, sim.model.createData(), q, sim.tool_id,
+                                 pin.ReferenceFrame.LOCAL)
+    need = pin.computeGeneralizedGravity(sim.model, sim.model.createData(), q) \
+        - j.T @ sim.tool_wrench
+    assert np.all(np.abs(need) <= sim.limit[:nk] * 1.02 + 1e-3), (need, sim.limit[:nk])
 
 
-@settings(max_examples=6, deadline=None, derandomize=True,
-          suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(off=st.floats(0.0, 0.0019), angle=st.floats(0.0, 2.0 * math.pi),
-       push=st.floats(0.0, 0.01), push_angle=st.floats(0.0, 2.0 * math.pi))
-def test_threaded_block_rests_within_the_clearance(held, off, angle, push, push_angle):
-    """Aligned within the clearance: it threads; pushed sideways (up to 1 cm of command)
-    at the peg's base and let go, it rests within the clearance of the axis."""
+def _torque_press(held, off, angle, force):
+    """Above the destination peg, ``off`` m from its axis towards ``angle``, the arm
+    switched to torque control (effort-only commands, re-sent every 0.1 s): the holding
+    torques plus Jᵀ of a push of ``force`` N down and 0.3 x that sideways, for 2 s."""
     sc0, above, half, top = held
     sc = copy.deepcopy(sc0)
     sim = sc.sim
     d = np.array([off * math.cos(angle), off * math.sin(angle), 0.0])
+    sc.move_tool(above + d, 1.0)
+    nk = sim.nk
+    j = pin.computeFrameJacobian(sim.model, sim.model.createData(), sim.position[:nk],
+                                 sim.tool_id, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+    push = force * np.array([0.3 * math.cos(angle + 1.0), 0.3 * math.sin(angle + 1.0), -1.0])
+    tau = sim.effort[:nk] + j[:3].T @ push
+    watch = _Watch(sim)
+    for _ in range(20):
+        sim.command(sc.arm, [], tau.tolist())
+        sc.run(0.1)
+    return sim, watch
+
+
+@settings(max_examples=4, deadline=None, derandomize=True, phases=NO_SHRINK,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(off=st.floats(0.0, 0.03), angle=st.floats(0.0, 2.0 * math.pi),
+       force=st.floats(0.0, 30.0))
+def test_torque_press_never_flings(held, off, angle, force):
+    """Effort-only (torque) commands pushing the held block down onto the peg or the table:
+    the block moves at most as fast as the arm can move it (before the fix the contact
+    spring in the torque-mode dynamics pushed the wrong way: 50-80 m/s), the states stay
+    finite, it stays held."""
+    sim, watch = _torque_press(held, off, angle, force)
+    assert sim.world.state is BlockState.HELD
+    assert np.all(np.isfinite(sim.position)) and np.all(np.isfinite(sim.velocity))
+    assert watch.speed <= 1.0, watch.speed
+
+
+@pytest.mark.xfail(strict=True, reason="issue 9 item 2 not finished for torque commands: a "
+                   "torque-driven block hitting the table at ~1 m/s, or turned against a "
+                   "peg's side, still penetrates 3-13 mm (contact rows linearized once per "
+                   "step for the dynamic joints, side memory of a turning block)")
+def test_torque_press_never_penetrates(held):
+    """The penetration invariant for torque commands: one known failing case (cheap)."""
+    sim, watch = _torque_press(held, 0.00085, 0.781, 19.4)
+    assert watch.penetration <= MAX_PENETRATION, watch.penetration
+
+
+@settings(max_examples=6, deadline=None, derandomize=True, phases=NO_SHRINK,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(off=st.floats(0.0, 0.0015), angle=st.floats(0.0, 2.0 * math.pi),
+       push=st.floats(0.0, 0.01), push_angle=st.floats(0.0, 2.0 * math.pi))
+def test_threaded_block_rests_within_the_clearance(held, off, angle, push, push_angle):
+    """The block's hole aligned within the clearance: it threads; pushed sideways (up to
+    1 cm of command) at the peg's base and let go, it rests within the clearance of the
+    axis. (Aligned: the block where it really is, which is off the tool by the grasp.)"""
+    sc0, above, half, top = held
+    sc = copy.deepcopy(sc0)
+    sim = sc.sim
+    grasp = sc.block_xyz() - above
+    d = np.array([off * math.cos(angle) - grasp[0], off * math.sin(angle) - grasp[1], 0.0])
     base = above + d
     base[2] = sim.cfg.world.table_height + half + 0.005
     sc.move_tool(above + d, 1.0)

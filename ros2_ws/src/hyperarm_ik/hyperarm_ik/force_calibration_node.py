@@ -19,7 +19,7 @@ from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import declare_robot_description, run_node
 
 from .force.calibration import (CalibrationError, CalibrationRun, calibration_poses,
-                                fit_calibration, save_calibration)
+                                fit_calibration, fit_friction, save_calibration)
 from .force.law import GravityModel, Payload
 from .kinematics import Kinematics
 from .ros_conversions import JointStateInput
@@ -70,11 +70,12 @@ class CalibrationNode(Node):
         q = self._cache.positions(names)
         qa = q[self._arm_idx]
         effort = np.array([self._cache.effort[n] for n in self._arm])
+        velocity = np.array([self._cache.velocity.get(n, 0.0) for n in self._arm])
         now = self.get_clock().now().nanoseconds * 1e-9
         try:
             if self._run is None:
                 self._run = self._start(q)
-            goal = self._run.step(now, qa, effort)
+            goal = self._run.step(now, qa, effort, velocity)
         except CalibrationError as exc:
             raise SystemExit(f"hybrid_force_calibrate: {exc}") from None
         if goal is not None:
@@ -112,11 +113,24 @@ class CalibrationNode(Node):
         model = np.array(model)
         measured = run.efforts()
         cal = fit_calibration(self._arm, model, measured)
+        # Coulomb friction from the moves between the poses (against the full dynamics:
+        # inertia while speeding up and slowing down would hide it)
+        qs, vs, acc, es = run.moving_samples()
+        if len(qs):
+            def chain(x: np.ndarray, rest: np.ndarray) -> np.ndarray:   # arm -> chain rows
+                out = np.repeat(rest[None, :], len(x), axis=0)
+                out[:, self._arm_idx] = x
+                return out
+            still = np.zeros_like(q)                  # the rail (if any) at rest
+            tm = np.array([self._gravity.inverse_dynamics(a, b, c, self._payload)[
+                self._arm_idx] for a, b, c in zip(chain(qs, q), chain(vs, still),
+                                                  chain(acc, still))])
+            cal = fit_friction(cal, self._arm, tm, es, vs)
         save_calibration(cal, self._p["output_file"])
         before = float(np.sqrt(np.mean((measured - model) ** 2)))
         after = float(np.sqrt(np.mean((cal.correct(self._arm, measured) - model) ** 2)))
         fitted = ", ".join(f"{n} x{c.scale:.3f} {c.offset:+.3f}" + ("" if c.identified else "*")
-                           for n, c in cal.joints.items())
+                           + f" friction {c.friction:.3f}" for n, c in cal.joints.items())
         self.get_logger().info(f"wrote {self._p['output_file']}: torque RMS error "
                                f"{before:.4f} -> {after:.4f} N·m; {fitted} (* offset only)")
         raise SystemExit(0)

@@ -463,3 +463,36 @@ def test_calibration_fit_does_not_trade_scale_for_offset_on_a_narrow_spread():
     assert j2.identified and abs(j2.scale - 1 / 1.02) < 0.004 and abs(j2.offset) < 0.01, j2
     j1 = cal.joints["joint1"]
     assert not j1.identified and j1.scale == 1.0 and j1.offset == 0.0, j1
+
+
+def test_friction_fit_and_compensation(tmp_path):
+    """Coulomb friction: fitted per joint from moving samples against the model torques
+    (median of sign(v) (corrected - model)), subtracted from a moving joint's effort only;
+    a joint without enough moving samples keeps friction 0; the file keeps it."""
+    from hyperarm_ik.force.calibration import FRICTION_VELOCITY, JointCalibration, fit_friction
+
+    rng = np.random.default_rng(3)
+    names = ["joint1", "joint2", "joint3"]
+    cal = TorqueCalibration({"joint2": JointCalibration(scale=1.1, offset=0.01)})
+    fc = np.array([0.04, 0.03, 0.0])
+    v = rng.uniform(-0.5, 0.5, (300, 3))
+    v[:, 0] = np.where(np.abs(v[:, 0]) < 0.05, 0.1, v[:, 0])     # joint1 always moving
+    v[:, 2] = 0.0                                                # joint3 never
+    model = rng.normal(0.0, 1.0, (300, 3))
+    true = model + np.sign(v) * fc + rng.normal(0.0, 0.003, (300, 3))
+    measured = true.copy()
+    measured[:, 1] = 1.1 * true[:, 1] + 0.01                    # joint2's scale and offset
+    fitted = fit_friction(cal, names, model, measured, v)
+    got = [fitted.joints[n].friction for n in names]
+    assert abs(got[0] - 0.04) < 0.002 and abs(got[1] - 0.03) < 0.002 and got[2] == 0.0
+    assert fitted.joints["joint2"].scale == 1.1                  # the rest kept
+    save_calibration(fitted, tmp_path / "cal.yaml")
+    back = load_calibration(tmp_path / "cal.yaml", names)
+    assert back.joints["joint1"].friction == pytest.approx(got[0], abs=1e-6)
+    slow = np.array([FRICTION_VELOCITY / 2, -0.3, 0.0])
+    out = fitted.correct(names, np.array([1.0, 1.1 + 0.01, 1.0]), slow)
+    assert np.allclose(out, [1.0, 1.0 + got[1], 1.0])              # only joint2 moves
+    with pytest.raises(CalibrationError, match="friction"):
+        fit_friction(cal, names, model[:, :2], measured, v)
+    with pytest.raises(CalibrationError, match="friction"):
+        JointCalibration(friction=-0.1)

@@ -33,7 +33,11 @@ velocities) are neglected: below 0.05 m/s² for the shipped motions (0.27 rad/s 
   preloaded with the load at the moment it engages (when the motion starts), so the base
   moves only with changes of that load; its displacement is faded by the ramp. Linearised
   (small displacements), integrated with Newmark's average-acceleration rule
-  (unconditionally stable, no numerical damping).
+  (unconditionally stable, no numerical damping). The reaction is evaluated at the last
+  step's state (where the joints' backward-difference velocity and acceleration are
+  consistent), and, as the root's motion above, without the products of the base's own
+  velocity with the joints' (pinocchio's RNEA on a fixed base): a few % of the reaction for
+  the shipped mount, more on a very soft one (a free-floating mount drifts).
 """
 from __future__ import annotations
 
@@ -389,17 +393,22 @@ class PassiveMount:
         omega = math.sqrt(float(np.max(self.k / np.diag(mass))))
         n = max(1, math.ceil(h * omega / self.MAX_OMEGA_H))
         hs = h / n
+        # one sub-step as a linear map of x = (δ, δ̇, δ̈) and the load f: x' = T x + G f
         inv = np.linalg.inv(mass + np.diag(0.5 * hs * self.c + 0.25 * hs * hs * self.k))
-        d, v, a = self.displacement, self.velocity, self.acceleration
-        start = self.load
-        for i in range(1, n + 1):
-            f = start + (force - start) * (i / n)
-            pred_v = v + 0.5 * hs * a
-            pred_d = d + hs * v + 0.25 * hs * hs * a
-            a = inv @ (f - self.c * pred_v - self.k * pred_d)
-            v = pred_v + 0.5 * hs * a
-            d = pred_d + 0.25 * hs * hs * a
-        self.displacement, self.velocity, self.acceleration = d, v, a
+        ic, ik = inv * self.c, inv * self.k             # inv @ diag(c), inv @ diag(k)
+        eye = np.eye(6)
+        a_d, a_v = -ik, -(ic + hs * ik)
+        a_a = -(0.5 * hs * ic + 0.25 * hs * hs * ik)
+        tv = np.block([[0.5 * hs * a_d, eye + 0.5 * hs * a_v, 0.5 * hs * (eye + a_a)]])
+        td = np.block([[eye + 0.25 * hs * hs * a_d, hs * eye + 0.25 * hs * hs * a_v,
+                        0.25 * hs * hs * (eye + a_a)]])
+        t = np.vstack([td, tv, np.hstack([a_d, a_v, a_a])])
+        g = np.vstack([0.25 * hs * hs * inv, 0.5 * hs * inv, inv])
+        x = np.r_[self.displacement, self.velocity, self.acceleration]
+        g0, g1 = g @ self.load, g @ (force - self.load)
+        for i in range(1, n + 1):                       # the load interpolated linearly
+            x = t @ x + g0 + (i / n) * g1
+        self.displacement, self.velocity, self.acceleration = x[:6], x[6:12], x[12:]
         self.load = np.array(force, dtype=float)
 
 
@@ -465,6 +474,7 @@ class HostMotion:
         self._root = pin.SE3.Identity()          # T_world_root this step
         self._mount_accel_world = np.zeros(6)
         self._v_before = np.zeros(sim.nk)
+        self._q_before = np.zeros(sim.nk)
         self.base_pose = np.eye(4)               # T_world_base_link, after the last step
         self.reaction = np.zeros(6)              # N, N·m: arm on its mount, root axes
         self._apply(pin.SE3.Identity(), np.zeros(6))
@@ -526,6 +536,7 @@ class HostMotion:
         model (JointSim.step calls this first)."""
         sim = self.sim
         self._v_before = sim.velocity[:sim.nk].copy()
+        self._q_before = sim.position[:sim.nk] + sim.offset[:sim.nk]
         was = self.phase
         if was is Phase.OFF and self._at_rest:
             return
@@ -601,12 +612,18 @@ class HostMotion:
             self.base_pose = pin.updateFramePlacement(model, data, self._base_fid).homogeneous
             return
         v = sim.velocity[:nk]
+        # the reaction at the last step's time, where the backward differences of the
+        # joints' velocity (v at t - dt/2) give a consistent state: (q_prev, v_mid, a)
         a = (v - self._v_before) / dt
+        q_prev = self._q_before
+        v_mid = 0.5 * (v + self._v_before)
+        pin.forwardKinematics(model, data, q)
+        self.base_pose = pin.updateFramePlacement(model, data, self._base_fid).homogeneous
         gravity = model.gravity
         model.gravity = pin.Motion(GRAVITY - self._script.accel[:3], -self._script.accel[3:])
-        pin.rnea(model, data, q, v, a)        # the root accelerating with the script only
+        pin.rnea(model, data, q_prev, v_mid, a)  # the root accelerating with the script only
         model.gravity = gravity
-        self.base_pose = pin.updateFramePlacement(model, data, self._base_fid).homogeneous
+        pin.forwardKinematics(model, data, q_prev)   # rnea leaves data.oMi as it was
         root = self._root
         on_mount = pin.Force(sim.contact_wrench()) - data.oMi[1].act(data.f[1])
         w_local = root.actInv(on_mount).vector

@@ -57,8 +57,9 @@ SUBSTEPS = 4               # dynamic sub-steps per step while any joint is dynam
 LINEARIZATIONS = 6         # quasi-static contact solves per step at most (stops when converged)
 HARD_DEPTH = 0.001         # m: contacts deeper than this are on the stiff branch
 HARD_FACTOR = 50.0         # the stiff branch's stiffness / contact_stiffness
-RELINEARIZE = 1e-3         # rad: re-linearize when the solution is this far from the point
+RELINEARIZE = 1e-4         # rad: re-linearize when the solution is this far from the point
 CONTACT_MARGIN = 0.02      # m: a remembered peg top or side this far apart is still a row
+YIELD_ITERATIONS = 3       # contact solves per step at most while a servo gives way
 
 
 class MockCommandError(MockError):
@@ -186,6 +187,8 @@ class JointSim:
         self.tau_cmd = np.zeros(self.n)
         self._effort_time = np.zeros(self.n)
         self._prof_p, self._prof_v = q0.copy(), np.zeros(self.n)
+        self._yield = np.zeros(self.n)   # rad (m): how far a servo at its limit gave way
+        self._yield_rate = np.zeros(self.n)   # rad/s (m/s), the yield's change last step
         self._ref, self._ref_v = q0.copy(), np.zeros(self.n)
         self.position, self.velocity, self.effort = q0.copy(), np.zeros(self.n), np.zeros(self.n)
         self.offset = np.zeros(self.n)             # hidden (repeatability), arm joints only
@@ -382,6 +385,7 @@ class JointSim:
             fn()
 
     def _restart_profile(self, i: int, keep_goal: bool = False) -> None:
+        self._yield[i] = self._yield_rate[i] = 0.0   # the reference restarts where it is
         self._prof_p[i] = self._ref[i] = self.position[i]
         self._prof_v[i] = self._ref_v[i] = 0.0
         if not keep_goal:
@@ -464,6 +468,9 @@ class JointSim:
         i = self._index[self.rail]
         if self.mode[i] is ControlMode.OFF:
             raise MockCommandError(f"{self.rail} amplifier not enabled: set_torque true first")
+        if self.host is not None and self.host.drives_rail:
+            raise MockCommandError(f"{self.rail} follows the scripted host motion: "
+                                   "host_motion/enable false first")
         self._schedule(lambda: self._home(i))
 
     def _home(self, i: int) -> None:
@@ -491,21 +498,29 @@ class JointSim:
         P = held[:nk]
         D = ~P
         q = self.position[:nk].copy()
-        q[P] = self._ref[:nk][P]
+        self._yield[:nk][~P] = 0.0
+        q[P] = self._ref[:nk][P] + self._yield[:nk][P]
         v = self.velocity[:nk].copy()
         v[P] = self._ref_v[:nk][P]
         a = np.zeros(nk)
         a[P] = ((self._ref_v[:nk] - self._prev_ref_v[:nk]) / dt)[P]
+        yielding = P & (self._yield_rate[:nk] != 0.0)
+        if yielding.any():   # a joint giving way moves at its reference's rate plus its yield's
+            v[yielding] += self._yield_rate[:nk][yielding]
+            a[yielding] = 0.0
+        y_before = self._yield[:nk].copy()
         if D.any():
             q, v = self._dynamics(dt, q, v, a, P, D)
         dq, gen = self._contacts(q, P, v=None)
         tau_id = pin.rnea(self.model, self.data, q + dq + self.offset[:nk], v, a)
         tau = tau_id - gen
-        dq, tau = self._limit_efforts(q, P, dq, gen, tau_id, tau)
+        q, dq, tau, tau_id = self._limit_efforts(dt, q, v, a, P, dq, gen, tau_id, tau)
+        q, dq, tau, tau_id = self._rate_limit(dt, q, v, a, P, dq, tau, tau_id)
         effort = np.zeros(nk)
         effort[P] = tau[P]
         effort[D] = self._applied_torque(D)
         qk = np.clip(q + dq, self.lower[:nk], self.upper[:nk])
+        self._yield_rate[:nk] = (self._yield[:nk] - y_before) / dt
         self.velocity[:nk] = v
         self.position[:nk] = qk
         self.effort[:nk] = effort
@@ -651,25 +666,68 @@ class JointSim:
         # viscous damping plus Coulomb friction, both implicit (the friction as a viscous
         # term c = F_c / max(|v|, FRICTION_VELOCITY), steep near rest: static friction)
         c_d = damping + self.coulomb[:nk][D] / np.maximum(np.abs(v[D]), FRICTION_VELOCITY)
-        mdd = m[np.ix_(D, D)] + h * np.diag(c_d)
+        m_dd = m[np.ix_(D, D)]
+        mdd = m_dd + h * np.diag(c_d)
         rows = self._contact_rows(q) if self.world.state is BlockState.HELD or self._poles \
             else None
         kinv = np.where(P, 1.0 / self.stiffness[:nk], 0.0)
         q0 = q.copy()
+        # the motor's torque-speed line (back-EMF): a current-mode servo exerts at most
+        # stall·(1 - v/v_max) along its motion (v_max, the joint's velocity limit, taken as
+        # its no-load speed), braking beyond it; on the line the torque is implicit in v
+        driven = np.array([self.mode[i] is ControlMode.TORQUE and self._gap[i] == 0.0
+                           for i in np.flatnonzero(D)])
+        stall = self.stall[:nk][D]
+        c_emf = stall / self.vmax[:nk][D]
         for _ in range(SUBSTEPS):
             gen = np.zeros(nk)
+            lhs, tau_s = mdd, tau_d
+            if driven.any():
+                up, down = tau_d > stall - c_emf * v[D], tau_d < -stall - c_emf * v[D]
+                line = driven & (up | down)
+                if line.any():
+                    tau_s = np.where(line, np.where(up, stall, -stall) - c_emf * v[D], tau_d)
+                    lhs = lhs + h * np.diag(np.where(line, c_emf, 0.0))
             if rows is not None:
                 _, jr, p0, owner, tangential, _ = rows
-                f = self._solve_contacts(jr, p0 + jr @ (q - q0), owner, tangential, kinv, v)
+                f = self._solve_contacts(jr, p0 - jr @ (q - q0), owner, tangential, kinv, v)
                 gen = jr.T @ f
+                on = f != 0.0
+                if on.any():   # the contact springs implicit too (stiff branch: 250 kN/m)
+                    jd = jr[on][:, D]
+                    k_q = (jd.T * (1.0 / self._row_comp[on])) @ jd
+                    lhs = lhs + (h * h) * k_q
+                    tau_s = tau_s - h * (k_q @ v[D])
             b = pin.rnea(self.model, self.data, q + self.offset[:nk], v, a)
-            rhs = tau_d + gen[D] - b[D] - c_d * v[D]
-            vd = v[D] + h * np.linalg.solve(mdd, rhs)
+            rhs = tau_s + gen[D] - b[D] - c_d * v[D]
+            vd = v[D] + h * np.linalg.solve(lhs, rhs)
+            if rows is not None:
+                vd = self._impact(jr, p0 - jr @ (q - q0), tangential, D, m_dd, vd, h)
             qd = q[D] + h * vd
             at_limit = (qd <= lo) | (qd >= hi)
             v[D] = np.where(at_limit, 0.0, vd)
             q[D] = np.clip(qd, lo, hi)
         return q, v
+
+    @staticmethod
+    def _impact(jr: np.ndarray, p0: np.ndarray, tangential: np.ndarray, D: np.ndarray,
+                m_dd: np.ndarray, vd: np.ndarray, h: float) -> np.ndarray:
+        """Inelastic impact of the dynamic joints: a normal contact that would end this
+        sub-step deeper than HARD_DEPTH while still approaching loses its approach speed
+        (the impulse of least kinetic energy that stops it, M⁻¹Jᵀλ, λ >= 0), as a block
+        meeting a rigid surface does; a penalty spring alone would let a fast block sink
+        v·sqrt(m/k) deep before pushing it out."""
+        jd = jr[:, D]
+        rate = jd @ vd                              # d(depth)/dt = -rate
+        hit = [i for i in range(len(p0)) if not tangential[i] and rate[i] < 0.0
+               and p0[i] - h * rate[i] > HARD_DEPTH]
+        if not hit:
+            return vd
+        ja = jd[hit]
+        minv_jt = np.linalg.solve(m_dd, ja.T)
+        lam = np.linalg.lstsq(ja @ minv_jt, -rate[hit], rcond=None)[0]
+        lam = np.maximum(lam, 0.0)
+        return vd + minv_jt @ lam
 
     def _contacts(self, q: np.ndarray, P: np.ndarray,
                   v: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
@@ -877,38 +935,44 @@ class JointSim:
             else:
                 groups.append((i, []))
         active = list(range(len(groups)))
-        fixed: set[int] = set()
+        # sliding contacts: their tangential force is mu x their normal force along a
+        # direction u (from the trial force that left the cone); substituted into the
+        # system, so the normal rows are solved with the friction they really get
+        sliding: dict[int, np.ndarray] = {}
         f = np.zeros(m)
-        for _ in range(2 * len(groups) + 2):
-            rows = [i for c in active for i in (groups[c][0], *groups[c][1])]
-            free = [i for i in rows if i not in fixed]
-            held = [i for i in rows if i in fixed]
-            f_new = np.zeros(m)
-            f_new[held] = f[held]
-            f = f_new                                   # rows of dropped contacts: 0
+        for _ in range(4 * len(groups) + 4):
+            free = [i for c in active for i in
+                    ((groups[c][0],) if c in sliding else (groups[c][0], *groups[c][1]))]
+            f = np.zeros(m)                             # rows of dropped contacts: 0
             if not free:
                 break
-            rhs = p0[free]
-            if held:
-                rhs = rhs - a_full[np.ix_(free, held)] @ f[held]
-            f[free] = np.linalg.solve(a_full[np.ix_(free, free)], rhs)
+            a = a_full[np.ix_(free, free)]
+            for c, u in sliding.items():
+                if c in active:
+                    n, t = groups[c]
+                    col = free.index(n)
+                    a[:, col] = a[:, col] + mu * (a_full[np.ix_(free, t)] @ u)
+            f[free] = np.linalg.solve(a, p0[free])
+            for c, u in sliding.items():
+                if c in active:
+                    n, t = groups[c]
+                    f[t] = mu * u * f[n]
             if damp is not None:
                 f[free] -= damp[free]
             # friction first: a tangential force beyond the cone (none if the normal force
-            # pulls) is set on its edge, then the normal forces are judged: a far friction
-            # anchor must not make a real contact look pulling
+            # pulls) makes its contact slide, then the normal forces are judged: a far
+            # friction anchor must not make a real contact look pulling
             changed = False
             for c in active:
                 n, t = groups[c]
-                if not t:
+                if not t or c in sliding:
                     continue
                 cap = mu * max(float(f[n]), 0.0)
                 norm = math.hypot(*(float(f[i]) for i in t))
                 if norm > cap * (1.0 + 1e-9):
-                    f[t] *= cap / norm
-                    if not fixed.issuperset(t):
-                        fixed.update(t)
-                        changed = True
+                    sliding[c] = np.array([float(f[i]) for i in t]) / norm if norm > 0.0 \
+                        else np.zeros(len(t))
+                    changed = True
             if changed:
                 continue
             pulling = [c for c in active if f[groups[c][0]] < 0.0]
@@ -919,24 +983,73 @@ class JointSim:
             active = [c for c in active if c != worst]
         return f
 
-    def _limit_efforts(self, q: np.ndarray, P: np.ndarray, dq: np.ndarray, gen: np.ndarray,
-                       tau_id: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Servos that would exceed their torque limit against a contact yield: they give
-        their limit torque and move freely, the others stay springs. Solves, for the
-        contact forces f and the saturated joints' motion dq_s,
+    def _limit_efforts(self, dt: float, q: np.ndarray, v: np.ndarray, a: np.ndarray,
+                       P: np.ndarray, dq: np.ndarray, gen: np.ndarray, tau_id: np.ndarray,
+                       tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Servos that would exceed their torque limit against a contact give way.
 
-            (I/k_env + J_u K_u⁻¹ J_uᵀ) f + J_s dq_s = p0,   J_sᵀ f = tau_id_s - tau_limit_s
+        A position-class servo's spring rests at its reference plus its yield ``_yield``
+        (a state: where a servo at its limit was pushed back to). A joint whose torque would
+        exceed its limit yields: the linear solve of the contact rows with the saturated
+        joints free (their generalized contact force fixed at tau_id - limit),
 
-        (adding joints that saturate in turn), so the block stays on the surface with a
-        contact force bounded by the servos' limits."""
+            (I/k_env + J_u K_u⁻¹ J_uᵀ) f + J_s dq_s = p0,   J_sᵀ f = tau_id_s - tau_limit_s,
+
+        gives how far they must move; a joint with a yield and torque to spare moves back
+        towards its reference (half its slack per iteration). The yield moves at most
+        ``vmax·dt`` per step (the servo's speed: no fling), and after every change of it the
+        full contact solve (geometry, friction cone, stiff branch) runs again at the new
+        joints, so the forces are the contact's at the position reached: what the limited
+        joints exert, up to the residual of the last iteration (a few iterations per step,
+        converging over the steps; the reported efforts are clipped to the limits).
+
+        Returns the (yielded) undeflected joints, their deflection, the efforts and tau_id."""
         nk = self.nk
         lim = self.limit[:nk]
-        over = P & (np.abs(tau) > lim) & (np.abs(tau_id) <= lim) & (gen != 0.0)
-        if not over.any() or self._contact_rows_used is None:
-            return dq, np.clip(tau, -lim, lim)
+        y = self._yield[:nk]
+        can = P & (np.abs(tau_id) <= lim)          # an under-powered joint is held (not sagging)
+        over = can & (np.abs(tau) > lim) & (gen != 0.0)
+        if not over.any() and not y[P].any():
+            return q, dq, np.clip(tau, -lim, lim), tau_id
+        ref = q - y
+        budget = self.vmax[:nk] * dt                 # the yield's travel left this step
+        stiff = self.stiffness[:nk]
+        for _ in range(YIELD_ITERATIONS):
+            target = y.copy()
+            slack = np.maximum(lim - np.abs(tau), 0.0)
+            back = P & ~over & (y != 0.0)
+            target[back] -= np.sign(y[back]) * np.minimum(np.abs(y[back]),
+                                                         0.5 * slack[back] / stiff[back])
+            if over.any() and self._contact_rows_used is not None:
+                f, dq_s, over = self._yield_solve(P, over, can, tau_id, tau, lim)
+                # the saturated joints end at q + dq_s, their spring at the limit torque
+                target[over] = y[over] + dq_s - (tau_id[over] - np.sign(tau[over])
+                                                 * lim[over]) / stiff[over]
+            change = np.clip(target - y, -budget, budget)
+            change[~P] = 0.0
+            if not np.abs(change).max() > 1e-12:
+                break
+            budget = budget - np.abs(change)
+            y += change
+            q = ref + y
+            dq, gen = self._contacts(q, P, v=None)
+            tau_id = pin.rnea(self.model, self.data, q + dq + self.offset[:nk], v, a)
+            tau = tau_id - gen
+            can = P & (np.abs(tau_id) <= lim)
+            over = can & (np.abs(tau) > lim) & (gen != 0.0)
+        return q, dq, np.clip(tau, -lim, lim), tau_id
+
+    def _yield_solve(self, P: np.ndarray, over: np.ndarray, can: np.ndarray,
+                     tau_id: np.ndarray, tau: np.ndarray, lim: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The linear solve of :meth:`_limit_efforts` on the last contact rows (adding
+        joints that saturate in turn): the contact forces, the saturated joints' motion
+        and which joints are saturated."""
+        nk = self.nk
         jr, p0, _ = self._contact_rows_used
         m = len(p0)
         sign = np.sign(tau)
+        f, dq_s = np.zeros(m), np.zeros(int(over.sum()))
         for _ in range(nk):
             kinv_u = np.where(P & ~over, 1.0 / self.stiffness[:nk], 0.0)
             js = jr[:, over]
@@ -947,21 +1060,36 @@ class JointSim:
             sol = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
             f, dq_s = sol[:m], sol[m:]
             tau_new = tau_id - jr.T @ f
-            newly = P & ~over & (np.abs(tau_new) > lim) & (np.abs(tau_id) <= lim)
+            newly = can & ~over & (np.abs(tau_new) > lim)
             if not newly.any():
                 break
             sign = np.where(newly, np.sign(tau_new), sign)
-            over |= newly
-        dq = kinv_u * (jr.T @ f)
-        dq[over] = dq_s
-        if self._last_rows is not None:
-            block = self._last_rows[4]
-            self.contact_force = np.asarray(self._row_dirs)[block].T @ f[block] \
-                if block.any() else np.zeros(3)
-            self._last_rows = (*self._last_rows[:3], f, block)
-            if self._poles:
-                self._set_link_contacts(f)
-        return dq, np.clip(tau_new, -lim, lim)
+            over = over | newly
+        return f, dq_s, over
+
+    def _rate_limit(self, dt: float, q: np.ndarray, v: np.ndarray, a: np.ndarray,
+                    P: np.ndarray, dq: np.ndarray, tau: np.ndarray, tau_id: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """No jump: the position-class joints move at most their velocity limit per step
+        (a spring released from a contact, a yield: at the servo's speed). A faster motion
+        is scaled down along its joint-space direction, the rest kept in the yields
+        (recovered in the next steps), and the contact solved again there, so the pose
+        reached is a contact equilibrium (no unchecked pose in between)."""
+        nk = self.nk
+        if not P.any():
+            return q, dq, tau, tau_id
+        prev = self.position[:nk]
+        move = np.clip(q + dq, self.lower[:nk], self.upper[:nk]) - prev
+        ratio = float((np.abs(move[P]) / (self.vmax[:nk][P] * dt)).max())
+        if not ratio > 1.0:
+            return q, dq, tau, tau_id
+        shift = np.where(P, move * (1.0 / ratio - 1.0), 0.0)
+        self._yield[:nk] += shift
+        q = q + shift
+        dq, gen = self._contacts(q, P, v=None)
+        tau_id = pin.rnea(self.model, self.data, q + dq + self.offset[:nk], v, a)
+        lim = self.limit[:nk]
+        return q, dq, np.clip(tau_id - gen, -lim, lim), tau_id
 
     def _check_underpowered(self, P: np.ndarray, tau_id: np.ndarray) -> None:
         """A current-limited (CURRENT_POSITION) servo whose limit is below its own gravity

@@ -274,7 +274,10 @@ class World:
                 self._memory[name] = ("top", None)
                 continue
             n = self._outward(name, pose)
-            if n is not None and not over:
+            beside = self._memory.get(name, ("", None))[0] == "side" and bottom < top
+            if n is not None and (not over or beside):
+                # (beside and overlapping: the overlap is resolved sideways, along the
+                # normal of the block's feature nearest the axis now, the block may turn)
                 self._memory[name] = ("side", n)
             elif bottom >= top and not over:
                 self._memory.pop(name, None)   # above, over the hole: free (may thread)

@@ -8,13 +8,24 @@ whose gravity torque the poses do not identify (joint1 turns about the vertical:
 keeps ``scale`` 1 and gets its offset only (``identified: false`` in the file). Friction biases one static sample; the
 calibration executable averages each pose approached from both sides.
 
+Coulomb friction: while a joint turns faster than ``FRICTION_VELOCITY`` its servo's
+current also overcomes the friction, ``friction * sign(velocity)`` (N·m), which no wrench
+acts against. An arm held by the force controller is rarely still (the pseudo-goal and the
+null-space posture term keep some joints creeping at a few 0.01 rad/s while it presses),
+so an estimate that ignores this is biased by up to the friction of every creeping joint:
+15-30 % of a 1.6 N press on the mock. The calibration run also records the efforts while
+the joints move between poses; :func:`fit_friction` takes, per joint, the median of
+``sign(v) (tau_measured - tau_model)`` over them, and :meth:`TorqueCalibration.correct`
+subtracts ``friction * sign(v)`` from a moving joint's effort.
+
 File (YAML, written by :func:`save_calibration`, read by :func:`load_calibration`)::
 
     schema_version: 1
     kind: hyperarm_torque_calibration
     joints:
-      joint2: {scale: 1.08, offset: -0.012, identified: true, rms: 0.004, samples: 24}
-Units: N·m.
+      joint2: {scale: 1.08, offset: -0.012, identified: true, rms: 0.004, samples: 24,
+               friction: 0.031}
+``friction`` is optional (default 0: none compensated). Units: N·m.
 """
 from __future__ import annotations
 
@@ -28,8 +39,9 @@ import yaml
 
 from .errors import CalibrationError
 
-__all__ = ["JointCalibration", "TorqueCalibration", "fit_calibration", "save_calibration",
-           "load_calibration", "SCHEMA_VERSION", "KIND"]
+__all__ = ["JointCalibration", "TorqueCalibration", "fit_calibration", "fit_friction",
+           "save_calibration", "load_calibration", "SCHEMA_VERSION", "KIND",
+           "FRICTION_VELOCITY"]
 
 SCHEMA_VERSION = 1
 KIND = "hyperarm_torque_calibration"
@@ -38,6 +50,8 @@ SCALE_PRIOR = 0.2      # std of the scale's prior around 1
 OFFSET_PRIOR = 0.02    # N·m: std of the offset's prior around 0
 IDENTIFIED_SCALE_STD = 0.05   # posterior std of a scale below which the joint is identified
 SCALE_RANGE = (0.5, 2.0)
+FRICTION_VELOCITY = 0.02   # rad/s: a joint faster than this shows its Coulomb friction
+FRICTION_MIN_SAMPLES = 20  # moving samples a joint needs for its friction to be fitted
 
 
 @dataclass(frozen=True)
@@ -47,12 +61,15 @@ class JointCalibration:
     identified: bool = False
     rms: float = 0.0
     samples: int = 0
+    friction: float = 0.0      # N·m, Coulomb friction compensated while moving
 
     def __post_init__(self) -> None:
         if not (SCALE_RANGE[0] <= self.scale <= SCALE_RANGE[1]):
             raise CalibrationError(f"scale {self.scale!r} outside {SCALE_RANGE}")
         if not math.isfinite(self.offset) or abs(self.offset) > 5.0:
             raise CalibrationError(f"offset {self.offset!r} N·m not finite or beyond 5 N·m")
+        if not (math.isfinite(self.friction) and 0.0 <= self.friction <= 5.0):
+            raise CalibrationError(f"friction {self.friction!r} N·m not within 0..5")
 
 
 @dataclass(frozen=True)
@@ -61,24 +78,32 @@ class TorqueCalibration:
 
     joints: Mapping[str, JointCalibration]
 
-    def arrays(self, names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
-        """(scale, offset) in the order of ``names`` (cached per order)."""
+    def arrays(self, names: Sequence[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(scale, offset, friction) in the order of ``names`` (cached per order)."""
         key = tuple(names)
         cache = self.__dict__.setdefault("_cache", {})
         if key not in cache:
             exact = JointCalibration()
             cal = [self.joints.get(n, exact) for n in names]
-            cache[key] = (np.array([c.scale for c in cal]), np.array([c.offset for c in cal]))
+            cache[key] = (np.array([c.scale for c in cal]), np.array([c.offset for c in cal]),
+                          np.array([c.friction for c in cal]))
         return cache[key]
 
-    def correct(self, names: Sequence[str], tau_measured: np.ndarray) -> np.ndarray:
-        """True torques from measured ones: (tau_measured - offset) / scale."""
-        s, b = self.arrays(names)
-        return (np.asarray(tau_measured, dtype=float) - b) / s
+    def correct(self, names: Sequence[str], tau_measured: np.ndarray,
+                velocity: np.ndarray | None = None) -> np.ndarray:
+        """True torques from measured ones: (tau_measured - offset) / scale, less the
+        Coulomb friction ``friction * sign(v)`` of joints faster than FRICTION_VELOCITY
+        (with ``velocity``, rad/s, in the order of ``names``)."""
+        s, b, fc = self.arrays(names)
+        tau = (np.asarray(tau_measured, dtype=float) - b) / s
+        if velocity is not None:
+            v = np.asarray(velocity, dtype=float)
+            tau -= np.where(np.abs(v) > FRICTION_VELOCITY, np.sign(v) * fc, 0.0)
+        return tau
 
     def command(self, names: Sequence[str], tau: np.ndarray) -> np.ndarray:
         """What to command for a true torque ``tau`` (the servo applies scale x command)."""
-        s, _ = self.arrays(names)
+        s = self.arrays(names)[0]
         return np.asarray(tau, dtype=float) / s
 
 
@@ -126,11 +151,45 @@ def fit_calibration(names: Sequence[str], tau_model: np.ndarray, tau_measured: n
     return TorqueCalibration(out)
 
 
+def fit_friction(cal: TorqueCalibration, names: Sequence[str], tau_model: np.ndarray,
+                 tau_measured: np.ndarray, velocity: np.ndarray) -> TorqueCalibration:
+    """``cal`` with each joint's Coulomb friction (N·m) fitted from samples taken while the
+    arm moved without contact: ``tau_model`` (the model's torques at those states: gravity,
+    and inertia if known), ``tau_measured`` and ``velocity`` (rad/s) are (S, n). Per
+    joint, the median of ``sign(v) (corrected - model)`` over its samples faster than
+    FRICTION_VELOCITY (inertia while speeding up and slowing down roughly cancels in the
+    median), at least 0; a joint with fewer than FRICTION_MIN_SAMPLES such samples keeps
+    friction 0 (none compensated)."""
+    tm = np.asarray(tau_model, dtype=float)
+    tr = np.asarray(tau_measured, dtype=float)
+    v = np.asarray(velocity, dtype=float)
+    if tm.ndim != 2 or tm.shape != tr.shape or tm.shape != v.shape or \
+            tm.shape[1] != len(names):
+        raise CalibrationError(f"friction: expected three (samples, {len(names)}) arrays, got "
+                               f"{tm.shape}, {tr.shape} and {v.shape}")
+    if not (np.all(np.isfinite(tm)) and np.all(np.isfinite(tr)) and np.all(np.isfinite(v))):
+        raise CalibrationError("non-finite values in the friction data")
+    corrected = cal.correct(names, tr) if len(tr) else tr
+    out = dict(cal.joints)
+    for i, name in enumerate(names):
+        moving = np.abs(v[:, i]) > FRICTION_VELOCITY
+        base = out.get(name, JointCalibration())
+        fc = 0.0
+        if int(moving.sum()) >= FRICTION_MIN_SAMPLES:
+            d = np.sign(v[moving, i]) * (corrected[moving, i] - tm[moving, i])
+            fc = float(min(max(np.median(d), 0.0), 5.0))
+        out[name] = JointCalibration(scale=base.scale, offset=base.offset,
+                                     identified=base.identified, rms=base.rms,
+                                     samples=base.samples, friction=fc)
+    return TorqueCalibration(out)
+
+
 def save_calibration(cal: TorqueCalibration, path: str | Path) -> None:
     data = {"schema_version": SCHEMA_VERSION, "kind": KIND,
             "joints": {n: {"scale": round(c.scale, 6), "offset": round(c.offset, 6),
                            "identified": c.identified, "rms": round(c.rms, 6),
-                           "samples": c.samples} for n, c in cal.joints.items()}}
+                           "samples": c.samples, "friction": round(c.friction, 6)}
+                       for n, c in cal.joints.items()}}
     Path(path).write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
 
 
@@ -158,12 +217,14 @@ def load_calibration(path: str | Path, known: Sequence[str] | None = None) -> To
             raise CalibrationError(f"{p}: joints.{name}: expected a mapping")
         try:
             vals = {k: raw[k] for k in ("scale", "offset")}
+            vals["friction"] = raw.get("friction", 0.0)
             if any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in vals.values()):
-                raise CalibrationError("scale and offset must be numbers")
+                raise CalibrationError("scale, offset and friction must be numbers")
             out[name] = JointCalibration(scale=float(vals["scale"]), offset=float(vals["offset"]),
                                          identified=bool(raw.get("identified", True)),
                                          rms=float(raw.get("rms", 0.0)),
-                                         samples=int(raw.get("samples", 0)))
+                                         samples=int(raw.get("samples", 0)),
+                                         friction=float(vals["friction"]))
         except KeyError as exc:
             raise CalibrationError(f"{p}: joints.{name}: missing {exc.args[0]}") from exc
         except CalibrationError as exc:
@@ -190,7 +251,10 @@ class CalibrationRun:
     """Sequencing of a calibration (no ROS): for each pose, approach it from above and
     from below (``approach`` rad, friction acts both ways), wait until still, average the
     efforts for ``average`` s, and use the mean of both approaches. ``step`` is called on
-    every joint state and returns the arm goal to command (or None when done)."""
+    every joint state and returns the arm goal to command (or None when done). Given the
+    velocities, the states while some joint moves faster than FRICTION_VELOCITY are kept
+    in ``moving`` (time, q, velocity, effort), for :func:`moving_samples` and
+    :func:`fit_friction`."""
 
     def __init__(self, poses: np.ndarray, approach: float = 0.05, settle: float = 0.5,
                  average: float = 0.5, tolerance: float = 0.003, timeout: float = 10.0) -> None:
@@ -199,6 +263,7 @@ class CalibrationRun:
         self.tolerance, self.timeout = tolerance, timeout
         self.samples: list[list[np.ndarray]] = [[] for _ in range(2 * len(self.poses))]
         self.q_at: list[np.ndarray] = []
+        self.moving: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self._k = 0            # index over (pose, side, phase)
         self._phase_start: float | None = None
         self._reached: float | None = None
@@ -211,9 +276,13 @@ class CalibrationRun:
             q[1:] += self.approach if side == 0 else -self.approach
         return q
 
-    def step(self, now: float, q: np.ndarray, effort: np.ndarray) -> np.ndarray | None:
+    def step(self, now: float, q: np.ndarray, effort: np.ndarray,
+             velocity: np.ndarray | None = None) -> np.ndarray | None:
         if self.done:
             return None
+        if velocity is not None and np.abs(velocity).max() > FRICTION_VELOCITY:
+            self.moving.append((now, np.array(q, dtype=float), np.array(velocity, dtype=float),
+                                np.array(effort, dtype=float)))
         target = self._target()
         if self._phase_start is None:
             self._phase_start = now
@@ -236,6 +305,21 @@ class CalibrationRun:
                     return None
                 return self._target()
         return target
+
+    def moving_samples(self, max_gap: float = 0.05
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(q, velocity, acceleration, effort), each (S, n), of the moving states; the
+        accelerations by central differences of the velocities within runs of states at
+        most ``max_gap`` s apart (a run's first and last state are dropped)."""
+        out: list[list[np.ndarray]] = [[], [], [], []]
+        m = self.moving
+        for i in range(1, len(m) - 1):
+            (t0, _, v0, _), (t1, q1, v1, e1), (t2, _, v2, _) = m[i - 1], m[i], m[i + 1]
+            if 0.0 < t1 - t0 <= max_gap and 0.0 < t2 - t1 <= max_gap:
+                for lst, x in zip(out, (q1, v1, (v2 - v0) / (t2 - t0), e1)):
+                    lst.append(x)
+        n = self.poses.shape[1]
+        return tuple(np.array(x) if x else np.zeros((0, n)) for x in out)  # type: ignore
 
     def efforts(self) -> np.ndarray:
         """(P, n) mean efforts per pose, both approaches averaged."""

@@ -59,6 +59,7 @@ class Output:
     wrench_tool: np.ndarray | None = None
     command: Command | None = None
     q: np.ndarray | None = None          # the joint state the cycle ran on (chain order)
+    dq: np.ndarray | None = None         # its velocities (chain order)
     effort: object = None                # its arm efforts (N·m), for the estimate
 
 
@@ -250,19 +251,19 @@ class ForceController:
                 positions = cmd.q_cmd.tolist()
                 efforts = (cmd.effort_limit if exact else
                            cal.command(self.arm_names, cmd.effort_limit)).tolist()
-        return Output(self.arm_names, positions, efforts, command=cmd, q=q,
+        return Output(self.arm_names, positions, efforts, command=cmd, q=q, dq=dq,
                       effort=effort), event
 
     def estimate(self, out: Output) -> Output:
         """Fill ``out``'s wrench estimate (root and tool0 axes) from its joint state."""
-        est, r = self._estimate(out.q, out.effort, out.command)
+        est, r = self._estimate(out.q, out.effort, out.command, out.dq)
         self.last_estimate, self._last_rotation = est, r
         out.wrench_root = est.wrench
         out.wrench_tool = to_tool(est.wrench, r)[0]
         return out
 
-    def _estimate(self, q: np.ndarray, effort,
-                  cmd: Command | None) -> tuple[WrenchEstimate, np.ndarray]:
+    def _estimate(self, q: np.ndarray, effort, cmd: Command | None,
+                  dq: np.ndarray | None = None) -> tuple[WrenchEstimate, np.ndarray]:
         if cmd is not None:            # the law's kinematics and gravity at this q
             j, r, g, jjt = cmd.jacobian, cmd.rotation, cmd.gravity, cmd.jjt
         else:
@@ -276,8 +277,8 @@ class ForceController:
         if e.shape != g.shape:
             tau = g
         else:
-            tau = e if not self.calibration.joints else \
-                self.calibration.correct(self.arm_names, e)
+            tau = e if not self.calibration.joints else self.calibration.correct(
+                self.arm_names, e, None if dq is None else dq[self.law.arm])
         return self.estimator.update(j, tau, g, jjt), r
 
     def covariance_tool(self) -> np.ndarray | None:

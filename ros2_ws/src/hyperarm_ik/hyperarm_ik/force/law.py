@@ -297,6 +297,20 @@ class GravityModel:
         return tau
 
 
+    def inverse_dynamics(self, q: np.ndarray, v: np.ndarray, a: np.ndarray,
+                         payload: Payload) -> np.ndarray:
+        """Torques (N·m; N on the rail) of the chain moving with velocity ``v`` and
+        acceleration ``a`` at ``q`` (pinocchio RNEA: inertia, Coriolis, gravity), plus the
+        payload's gravity (its inertia is neglected)."""
+        tau = pin.rnea(self.model, self.data, q, v, a).copy()
+        if payload.mass > 0.0:
+            j_tool = pin.computeFrameJacobian(self.model, self.data, q, self.tool_id,
+                                              pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+            rotation = self.data.oMf[self.tool_id].rotation
+            tau += payload_jacobian(j_tool, rotation, payload.com).T @ (payload.mass * self.g)
+        return tau
+
+
 def payload_jacobian(j_tool: np.ndarray, rotation: np.ndarray, com) -> np.ndarray:
     """3 x n linear Jacobian of the point ``com`` (m, tool0) from tool0's LWA Jacobian:
     v_point = v + w x r = J_v - [r]x J_w, r = R com."""
