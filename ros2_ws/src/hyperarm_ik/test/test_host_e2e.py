@@ -208,19 +208,23 @@ def _window(probe: Probe, first_state: int):
 
 def _answered(probe: Probe, first_state: int, wait_for) -> str:
     """Every joint state the node got while enabled was answered by a command, and it got
-    every one the mock sent: the node's counts (diagnostics) against the test's count of the
-    joint states stamped after the enable and at least 50 ms before that diagnostics
-    message was stamped (those had reached the node). The test cannot count the commands
-    themselves: joint_command keeps depth 1, so a burst of them replaces one another in the
-    node's writer, as it should for a setpoint."""
+    every one the mock sent. Compensation is disabled (its counts stop), then the node's
+    counts (diagnostics) are compared with the test's count of the joint states stamped
+    after the enable and at least 100 ms before the disable (those had reached the node).
+    The test cannot count the commands themselves: joint_command keeps depth 1, so a burst
+    of them replaces one another in the node's writer, as it should for a setpoint."""
+    stop = probe.node.get_clock().now().nanoseconds
+    res = probe.call(probe.enable, SetBool.Request(data=False), wait_for)
+    assert res.success, res.message
     t = time.monotonic()
-    wait_for(lambda: probe.diag_time > t, 5.0, what="a fresh host_compensation diagnostics")
+    wait_for(lambda: probe.diag_time > t + 0.05, 5.0,
+             what="a host_compensation diagnostics after the disable")
     with probe.lock:
-        d, cut = dict(probe.diag), probe.diag_stamp - 50_000_000
-        sent = sum(s <= cut for s in probe.state_stamps[first_state:])
+        d = dict(probe.diag)
+        sent = sum(s <= stop - 100_000_000 for s in probe.state_stamps[first_state:])
     cycles, states = int(d["cycles"]), int(d["states"])
     text = f"node answered {cycles}/{states} joint states (the test saw {sent} before)"
-    assert cycles == states and states >= sent, text
+    assert d["enabled"] == "False" and cycles == states and states >= sent, text
     return text
 
 
@@ -279,7 +283,7 @@ def test_tool_stays_in_the_world_under_a_6d_sway(motion, launch, rclpy_context, 
     _to_q0(probe, wait_for, rail=False)
     with probe.lock:
         first_state = len(probe.states)
-        rest = _nearest(probe.hosts, [probe.state_stamps[-1]])[0]
+        rest = probe.hosts[max(probe.hosts)]      # the host at rest: its newest pose
         goal = rest @ kin.forward(np.array([probe.states[-1][1][n] for n in ARM]))
         goal_truth = probe.truth[-1][1]
     res = probe.call(probe.motion, SetBool.Request(data=True), wait_for)
