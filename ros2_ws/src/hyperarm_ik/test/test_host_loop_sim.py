@@ -27,6 +27,7 @@ def _figures(run) -> tuple[float, float, float]:
             math.degrees(float(run["orientation_error"].max())))
 
 
+@pytest.mark.slow
 def test_rail_sweep_on_the_simulated_servos_meets_the_issue_bounds_with_the_lead():
     run = rail_sweep(lead=True)
     rms, worst, deg = _figures(run)
@@ -45,6 +46,7 @@ def test_rail_sweep_on_the_simulated_servos_meets_the_issue_bounds_with_the_lead
     assert rms1 < 0.5 * rms0 and deg1 < 0.5 * deg0, (summary, rms0, deg0)
 
 
+@pytest.mark.slow
 def test_uav_sway_on_the_simulated_robot_meets_the_bounds_both_ways():
     """The mock's ``uav_sway`` (2 cm, 1 cm heave, 5 deg tilt at 0.5 Hz) over its ramp and one
     period: judged by FK of the joint states on the mock's host pose and by its truth."""
