@@ -26,11 +26,12 @@ from hyperarm_description.joints import JointStateCache, JointStateError
 from hyperarm_description.log_throttle import ReasonThrottle
 from hyperarm_description.params import OneOf, ParamSpec, Range, declare_parameters
 from hyperarm_description.qos import qos_for
-from hyperarm_description.ros_main import declare_robot_description, run_node
+from hyperarm_description.ros_main import EXECUTORS, declare_robot_description, run_node
 
 from .errors import IKError
-from .host import (CompensationConfig, Compensator, DelayEstimator, HostState, RailHost,
-                   ReactionModel, Status)
+from .host import (AccelerationEstimator, CompensationConfig, CompensationLoop, Compensator,
+                   DelayEstimator, HostPoseTracker, HostState, RailHost, ReactionModel)
+from .host.reaction import STANDARD_GRAVITY
 from .kinematics import Kinematics
 from .ros_conversions import pose_to_matrix
 
@@ -52,78 +53,78 @@ PARAMETERS: ParamSpec = {
                            "solution is reported unreachable", Range(1e-6, 0.1)),
     "orientation_tolerance": (_C.orientation_tolerance, "rad, likewise for orientation",
                               Range(1e-5, 1.0)),
+    "profile_lead": (_C.profile_lead, "lead each joint's command by the distance its servo's "
+                     "acceleration-limited profile trails a moving goal, v|v|/(2a)", None),
     "stale_timeout": (0.1, "s without joint_states (or host_pose) before compensation stops "
                       "(latched: enable again)", Range(0.01, 10.0)),
     "reaction_acceleration": ("finite_difference", "joint accelerations in the reaction: "
                               "'finite_difference' of the measured velocities, or 'zero'",
                               OneOf(("finite_difference", "zero"))),
     "diagnostics_period": (1.0, "s between diagnostics", Range(0.05, 60.0)),
+    "executor": ("events", "rclpy executor: 'events' (rclpy.experimental.EventsExecutor, the "
+                 "least overhead per message) or 'single' (SingleThreadedExecutor)",
+                 OneOf(EXECUTORS)),
 }
 
 
 class HostCompensationNode(Node):
-    """Thin ROS wrapper around :class:`Compensator` and :class:`ReactionModel`."""
+    """Thin ROS wrapper around :class:`CompensationLoop` and :class:`ReactionModel`."""
 
     def __init__(self, **kwargs) -> None:
         kwargs.setdefault("namespace", contract.DEFAULT_NAMESPACE)
         super().__init__("host_compensation", **kwargs)
         desc = declare_robot_description(self)
         p = declare_parameters(self, PARAMETERS)
-        self._p = p
         arm_desc = dataclasses.replace(desc, variant="arm", rail=None)
+        source = p["host_source"]
+        if source == "auto":
+            source = "rail" if desc.rail is not None else "host_pose"
+        if source == "rail" and desc.rail is None:
+            raise SystemExit("host_compensation: host_source 'rail' needs variant rail_arm")
         try:
             cfg = CompensationConfig(
                 iterations=p["iterations"], speed_scale=p["speed_scale"],
                 limit_margin=p["limit_margin"], max_horizon=p["max_horizon"],
                 position_tolerance=p["position_tolerance"],
                 orientation_tolerance=p["orientation_tolerance"],
-                posture_gain=p["posture_gain"])
-            self._comp = Compensator(Kinematics(arm_desc), cfg)
+                posture_gain=p["posture_gain"], profile_lead=p["profile_lead"])
+            self._loop = CompensationLoop(
+                Compensator(Kinematics(arm_desc), cfg),
+                DelayEstimator(min(p["initial_delay"], p["max_horizon"])),
+                p["stale_timeout"], host_from_states=source == "rail")
             self._reaction = ReactionModel(Kinematics(arm_desc))
         except IKError as exc:
             raise SystemExit(f"host_compensation: {exc}") from exc
-        source = p["host_source"]
-        if source == "auto":
-            source = "rail" if desc.rail is not None else "host_pose"
-        if source == "rail" and desc.rail is None:
-            raise SystemExit("host_compensation: host_source 'rail' needs variant rail_arm")
         self._source = source
         self._rail = RailHost(desc) if source == "rail" else None
         self._rail_name = desc.rail.name if desc.rail is not None else None
         self._arm = list(arm_desc.arm_joint_names)
+        self._arm_set = frozenset(self._arm)
         self._base = desc.base_frame
         self._cache = JointStateCache()
         self._throttle = ReasonThrottle(5.0)
-        self._host: HostState | None = None
-        self._host_time: float | None = None
-        self._host_prev: tuple[float, np.ndarray] | None = None
-        self._enabled = False
-        self._reason = "disabled"
-        self._status = "disabled"
-        self._last_time: float | None = None
-        self._latency = 0.0
-        self._prev_dq: tuple[float, np.ndarray] | None = None
-        self._delay = DelayEstimator(min(p["initial_delay"], p["max_horizon"]))
-        self._cycles = 0
+        self._tracker = HostPoseTracker()
+        self._host_time: float | None = None     # arrival (node clock) of the newest host_pose
+        self._accel = AccelerationEstimator()
+        self._fd = p["reaction_acceleration"] == "finite_difference"
         self._compute = 0.0
-        self._err = (0.0, 0.0)
         self._cmd = self.create_publisher(JointState, contract.JOINT_COMMAND,
                                           qos_for(contract.JOINT_COMMAND))
         self._wrench = self.create_publisher(WrenchStamped, contract.BASE_REACTION,
                                              qos_for(contract.BASE_REACTION))
         self._diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
                                            qos_for(contract.DIAGNOSTICS))
-        states_qos = qos_for(contract.JOINT_STATES)
-        states_qos.depth = 1          # the newest state only: a backlog is a delay
+        # the contract's depth: one command per joint_states message, none skipped
         self.create_subscription(JointState, contract.JOINT_STATES, self._on_joint_states,
-                                 states_qos)
+                                 qos_for(contract.JOINT_STATES))
         self.create_subscription(PoseStamped, contract.HOST_POSE, self._on_host_pose,
                                  qos_for(contract.HOST_POSE))
         self.create_subscription(PoseStamped, contract.HOST_COMP_GOAL, self._on_goal,
                                  qos_for(contract.HOST_COMP_GOAL))
         self.create_service(SetBool, contract.HOST_COMP_ENABLE, self._on_enable)
         self.create_timer(p["diagnostics_period"], self._publish_diagnostics)
-        self.create_timer(min(0.05, p["stale_timeout"] / 2.0), self._check_stale)
+        self.create_timer(min(0.05, p["stale_timeout"] / 2.0),
+                          lambda: self._log(self._loop.check_stale(self._now())))
         self.get_logger().info(f"host_compensation: {desc.variant}, host from {source}; "
                                f"disabled until {contract.HOST_COMP_ENABLE} true")
 
@@ -134,42 +135,37 @@ class HostCompensationNode(Node):
         pose = self._world_pose(msg, "host_pose ignored")
         if pose is None:
             return
-        t = self._now()
-        lin = ang = np.zeros(3)
-        if self._host_prev is not None and t > self._host_prev[0]:
-            dt = t - self._host_prev[0]
-            prev = self._host_prev[1]
-            lin = (pose[:3, 3] - prev[:3, 3]) / dt
-            ang = pin.log3(pose[:3, :3] @ prev[:3, :3].T) / dt
+        now = self._now()
         try:
-            self._host = HostState(pose, lin, ang)
+            self._tracker.update(_seconds(msg.header.stamp) or now, pose)
         except IKError as exc:
             self._warn(f"host_pose ignored: {exc}")
             return
-        self._host_prev, self._host_time = (t, pose), t
+        self._host_time = now
 
     def _on_joint_states(self, msg: JointState) -> None:
+        t0 = time.perf_counter()
         try:
             self._cache.update(msg.name, msg.position, msg.velocity, msg.effort)
         except JointStateError as exc:
             self._warn(f"joint_states ignored: {exc}")
             return
-        if not any(n in self._arm for n in msg.name) or not self._cache.has(self._arm):
-            return
-        t0 = time.perf_counter()
-        now = self._now()
-        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        age = min(max(now - stamp, 0.0), 0.5) if stamp > 0.0 else 0.0   # s, state's age
-        self._latency += 0.1 * (age - self._latency)
         c = self._cache
+        if not any(n in self._arm_set for n in msg.name) or not c.has(self._arm):
+            return
+        now = self._now()
         q = np.array([c.position[n] for n in self._arm])
-        dq = np.array([c.velocity.get(n, 0.0) for n in self._arm])
         host = self._host_state()
-        self._publish_reaction(now, q, dq, host, msg.header.stamp)
-        if self._enabled:
-            self._delay.measured(now - age, q)      # when the joints were there
-            self._cycle(now, host, msg.header.stamp, age)
-        self._last_time = now
+        command, log = self._loop.on_state(now, _seconds(msg.header.stamp), q, host,
+                                           self._tracker.stamp, self._host_time)
+        if command is not None:      # the command first: it is what the loop waits for
+            cmd = JointState()
+            cmd.header.stamp = msg.header.stamp
+            cmd.name = self._arm
+            cmd.position = command.tolist()
+            self._cmd.publish(cmd)
+        self._log(log)
+        self._publish_reaction(now, q, host, msg.header.stamp)
         self._compute = time.perf_counter() - t0
 
     def _host_state(self) -> HostState | None:
@@ -178,44 +174,17 @@ class HostCompensationNode(Node):
                 return None
             return self._rail.state(self._cache.position[self._rail_name],
                                     self._cache.velocity.get(self._rail_name, 0.0))
-        return self._host
-
-    def _cycle(self, now: float, host: HostState | None, stamp, age: float) -> None:
-        """One command: for the host pose when the arm will be there, i.e. the state's
-        age plus the measured delay from a command to the joints reaching it."""
-        if host is None or (self._source == "host_pose" and self._host_time is not None
-                            and now - self._host_time > self._p["stale_timeout"]):
-            self._disable("host pose stale or missing: compensation stopped")
-            return
-        dt = now - self._last_time if self._last_time is not None else 0.01
-        dt = min(max(dt, 1e-3), 0.1)
-        step = self._comp.step(host, age + self._delay.delay, dt)
-        self._cycles += 1
-        self._err = (step.position_error, step.orientation_error)
-        status = step.status.value
-        if status != self._status:
-            if step.status is Status.UNREACHABLE:
-                self.get_logger().warn(step.reason)
-            elif self._status == Status.UNREACHABLE.value:
-                self.get_logger().info(f"goal reachable again: {status}")
-            self._status = status
-            self._reason = step.reason or status
-        cmd = JointState()
-        cmd.header.stamp = stamp
-        cmd.name = list(self._arm)
-        cmd.position = [float(v) for v in step.q]
-        self._cmd.publish(cmd)
-        self._delay.commanded(now, step.q)
+        return self._tracker.state
 
     def _on_goal(self, msg: PoseStamped) -> None:
-        if not self._enabled:
+        if not self._loop.enabled:
             self._warn(f"{contract.HOST_COMP_GOAL} ignored: not enabled")
             return
         goal = self._world_pose(msg, "goal rejected")
         if goal is None:
             return
         try:
-            self._comp.set_goal(goal)
+            self._loop.comp.set_goal(goal)
         except IKError as exc:
             self._warn(f"goal rejected: {exc}")
             return
@@ -237,53 +206,30 @@ class HostCompensationNode(Node):
 
     def _on_enable(self, req: SetBool.Request, res: SetBool.Response) -> SetBool.Response:
         if not req.data:
-            self._disable("disabled on request")
+            self._log(self._loop.disable("disabled on request"))
             res.success, res.message = True, "disabled"
             return res
-        host = self._host_state()
-        fresh = (self._last_time is not None
-                 and self._now() - self._last_time <= self._p["stale_timeout"])
-        if host is None or not fresh or not self._cache.has(self._arm):
-            res.success = False
-            res.message = ("cannot enable: no fresh joint_states" if not fresh else
-                           f"cannot enable: no host pose yet ({self._source})")
-            self.get_logger().error(res.message)
+        q = (np.array([self._cache.position[n] for n in self._arm])
+             if self._cache.has(self._arm) else None)
+        ok, message, goal = self._loop.enable(self._now(), q, self._host_state(), self._source)
+        res.success = ok
+        if not ok:
+            res.message = message
+            self.get_logger().error(message)
             return res
-        q = [self._cache.position[n] for n in self._arm]
-        goal = self._comp.start(q, host)
-        self._delay.reset()
-        self._enabled, self._status, self._reason = True, "tracking", "enabled"
-        res.success = True
         res.message = (f"holding tool0 at {np.round(goal[:3, 3], 4).tolist()} m in "
                        f"{contract.WORLD_FRAME}")
         self.get_logger().info(res.message)
         return res
 
-    def _check_stale(self) -> None:
-        """Joint states stopped while enabled: stop (latched) rather than resume later
-        from an old command."""
-        if self._enabled and self._last_time is not None \
-                and self._now() - self._last_time > self._p["stale_timeout"]:
-            self._disable(f"no joint_states for {self._p['stale_timeout']:g} s: "
-                          "compensation stopped")
-
-    def _disable(self, why: str) -> None:
-        if self._enabled:
-            self.get_logger().warn(f"host compensation off: {why}")
-        self._enabled, self._status, self._reason = False, "disabled", why
-        self._comp.stop()
-
     # -- outputs ----------------------------------------------------------------------------
-    def _publish_reaction(self, now, q, dq, host: HostState | None, stamp) -> None:
-        ddq = None
-        if self._p["reaction_acceleration"] == "finite_difference" and self._prev_dq:
-            dt = now - self._prev_dq[0]
-            if dt > 1e-4:
-                ddq = (dq - self._prev_dq[1]) / dt
-        self._prev_dq = (now, dq)
+    def _publish_reaction(self, now, q, host: HostState | None, stamp) -> None:
+        c = self._cache
+        dq = np.array([c.velocity.get(n, 0.0) for n in self._arm])
+        ddq = self._accel.update(now, dq) if self._fd else None
         r = host.pose[:3, :3] if host is not None else np.eye(3)
         try:
-            w = self._reaction.wrench(q, dq, ddq, gravity_base=r.T @ np.array([0, 0, -9.81]))
+            w = self._reaction.wrench(q, dq, ddq, gravity_base=r.T @ STANDARD_GRAVITY)
         except IKError as exc:
             self._warn(f"reaction skipped: {exc}")
             return
@@ -295,21 +241,23 @@ class HostCompensationNode(Node):
         self._wrench.publish(msg)
 
     def _publish_diagnostics(self) -> None:
-        level = 1 if self._status == "unreachable" else 0
-        values = {"enabled": self._enabled, "status": self._status, "reason": self._reason,
-                  "host_source": self._source, "cycles": self._cycles,
-                  "latency_ms": f"{self._latency * 1e3:.2f}",
-                  "loop_delay_ms": f"{self._delay.delay * 1e3:.2f}",
-                  "compute_ms": f"{self._compute * 1e3:.3f}",
-                  "position_error_m": f"{self._err[0]:.5f}",
-                  "orientation_error_rad": f"{self._err[1]:.5f}"}
-        st = DiagnosticStatus(level=bytes([level]), name="host_compensation",
-                              hardware_id="host_compensation",
-                              message=f"{self._status}: {self._reason}",
+        loop = self._loop
+        values = dict(loop.diagnostics(), host_source=self._source,
+                      compute_ms=f"{self._compute * 1e3:.3f}")
+        st = DiagnosticStatus(level=bytes([1 if loop.status == "unreachable" else 0]),
+                              name="host_compensation", hardware_id="host_compensation",
+                              message=f"{loop.status}: {loop.reason}",
                               values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
         arr = DiagnosticArray(status=[st])
         arr.header.stamp = self.get_clock().now().to_msg()
         self._diag.publish(arr)
+
+    def _log(self, lines) -> None:
+        for level, text in lines:    # one call site per severity (rclpy's rule)
+            if level == "warn":
+                self.get_logger().warn(text)
+            else:
+                self.get_logger().info(text)
 
     def _warn(self, text: str) -> None:
         if (shown := self._throttle.message(text)):
@@ -319,8 +267,12 @@ class HostCompensationNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
 
+def _seconds(stamp) -> float:
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
 def main(args: list[str] | None = None) -> None:
-    run_node(HostCompensationNode, args, parameters=PARAMETERS)
+    run_node(HostCompensationNode, args, executor="events", parameters=PARAMETERS)
 
 
 if __name__ == "__main__":

@@ -1,12 +1,23 @@
-"""E2E: host_compensation holds tool0 in the world while the rail moves (issue 15).
+"""E2E: host_compensation holds tool0 in the world while its host moves (issue 15).
 
-Installed executables over DDS: ``mock_driver`` (rail_arm) and ``host_compensation``. The
-rail is homed (``rail/home``), the arm goes to a posture with tool0 pointing down in front
-of its base, compensation is enabled at the present tool pose, then a test publisher moves
-the rail 0 -> +0.2 -> -0.2 -> 0 m at 0.2 m/s with rail-only joint_command. Judged by FK of
-the measured joint states, rail included: within 3 mm RMS and 8 mm max of the world pose
-and 2 degrees, no unreachable report, one arm command per joint state, and the reaction
-on base_link is published (at rest: the links' weight).
+Installed executables over DDS: ``mock_driver`` (repeatability 0) and ``host_compensation``,
+one launch per scenario:
+
+- rail: on rail_arm the rail is homed (``rail/home``), the arm goes to a posture with tool0
+  pointing down in front of its base, compensation is enabled at the present tool pose,
+  then the mock's host motion ``rail_sweep`` moves the rail (someone else moves it: +-0.2 m
+  at 0.2 m/s, 0.5 m/s^2 at the turnarounds), recorded from its start until it has been at
+  +0.2 m and then at -0.2 m;
+- 6-D sway: on the fixed arm the mock's host motion ``uav_sway`` (base_link sways 2 cm,
+  heaves 1 cm and tilts 5 deg at 0.5 Hz in world), started with ``host_motion/enable``
+  after compensation is enabled on ``host_pose``; recorded over the 2 s ramp and one full
+  period. (``uav_sway_passive``, the passive mount, is not met: docs/host.md.)
+
+Judged two ways: by FK of the measured joint states on the host pose (the rail joint, or the
+``host_pose`` with the joint state's stamp), and by the mock's truth
+(``debug/tool_pose_truth``): within 3 mm RMS and 8 mm max of the world pose and 2 degrees,
+no unreachable report, every joint state the node got answered by a command and none
+missing (the node's diagnostics against the test's count).
 """
 from __future__ import annotations
 
@@ -17,13 +28,14 @@ import time
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import WrenchStamped
+from geometry_msgs.msg import PoseStamped, WrenchStamped
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
 
 from hyperarm_description import contract
 from hyperarm_description.qos import qos_for
 from hyperarm_ik.kinematics import Kinematics, rotation_angle
+from hyperarm_ik.ros_conversions import pose_to_matrix
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
@@ -31,22 +43,43 @@ ARM = list(contract.ARM_JOINTS)
 # tool0 pointing down 0.2 m in front of the base (its wrist stays inside its reach while
 # the base moves +-0.2 m; see test_host_core)
 Q0 = [1.367, 0.62, -1.871, 0.548, 1.726, -1.732, 1.335, -0.596, 0.726]
-RAIL_SPEED = 0.2           # m/s
-WAYPOINTS = [0.0, 0.2, -0.2, 0.0]
-DWELL = 0.3                # s at each turning point (the rail's lag reaches it)
+def _ns(stamp) -> int:
+    return stamp.sec * 10**9 + stamp.nanosec
 
 
-def _rail_profile(t: float) -> float:
-    """Rail setpoint (m) at t (s): the waypoints at RAIL_SPEED, DWELL s at each."""
-    for a, b in zip(WAYPOINTS, WAYPOINTS[1:]):
-        d = abs(b - a) / RAIL_SPEED
-        if t <= d:
-            return a + math.copysign(RAIL_SPEED * t, b - a)
-        t -= d
-        if t <= DWELL:
-            return b
-        t -= DWELL
-    return WAYPOINTS[-1]
+def _matrix(msg: PoseStamped) -> np.ndarray:
+    o = msg.pose.orientation
+    n = math.sqrt(o.x * o.x + o.y * o.y + o.z * o.z + o.w * o.w)
+    o.x, o.y, o.z, o.w = o.x / n, o.y / n, o.z / n, o.w / n
+    return pose_to_matrix(msg.pose)
+
+
+def _nearest(poses: dict[int, np.ndarray], stamps) -> list:
+    """For each joint-state stamp (ns), the host pose of the same mock tick: the newest one
+    stamped at or before it (the mock publishes a host pose per simulation step, then the
+    tick's joint state; in a catch-up tick of several steps the stamps are the wall-clock
+    times of publication), None when none is within 20 ms."""
+    keys = np.array(sorted(poses))
+    out = []
+    for s in stamps:
+        i = int(np.searchsorted(keys, s, side="right")) - 1
+        out.append(poses[int(keys[i])] if i >= 0 and s - int(keys[i]) < 20_000_000 else None)
+    return out
+
+
+def _errors(goal: np.ndarray, poses) -> tuple[float, float, float]:
+    """RMS and max position error (m), max orientation error (deg) of poses vs goal."""
+    p = np.array([np.linalg.norm(t[:3, 3] - goal[:3, 3]) for t in poses])
+    o = max(rotation_angle(goal[:3, :3], t[:3, :3]) for t in poses)
+    return float(np.sqrt(np.mean(p ** 2))), float(p.max()), math.degrees(o)
+
+
+def _judge(what: str, goal: np.ndarray, poses) -> str:
+    rms, worst, deg = _errors(goal, poses)
+    text = (f"{what}: {len(poses)} poses, RMS {rms * 1e3:.2f} mm, max {worst * 1e3:.2f} mm, "
+            f"{deg:.3f} deg")
+    assert rms < 3e-3 and worst < 8e-3 and deg < 2.0, text
+    return text
 
 
 class Probe:
@@ -59,33 +92,53 @@ class Probe:
                          context=context)
         self.lock = threading.Lock()
         self.states: list[tuple[float, dict]] = []
-        self.commands: list[float] = []
+        self.state_stamps: list[int] = []
+        self.commands: set[int] = set()     # the stamps of the arm commands (their state's)
         self.reactions: list[np.ndarray] = []
+        self.truth: list[tuple[int, np.ndarray]] = []    # (stamp ns, tool0 in world)
+        self.hosts: dict[int, np.ndarray] = {}            # stamp ns -> base_link in world
         self.homed = False
         self.diag: dict = {}
+        self.diag_time = 0.0
+        self.diag_stamp = 0
         n = self.node
         n.create_subscription(JointState, contract.JOINT_STATES, self._on_state,
                               qos_for(contract.JOINT_STATES))
-        n.create_subscription(JointState, contract.JOINT_COMMAND, self._on_command,
-                              qos_for(contract.JOINT_COMMAND))
+        deep = qos_for(contract.JOINT_COMMAND)
+        deep.depth = 200      # the test counts every command: it must not drop any itself
+        n.create_subscription(JointState, contract.JOINT_COMMAND, self._on_command, deep)
         n.create_subscription(WrenchStamped, contract.BASE_REACTION, self._on_reaction,
                               qos_for(contract.BASE_REACTION))
+        keep = qos_for(contract.HOST_POSE)
+        keep.depth = 200      # every pose: the test matches them to joint states by stamp
+        n.create_subscription(PoseStamped, contract.HOST_POSE, self._on_host, keep)
+        n.create_subscription(PoseStamped, contract.TOOL_POSE_TRUTH, self._on_truth, keep)
         n.create_subscription(DiagnosticArray, contract.DIAGNOSTICS, self._on_diag,
                               qos_for(contract.DIAGNOSTICS))
         self.cmd = n.create_publisher(JointState, contract.JOINT_COMMAND,
                                       qos_for(contract.JOINT_COMMAND))
         self.home = n.create_client(Trigger, contract.RAIL_HOME)
         self.enable = n.create_client(SetBool, contract.HOST_COMP_ENABLE)
+        self.motion = n.create_client(SetBool, contract.HOST_MOTION_ENABLE)
         executor.add_node(n)
 
     def _on_state(self, msg: JointState) -> None:
         with self.lock:
             self.states.append((time.monotonic(), dict(zip(msg.name, msg.position))))
+            self.state_stamps.append(_ns(msg.header.stamp))
 
     def _on_command(self, msg: JointState) -> None:
         if list(msg.name) == ARM:
             with self.lock:
-                self.commands.append(time.monotonic())
+                self.commands.add(_ns(msg.header.stamp))
+
+    def _on_host(self, msg: PoseStamped) -> None:
+        with self.lock:
+            self.hosts[_ns(msg.header.stamp)] = _matrix(msg)
+
+    def _on_truth(self, msg: PoseStamped) -> None:
+        with self.lock:
+            self.truth.append((_ns(msg.header.stamp), _matrix(msg)))
 
     def _on_reaction(self, msg: WrenchStamped) -> None:
         f, t = msg.wrench.force, msg.wrench.torque
@@ -96,6 +149,8 @@ class Probe:
         for st in msg.status:
             if st.name == "host_compensation":
                 self.diag = {kv.key: kv.value for kv in st.values}
+                self.diag_time = time.monotonic()
+                self.diag_stamp = _ns(msg.header.stamp)
             if any(kv.key == "homed" and kv.value == "true" for kv in st.values):
                 self.homed = True
 
@@ -117,62 +172,149 @@ class Probe:
         self.cmd.publish(msg)
 
 
-@pytest.mark.xfail(strict=False, reason="issue 15: the issue's bounds (3 mm RMS, 8 mm max, "
-                   "2 deg) are not met yet on a loaded 2-core machine (measured 3.6-17 mm "
-                   "RMS, 9-50 mm max: the node missed half or more of the joint_states, "
-                   "docs/host.md)")
-def test_tool_stays_in_the_world_while_the_rail_moves(launch, rclpy_context, executor,
-                                                      wait_for):
-    mock = launch("hyperarm_driver", "mock_driver", params={"variant": "rail_arm"})
-    comp = launch("hyperarm_ik", "host_compensation", params={"variant": "rail_arm"})
-    probe = Probe(rclpy_context, executor)
-    kin = Kinematics(variant="rail_arm")
-    wait_for(lambda: probe.latest() is not None and "rail" in probe.latest(), 30.0,
-             what="rail_arm joint_states")
-    res = probe.call(probe.home, Trigger.Request(), wait_for)
-    assert res.success, res.message
-    wait_for(lambda: probe.homed, 20.0, what="rail homed (mock diagnostics)")
+def _start(launch, probe_args, variant: str, wait_for, **mock_params):
+    # the mock on simulated time at 1x (one 10 ms step per tick, /clock): on a loaded machine
+    # the simulation slows down instead of catching up in bursts of steps that all use one
+    # arm command (what a real robot never does); the node runs on that clock
+    mock = launch("hyperarm_driver", "mock_driver", params={
+        "variant": variant, "repeatability": 0.0, "sim_speed": 1.0, **mock_params})
+    comp = launch("hyperarm_ik", "host_compensation", params={
+        "variant": variant, "diagnostics_period": 0.2, "use_sim_time": True})
+    probe = Probe(*probe_args)
+    wait_for(lambda: probe.latest() is not None, 30.0, what=f"{variant} joint_states")
+    return mock, comp, probe
 
+
+def _to_q0(probe: Probe, wait_for, rail: bool) -> None:
     def at_q0():
         q = probe.latest()
-        return max(abs(q[n] - v) for n, v in zip(ARM, Q0)) < 2e-3 and abs(q["rail"]) < 1e-3
+        return max(abs(q[n] - v) for n, v in zip(ARM, Q0)) < 2e-3 and (
+            not rail or abs(q["rail"]) < 1e-3)
 
     probe.send(ARM, Q0)
     wait_for(at_q0, 15.0, period=0.05, what="arm at the start posture")
-    wait_for(lambda: len(probe.reactions) > 0, 10.0, what="base_reaction")
-    res = probe.call(probe.enable, SetBool.Request(data=True), wait_for)
+    wait_for(lambda: len(probe.reactions) > 0 and len(probe.truth) > 0, 10.0,
+             what="base_reaction and the tool truth")
+    answers = []
+
+    def enabled():         # the node may not have its first host pose yet (discovery)
+        answers.append(probe.call(probe.enable, SetBool.Request(data=True), wait_for))
+        return answers[-1].success
+
+    wait_for(enabled, 15.0, period=0.2, what="host_compensation enabled")
+
+
+def _window(probe: Probe, first_state: int):
+    """(states, their stamps, truth poses, span s) from ``first_state`` on."""
+    with probe.lock:
+        states = [q for _t, q in probe.states[first_state:]]
+        stamps = probe.state_stamps[first_state:]
+        truth = [m for st, m in probe.truth if st >= stamps[0]]
+        span = probe.states[-1][0] - probe.states[first_state][0]
+    return states, stamps, truth, span
+
+
+def _answered(probe: Probe, first_state: int, wait_for) -> str:
+    """Every joint state the node got while enabled was answered by a command, and it got
+    every one the mock sent. Compensation is disabled (its counts stop), then the node's
+    counts (diagnostics) are compared with the test's count of the joint states stamped
+    after the enable and at least 100 ms (simulated) before the disable (those had reached
+    the node).
+    The test cannot count the commands themselves: joint_command keeps depth 1, so a burst
+    of them replaces one another in the node's writer, as it should for a setpoint."""
+    with probe.lock:
+        stop = probe.state_stamps[-1]          # the mock's clock (simulated time)
+    res = probe.call(probe.enable, SetBool.Request(data=False), wait_for)
     assert res.success, res.message
+    t = time.monotonic()
+    wait_for(lambda: probe.diag_time > t + 0.05, 5.0,
+             what="a host_compensation diagnostics after the disable")
+    with probe.lock:
+        d = dict(probe.diag)
+        sent = sum(s <= stop - 100_000_000 for s in probe.state_stamps[first_state:])
+    cycles, states = int(d["cycles"]), int(d["states"])
+    text = f"node answered {cycles}/{states} joint states (the test saw {sent} before)"
+    assert d["enabled"] == "False" and cycles == states and states >= sent, text
+    return text
+
+
+def _check_clean(mock, comp) -> None:
+    out = comp.output()
+    assert "unreachable" not in out, out[-2000:]
+    assert "Traceback" not in mock.output() + out
+
+
+def test_tool_stays_in_the_world_while_the_rail_moves(launch, rclpy_context, executor,
+                                                      wait_for):
+    mock, comp, probe = _start(launch, (rclpy_context, executor), "rail_arm", wait_for,
+                               host_motion="rail_sweep")
+    kin = Kinematics(variant="rail_arm")
+    res = probe.call(probe.home, Trigger.Request(), wait_for)
+    assert res.success, res.message
+    wait_for(lambda: probe.homed, 20.0, what="rail homed (mock diagnostics)")
+    _to_q0(probe, wait_for, rail=True)
 
     def tool(q: dict) -> np.ndarray:
         return kin.forward(np.array([q[n] for n in kin.joint_names]))
 
     goal = tool(probe.latest())
     with probe.lock:
-        first_state, first_cmd = len(probe.states), len(probe.commands)
-    duration = sum(abs(b - a) / RAIL_SPEED + DWELL for a, b in zip(WAYPOINTS, WAYPOINTS[1:]))
-    t0 = time.monotonic()
-    while (t := time.monotonic() - t0) < duration + 0.5:
-        probe.send(["rail"], [_rail_profile(t)])
-        time.sleep(0.01)
-    with probe.lock:
-        states = [q for _t, q in probe.states[first_state:]]
-        span = probe.states[-1][0] - probe.states[first_state][0]
-        n_cmd = len(probe.commands) - first_cmd
+        first_state = len(probe.states)
+        goal_truth = probe.truth[-1][1]
+    res = probe.call(probe.motion, SetBool.Request(data=True), wait_for)
+    assert res.success, res.message
+
+    def swept():          # +0.2 m reached, then -0.2 m
+        with probe.lock:
+            rails = [q["rail"] for _t, q in probe.states[first_state:]]
+        top = next((i for i, r in enumerate(rails) if r > 0.199), None)
+        return top is not None and min(rails[top:]) < -0.199
+
+    wait_for(swept, 15.0, period=0.05, what="the rail sweep to +0.2 m, then to -0.2 m")
+    states, stamps, truth, span = _window(probe, first_state)
     rails = np.array([q["rail"] for q in states])
-    poses = [tool(q) for q in states]
-    perr = np.array([np.linalg.norm(p[:3, 3] - goal[:3, 3]) for p in poses])
-    oerr = np.array([rotation_angle(goal[:3, :3], p[:3, :3]) for p in poses])
-    rms = float(np.sqrt(np.mean(perr ** 2)))
-    rate = n_cmd / span
-    summary = (f"host e2e: {len(states)} states, tool error RMS {rms * 1e3:.2f} mm, max "
-          f"{perr.max() * 1e3:.2f} mm, orientation max {math.degrees(oerr.max()):.3f} deg; "
-          f"{n_cmd} arm commands in {span:.2f} s ({rate:.0f} Hz); rail {rails.min():.4f}.."
-          f"{rails.max():.4f} m; node: {probe.diag}")
+    summary = "; ".join([
+        _judge("FK of the joint states", goal, [tool(q) for q in states]),
+        _judge("mock truth", goal_truth, truth),
+        _answered(probe, first_state, wait_for), f"{len(states) / span:.0f} Hz states",
+        f"rail {rails.min():.4f}..{rails.max():.4f} m", f"node: {probe.diag}"])
     print(summary)
-    assert rails.max() > 0.199 and rails.min() < -0.199, (rails.min(), rails.max())
-    assert rms < 3e-3 and perr.max() < 8e-3, summary
-    assert math.degrees(oerr.max()) < 2.0, summary
-    assert n_cmd >= 0.9 * len(states), (n_cmd, len(states))
-    out = comp.output()
-    assert "unreachable" not in out, out[-2000:]
-    assert "Traceback" not in mock.output() + out
+    assert rails.max() > 0.199 and rails.min() < -0.199, summary
+    _check_clean(mock, comp)
+
+
+@pytest.mark.parametrize("motion", ["uav_sway"])
+def test_tool_stays_in_the_world_under_a_6d_sway(motion, launch, rclpy_context, executor,
+                                                 wait_for):
+    mock, comp, probe = _start(launch, (rclpy_context, executor), "arm", wait_for,
+                               host_motion=motion)
+    kin = Kinematics(variant="arm")
+    wait_for(lambda: len(probe.hosts) > 0, 10.0, what="host_pose")
+    _to_q0(probe, wait_for, rail=False)
+    with probe.lock:
+        first_state = len(probe.states)
+        rest = probe.hosts[max(probe.hosts)]      # the host at rest: its newest pose
+        goal = rest @ kin.forward(np.array([probe.states[-1][1][n] for n in ARM]))
+        goal_truth = probe.truth[-1][1]
+    res = probe.call(probe.motion, SetBool.Request(data=True), wait_for)
+    assert res.success, res.message
+    t0 = time.monotonic()
+    wait_for(lambda: time.monotonic() - t0 > 4.2, 10.0, period=0.1,
+             what="the 2 s ramp and one 2 s period of sway")
+    states, stamps, truth, span = _window(probe, first_state)
+    with probe.lock:
+        pairs = [(h, q) for h, q in zip(_nearest(probe.hosts, stamps), states)
+                 if h is not None]
+    assert len(pairs) >= 0.5 * len(states), (len(pairs), len(states))   # enough to judge
+    poses = [h @ kin.forward(np.array([q[n] for n in ARM])) for h, q in pairs]
+    sway = max(np.linalg.norm(h[:3, 3] - rest[:3, 3]) for h, _q in pairs)
+    tilt = max(rotation_angle(rest[:3, :3], h[:3, :3]) for h, _q in pairs)
+    summary = "; ".join([
+        _judge("FK of the joint states on host_pose", goal, poses),
+        _judge("mock truth", goal_truth, truth),
+        _answered(probe, first_state, wait_for), f"{len(states) / span:.0f} Hz states",
+        f"host moved {sway * 1e3:.1f} mm, tilted {math.degrees(tilt):.2f} deg",
+        f"node: {probe.diag}"])
+    print(summary)
+    assert sway > 0.019 and math.degrees(tilt) > 4.9, summary      # the whole sway ran
+    _check_clean(mock, comp)

@@ -89,7 +89,7 @@ def test_enable_goal_and_host_pose_rules(rclpy_context, executor, wait_for):
         for _ in range(3):
             host.publish(_pose(contract.WORLD_FRAME))
             send_state()
-        wait_for(lambda: node._host is not None, 5.0, what="host pose taken")
+        wait_for(lambda: node._tracker.state is not None, 5.0, what="host pose taken")
         res = call(True)
         assert res.success, res.message
         wait_for(lambda: (send_state(), commands)[1], 5.0, period=0.02, what="arm commands")
@@ -97,13 +97,13 @@ def test_enable_goal_and_host_pose_rules(rclpy_context, executor, wait_for):
         bad = _pose(contract.WORLD_FRAME, x=math.nan)
         goal.publish(bad)
         goal.publish(_pose(contract.WORLD_FRAME, w=0.5))   # not a unit quaternion
-        before = node._comp.goal.copy()
+        before = node._loop.comp.goal.copy()
         # the host moves 2 cm along x: the command moves to keep the tool in the world
         for i in range(40):
             host.publish(_pose(contract.WORLD_FRAME, x=0.0005 * i))
             send_state()
             time.sleep(0.01)
-        np.testing.assert_allclose(node._comp.goal, before)
+        np.testing.assert_allclose(node._loop.comp.goal, before)
         wait_for(lambda: np.abs(np.array(commands[-1]) - Q0).max() > 0.01, 5.0,
                  what="the command compensating the host motion")
         assert call(False).success

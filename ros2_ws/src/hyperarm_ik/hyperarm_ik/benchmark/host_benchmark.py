@@ -6,7 +6,11 @@
    ``host_compensation`` (rail_arm) in its own process, driven ping-pong by a probe (one
    joint state with a unique stamp, wait for the command carrying that stamp): p50, p90, p99.
 
+3. ``--plots DIR``: the PNG figures of docs/host.md (tool error, reaction over time) from
+   the mock's simulation (``host_plots``), instead of the timings.
+
 Usage: host_benchmark [--cycles N] [--samples N] [--only core|latency] [--domain D]
+                      [--plots DIR]
 """
 from __future__ import annotations
 
@@ -51,7 +55,7 @@ def bench_latency(samples: int, domain: int) -> tuple[float, float, float]:
     import rclpy
     from ament_index_python.packages import get_package_prefix
     from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.experimental import EventsExecutor
     from rclpy.node import Node
     from sensor_msgs.msg import JointState
     from std_srvs.srv import SetBool
@@ -67,14 +71,16 @@ def bench_latency(samples: int, domain: int) -> tuple[float, float, float]:
     os.environ.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     ctx = Context()
     rclpy.init(context=ctx, domain_id=domain)
-    ex = SingleThreadedExecutor(context=ctx)
+    ex = EventsExecutor(context=ctx)      # the probe's own overhead stays small
     node = Node("host_benchmark", namespace=contract.DEFAULT_NAMESPACE, context=ctx)
     got: dict[int, float] = {}
     lock = threading.Lock()
+    arrived = threading.Event()
 
     def on_cmd(msg: JointState) -> None:
         with lock:
             got[msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec] = time.monotonic()
+        arrived.set()
 
     node.create_subscription(JointState, contract.JOINT_COMMAND, on_cmd,
                              qos_for(contract.JOINT_COMMAND))
@@ -102,7 +108,8 @@ def bench_latency(samples: int, domain: int) -> tuple[float, float, float]:
         while not (v := cond()):
             if time.monotonic() > deadline:
                 raise RuntimeError(f"timed out waiting for {what}\n{log.read_text()[-2000:]}")
-            time.sleep(0.002)
+            arrived.wait(0.002)     # woken by a command's arrival
+            arrived.clear()
         return v
 
     try:
@@ -140,7 +147,15 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--samples", type=int, default=300)
     ap.add_argument("--only", choices=("core", "latency"))
     ap.add_argument("--domain", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", "0")))
+    ap.add_argument("--plots", type=Path, metavar="DIR",
+                    help="write the PNG figures into DIR (e.g. docs/benchmarks/img) and exit")
     a = ap.parse_args(argv)
+    if a.plots is not None:
+        from .host_plots import write_plots
+
+        for path in write_plots(a.plots):
+            print(f"wrote {path}")
+        return
     print(f"load average {os.getloadavg()[0]:.1f}")
     if a.only in (None, "core"):
         med, p90 = bench_core(a.cycles)

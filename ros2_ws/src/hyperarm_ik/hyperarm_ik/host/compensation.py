@@ -37,8 +37,8 @@ from hyperarm_description.pinocchio_model import build_model
 from ..kinematics import Kinematics, rotation_angle
 from .errors import HostConfigError, HostGoalError, HostStateError, NotStartedError
 
-__all__ = ["HostState", "RailHost", "CompensationConfig", "Status", "CompensationStep",
-           "Compensator", "DelayEstimator", "check_pose"]
+__all__ = ["HostState", "RailHost", "HostPoseTracker", "CompensationConfig", "Status",
+           "CompensationStep", "Compensator", "DelayEstimator", "check_pose", "rigid_inverse"]
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
@@ -56,6 +56,15 @@ def check_pose(t, what: str, error: type[Exception] = HostStateError) -> np.ndar
         raise error(f"{what} is not a rigid transform (orthonormal rotation, det +1, "
                     "last row 0 0 0 1)")
     return m
+
+
+def rigid_inverse(t: np.ndarray) -> np.ndarray:
+    """Inverse of a rigid transform (4x4): [R^T, -R^T p]."""
+    out = np.eye(4)
+    rt = t[:3, :3].T
+    out[:3, :3] = rt
+    out[:3, 3] = -rt @ t[:3, 3]
+    return out
 
 
 def _vec3(v, what: str) -> np.ndarray:
@@ -78,6 +87,17 @@ class HostState:
         object.__setattr__(self, "pose", check_pose(self.pose, "host pose"))
         object.__setattr__(self, "linear", _vec3(self.linear, "host linear velocity"))
         object.__setattr__(self, "angular", _vec3(self.angular, "host angular velocity"))
+
+    @classmethod
+    def trusted(cls, pose: np.ndarray, linear: np.ndarray, angular=None) -> "HostState":
+        """A state from values already checked (a pose computed by pinocchio, a checked
+        message): no re-validation, for the per-cycle path."""
+        out = object.__new__(cls)
+        object.__setattr__(out, "pose", pose)
+        object.__setattr__(out, "linear", np.asarray(linear, dtype=float))
+        object.__setattr__(out, "angular", np.zeros(3) if angular is None
+                           else np.asarray(angular, dtype=float))
+        return out
 
     def predict(self, horizon: float) -> np.ndarray:
         """The host pose (4x4) ``horizon`` s ahead at constant twist (first order)."""
@@ -111,7 +131,60 @@ class RailHost:
         """:class:`HostState` at rail position (m) and velocity (m/s)."""
         if not (math.isfinite(rail) and math.isfinite(rail_velocity)):
             raise HostStateError(f"rail state is not finite: {rail!r} m, {rail_velocity!r} m/s")
-        return HostState(self.pose(rail), self.axis * rail_velocity)
+        return HostState.trusted(self.pose(rail), self.axis * rail_velocity)
+
+
+class HostPoseTracker:
+    """:class:`HostState` from a stream of stamped host poses (e.g. ``host_pose`` from
+    motion capture or the mock). The twist is the difference between the newest pose and
+    the newest one at least ``baseline`` s older (by stamp), over their stamps' difference:
+    poses that come in bursts with nearly equal stamps (a driver catching up) do not make
+    it spike, and noise is averaged over the baseline. A pose whose stamp is not after the
+    previous one replaces it. :attr:`stamp` is the newest pose's stamp (s): the host state
+    is that old, so a prediction's horizon counts from it; the twist is the one of
+    ``baseline / 2`` s before it (a lag the prediction's horizon does not include)."""
+
+    def __init__(self, baseline: float = 0.02, max_gap: float = 0.5) -> None:
+        for name, v, lo, hi in (("baseline", baseline, 1e-3, 1.0), ("max_gap", max_gap,
+                                                                       1e-3, 10.0)):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
+                    or not lo <= v <= hi:
+                raise HostConfigError(f"host pose tracker {name} must be in {lo:g}..{hi:g}, "
+                                      f"got {v!r}")
+        self.baseline, self.max_gap = float(baseline), float(max_gap)
+        self._history: list[tuple[float, np.ndarray]] = []
+        self.state: HostState | None = None
+        self.stamp: float | None = None
+
+    def reset(self) -> None:
+        self._history.clear()
+        self.state = self.stamp = None
+
+    def update(self, stamp: float, pose) -> HostState:
+        """Add the pose (4x4, base_link in world) taken at ``stamp`` (s); returns the state.
+        Raises :class:`HostStateError` for a malformed pose or stamp."""
+        pose = check_pose(pose, "host pose")
+        if not math.isfinite(stamp):
+            raise HostStateError(f"host pose stamp is not finite: {stamp!r}")
+        h = self._history
+        while h and h[-1][0] >= stamp:          # not newer: replaces what it overtakes
+            h.pop()
+        if h and stamp - h[-1][0] > self.max_gap:
+            h.clear()                            # after a gap: no twist from unrelated poses
+        h.append((float(stamp), pose))
+        while len(h) > 2 and h[1][0] <= stamp - self.baseline:
+            h.pop(0)                             # keep one pose at least baseline s older
+        lin, ang = np.zeros(3), np.zeros(3)
+        t0, p0 = h[0]
+        if t0 <= stamp - self.baseline:         # the same test as the pruning above
+            dt = stamp - t0
+            lin = (pose[:3, 3] - p0[:3, 3]) / dt
+            ang = pin.log3(pose[:3, :3] @ p0[:3, :3].T) / dt
+        elif self.state is not None and len(h) > 1:
+            lin, ang = self.state.linear, self.state.angular   # too short yet: keep it
+        self.state = HostState.trusted(pose, lin, ang)
+        self.stamp = float(stamp)
+        return self.state
 
 
 @dataclass(frozen=True)
@@ -128,6 +201,11 @@ class CompensationConfig:
     max_horizon: s, the prediction horizon is clamped to [0, max_horizon].
     posture_gain: fraction of the way back to the posture at start per cycle, in the
     task's null space (keeps the nine joints from drifting towards singular postures).
+    profile_lead: add to each joint's command the distance its servo's acceleration-limited
+    profile trails a goal moving at the joint's feed-forward speed v, v|v| / (2 a) (a: the
+    joint's acceleration limit): a servo that brakes to stop at its goal lags a moving
+    goal by that much, more for fast joints than for slow ones, which a single delay
+    cannot compensate.
     stall_cycles: cycles in a row of a miss that does not shrink (not step-limited) after
     which the pose is reported unreachable.
     """
@@ -142,8 +220,11 @@ class CompensationConfig:
     max_horizon: float = 0.2
     stall_cycles: int = 10
     posture_gain: float = 0.05
+    profile_lead: bool = True
 
     def __post_init__(self) -> None:
+        if not isinstance(self.profile_lead, bool):
+            raise HostConfigError(f"profile_lead must be true or false, got {self.profile_lead!r}")
         for name in ("iterations", "stall_cycles"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 100:
@@ -167,9 +248,11 @@ class Status(str, Enum):
 
 @dataclass(frozen=True)
 class CompensationStep:
-    """One cycle's output: arm joint command ``q`` (rad, the arm's joint order), status,
-    reason (empty unless UNREACHABLE), tool errors of ``q`` against the predicted goal (m,
-    rad) and whether the step limit scaled the motion."""
+    """One cycle's output: the arm joints ``q`` (rad, the arm's joint order) that put tool0
+    at the goal on the predicted host pose, the ``command`` to send (``q`` plus the profile
+    lead), the feed-forward joint speeds ``velocity`` (rad/s), status, reason (empty unless
+    UNREACHABLE), tool errors of ``q`` against the predicted goal (m, rad) and whether the
+    step limit scaled the motion."""
 
     q: np.ndarray
     status: Status
@@ -177,6 +260,8 @@ class CompensationStep:
     position_error: float
     orientation_error: float
     step_limited: bool
+    command: np.ndarray | None = None
+    velocity: np.ndarray | None = None
 
 
 class Compensator:
@@ -197,6 +282,7 @@ class Compensator:
         if np.any(self.lower >= self.upper):
             raise HostConfigError(f"limit_margin {c.limit_margin} rad leaves no joint range")
         self.speed = np.array([j.velocity for j in kin.desc.joints]) * c.speed_scale  # rad/s
+        self.acceleration = np.array([j.acceleration for j in kin.desc.joints])    # rad/s^2
         self._s2 = np.array([1.0, 1.0, 1.0] + [c.orientation_scale ** 2] * 3)  # error weights
         self._winv = np.diag(1.0 / self._s2)
         self._best, self._stuck = math.inf, 0
@@ -243,7 +329,8 @@ class Compensator:
                                  "dt > 0")
         c, kin = self.config, self.kin
         h = min(max(horizon, 0.0), c.max_horizon)
-        target = np.linalg.inv(host.predict(h)) @ self.goal      # tool0 goal in base_link
+        predicted = host.predict(h)
+        target = rigid_inverse(predicted) @ self.goal      # tool0 goal in base_link
         pt, rt = target[:3, 3], target[:3, :3]
         excess = kin.reach_excess(pt)
         # no posture pull while unreachable: the command settles at the closest configuration
@@ -251,6 +338,7 @@ class Compensator:
         q = self.q.copy()
         prev = math.inf
         stalled = False
+        at_q = None                 # (position error, orientation error, J) evaluated at q
         for it in range(c.iterations):
             p, r, j = kin.pose_jacobian_view(q)
             e = np.concatenate((pt - p, pin.log3(rt @ r.T)))
@@ -259,6 +347,7 @@ class Compensator:
                 stalled = True
             prev = cost
             if math.sqrt(cost) < 1e-7:
+                at_q = (float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:])), j)
                 break
             lam = c.damping + cost
             # first iteration: a pull towards the posture at start, in the task's null space
@@ -270,14 +359,19 @@ class Compensator:
                 j[:, out] = 0.0
                 dq = self._dls(j, e, lam, None if z is None else np.where(out, 0.0, z))
             q = np.clip(q + dq, self.lower, self.upper)
-        perr_ik, oerr_ik = self._errors(q, pt, rt)
+        if at_q is None:
+            p, r, j = kin.pose_jacobian_view(q)
+            at_q = (float(np.linalg.norm(pt - p)), rotation_angle(rt, r), j)
+        perr_ik, oerr_ik, j_q = at_q
         delta = q - self.q
         ratio = float(np.max(np.abs(delta) / (self.speed * dt)))
         limited = ratio > 1.0
         if limited:
             delta /= ratio
-        self.q = np.clip(self.q + delta, self.lower, self.upper)
-        perr, oerr = self._errors(self.q, pt, rt)
+            self.q = np.clip(self.q + delta, self.lower, self.upper)
+            perr, oerr = self._errors(self.q, pt, rt)
+        else:
+            self.q, perr, oerr = q, perr_ik, oerr_ik
         ok = perr_ik <= c.position_tolerance and oerr_ik <= c.orientation_tolerance
         # a miss that no longer shrinks (1 %) for stall_cycles cycles, not step-limited
         residual = perr_ik + c.orientation_scale * oerr_ik
@@ -285,16 +379,41 @@ class Compensator:
             self._best, self._stuck = residual, 0
         else:
             self._stuck += 1
-        if excess > 0.0 or self._stuck >= c.stall_cycles:
+        unreachable = excess > 0.0 or self._stuck >= c.stall_cycles
+        velocity = (np.zeros(kin.nq) if unreachable or limited
+                    else self._feed_forward(host, predicted, j_q))
+        command = self.q.copy()
+        if c.profile_lead:
+            command = np.clip(command + velocity * np.abs(velocity) / (2.0 * self.acceleration),
+                              self.lower, self.upper)
+        if unreachable:
             why = (f"beyond the arm's reach by {excess:.3f} m" if excess > 0.0 else
                    f"closest configuration misses by {perr_ik * 1e3:.1f} mm, "
                    f"{math.degrees(oerr_ik):.2f} deg")
             return CompensationStep(self.q.copy(), Status.UNREACHABLE,
                                     f"goal unreachable from the host's pose: {why}; holding "
-                                    "the closest configuration", perr, oerr, limited)
+                                    "the closest configuration", perr, oerr, limited,
+                                    command, velocity)
         status = Status.TRACKING if (perr <= c.position_tolerance
                                      and oerr <= c.orientation_tolerance) else Status.CONVERGING
-        return CompensationStep(self.q.copy(), status, "", perr, oerr, limited)
+        return CompensationStep(self.q.copy(), status, "", perr, oerr, limited, command,
+                                velocity)
+
+    def _feed_forward(self, host: HostState, predicted: np.ndarray,
+                      j: np.ndarray) -> np.ndarray:
+        """Joint speeds (rad/s) that keep tool0 on the goal while the host moves at its
+        twist: the goal's velocity in base_link (position -R^T (v + w x (p_goal - p_host)),
+        angular -R^T w) through the weighted damped least squares with ``j``, the
+        Jacobian at the command."""
+        if not (host.linear.any() or host.angular.any()):
+            return np.zeros(self.kin.nq)
+        r = predicted[:3, :3]
+        lever = self.goal[:3, 3] - predicted[:3, 3]
+        twist = np.concatenate((-r.T @ (host.linear + np.cross(host.angular, lever)),
+                                -r.T @ host.angular))
+        j = j.copy()
+        j[:, (self.q <= self.lower + 1e-9) | (self.q >= self.upper - 1e-9)] = 0.0
+        return self._dls(j, twist, self.config.damping)
 
     def _dls(self, j: np.ndarray, e: np.ndarray, lam: float,
              z: np.ndarray | None = None) -> np.ndarray:
@@ -345,14 +464,20 @@ class DelayEstimator:
             self._q.pop(0)
 
     def measured(self, t: float, q: np.ndarray) -> float:
-        """Update with joints measured (arriving) at ``t``; returns the delay (s)."""
+        """Update with joints measured (arriving) at ``t``; returns the delay (s). A sample
+        counts only where the match is sharp: the commands around the nearest one move
+        (between its neighbours) at least 3 times the miss, so a measured posture near a
+        turning point, where commands before and after the turn look alike, is no sample."""
         if len(self._q) < 3:
             return self.delay
         hist = np.array(self._q)
         if float(np.abs(hist[-1] - hist[0]).max()) < self.min_motion:
             return self.delay
-        i = int(np.argmin(np.abs(hist - np.asarray(q, dtype=float)).max(axis=1)))
-        if i > 0:     # the oldest entry may be older still: no sample from it
+        miss = np.abs(hist - np.asarray(q, dtype=float)).max(axis=1)
+        i = int(np.argmin(miss))
+        # the oldest entry may be older still, the newest is the command just sent: no sample
+        if 0 < i < len(hist) - 1 and \
+                float(np.abs(hist[i + 1] - hist[i - 1]).max()) >= 3.0 * float(miss[i]):
             sample = t - self._t[i]
             self.delay += self.gain * (min(max(sample, 0.0), self.window) - self.delay)
             self.samples += 1

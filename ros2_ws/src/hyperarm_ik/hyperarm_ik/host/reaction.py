@@ -23,7 +23,7 @@ import pinocchio as pin
 from ..kinematics import Kinematics
 from .errors import HostConfigError, HostStateError
 
-__all__ = ["ReactionModel", "STANDARD_GRAVITY"]
+__all__ = ["ReactionModel", "AccelerationEstimator", "STANDARD_GRAVITY"]
 
 STANDARD_GRAVITY = np.array([0.0, 0.0, -9.81])   # m/s^2, world -z
 
@@ -88,3 +88,18 @@ class ReactionModel:
         q = _vec(q, self.nq, "q")
         pin.centerOfMass(self.model, self.data, q)   # com[0]: base_link axes (com[i]: local)
         return float(self.data.mass[0] - self.model.inertias[0].mass), self.data.com[0].copy()
+
+
+class AccelerationEstimator:
+    """Joint accelerations (rad/s^2) by finite difference of measured velocities at their
+    times (s); None until two samples more than ``min_dt`` s apart have been seen."""
+
+    def __init__(self, min_dt: float = 1e-4) -> None:
+        self.min_dt = float(min_dt)
+        self._prev: tuple[float, np.ndarray] | None = None
+
+    def update(self, t: float, dq: np.ndarray) -> np.ndarray | None:
+        prev, self._prev = self._prev, (t, np.array(dq, dtype=float))
+        if prev is None or t - prev[0] <= self.min_dt:
+            return None
+        return (self._prev[1] - prev[1]) / (t - prev[0])

@@ -13,6 +13,12 @@ orientation. The step
    (a loaded machine) advances the path by at most 1.5 periods, and while joint_states are
    older than 50 ms (the driver stalls) the path waits, so the arm is never commanded a
    jump along the path (the traversal then takes longer: ``track_time``);
+With ``redundancy: min_reaction`` (fixed arm only) the three free joints also keep the
+arm's centre of mass over its mount, lowering the moment it exerts on the mount
+(:mod:`hyperarm_ik.host.redundancy`): after step 1 the arm moves in the task's null space
+(the tool stays at the first waypoint) to the posture that minimises that moment, and step
+2 solves every waypoint with the same secondary objective.
+
 4. judges each waypoint by the closest approach of the measured path (FK of the measured
    joints) and puts the figures into the task's metrics (``track_reached``, ...); fails
    (kind ``tracking``) when fewer than ``min_reached`` of them came within ``reach``.
@@ -29,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hyperarm_ik.host import OBJECTIVES, HostError, ReactionMinimizer
 from hyperarm_ik.paths import FIGURE8_WAYPOINTS, PATHS, Figure8, hold_orientation
 
 from ..errors import StepFailed
@@ -53,6 +60,7 @@ class TrackPath(Step):
     approach_speed: float = 0.10  # m/s, peak, to the first waypoint
     reach: float = 0.001          # m, a waypoint is reached within this
     min_reached: float = 0.0      # fraction of waypoints that must be reached
+    redundancy: str = "none"      # "min_reaction": centre of mass over the mount
 
 
 def build(raw: dict, ctx: BuildContext, index: int) -> TrackPath:
@@ -73,7 +81,16 @@ def build(raw: dict, ctx: BuildContext, index: int) -> TrackPath:
                                          positive=True),
                      approach_speed=ctx.si(raw, "approach_speed", "speed", 0.10, positive=True),
                      reach=ctx.si(raw, "reach", "length", 0.001, positive=True),
-                     min_reached=float(raw.get("min_reached", 0.0)))
+                     min_reached=float(raw.get("min_reached", 0.0)),
+                     redundancy=_redundancy(raw, ctx))
+
+
+def _redundancy(raw: dict, ctx: BuildContext) -> str:
+    value = str(raw.get("redundancy", "none"))
+    if value != "none" and ctx.desc.rail is not None:
+        raise ctx.FieldError(("redundancy",), f"redundancy {value!r} needs the fixed arm "
+                             "(variant arm): the mount's reaction is the arm's base_link")
+    return value
 
 
 def _plan(step: TrackPath, runner, points: np.ndarray, rot: np.ndarray) -> np.ndarray:
@@ -94,6 +111,25 @@ def _plan(step: TrackPath, runner, points: np.ndarray, rot: np.ndarray) -> np.nd
                              f"{res.message}")
         qs[k] = seed = res.q
     return qs
+
+
+def _plan_min_reaction(step: TrackPath, runner, points: np.ndarray,
+                       rot: np.ndarray) -> np.ndarray:
+    """Null-space move to the minimising posture at the first waypoint (streamed), then the
+    waypoints' joints with the centre of mass kept over the mount: (n, nq)."""
+    minimizer = ReactionMinimizer(runner.kin)
+    poses = np.tile(np.eye(4), (len(points), 1, 1))
+    poses[:, :3, :3], poses[:, :3, 3] = rot, points
+    try:
+        pre = list(minimizer.reconfigure(poses[0], runner.q_measured()))
+        runner.stream(pre, runner.path_duration(pre, 0.0, step.approach_speed),
+                      "reconfiguring")
+        return minimizer.plan(poses, pre[-1], on_waypoint=lambda k: (
+            runner.feedback("planning", 0.1 * k / len(points), points[k]), runner.tick())
+            if k % PLAN_CANCEL_EVERY == 0 else None)
+    except HostError as exc:
+        raise StepFailed("ik", f"{step.name} ({step.path}, redundancy "
+                         f"{step.redundancy}): {exc}") from None
 
 
 def _check_speed(step: TrackPath, runner, qs: np.ndarray, ds: np.ndarray) -> None:
@@ -133,7 +169,10 @@ def run(step: TrackPath, runner) -> None:
     first[:3, :3], first[:3, 3] = rot, points[0]
     runner.move_line(first, step.approach_speed, 0.005, step.reach, step.timeout, True,
                      f"{step.name} (to its first waypoint)")
-    qs = _plan(step, runner, points, rot)
+    if step.redundancy == "none":
+        qs = _plan(step, runner, points, rot)
+    else:
+        qs = _plan_min_reaction(step, runner, points, rot)
     s_at = arc_length(points)
     _check_speed(step, runner, qs, np.diff(s_at))
     s_of, duration = trapezoid_time_scaling(float(s_at[-1]), step.speed, step.acceleration)
@@ -205,5 +244,8 @@ register(StepType(
      "approach_speed": quantity("speed", "to the first waypoint"),
      "reach": quantity("length", "a waypoint is reached within this"),
      "min_reached": {"type": "number", "minimum": 0, "maximum": 1,
-                     "description": "fraction of the waypoints that must be reached"}},
+                     "description": "fraction of the waypoints that must be reached"},
+     "redundancy": {"enum": list(OBJECTIVES),
+                    "description": "min_reaction: the free joints keep the centre of mass "
+                                   "over the mount (lower base moment; fixed arm)"}},
     ("path",), build, run, "track a reference path's waypoints at a speed"))

@@ -1,0 +1,88 @@
+"""PNG figures of host-motion compensation (docs/host.md), from the mock's simulation.
+
+``host_benchmark --plots DIR`` writes into DIR:
+
+- ``host_tool_error.png``: tool0's position and orientation error over time, compensated
+  by :class:`~hyperarm_ik.host.CompensationLoop` on the mock's simulated servos: the rail
+  sweep (+-0.2 m at 0.2 m/s, judged by FK of the joint states, rail included) and the
+  ``uav_sway`` host motion (judged by FK on the host pose and by the mock's truth), with the
+  issue's bounds;
+- ``host_reaction.png``: the base moment (norm) over the figure-8 task's traversal, as
+  shipped and with ``redundancy: min_reaction``, and the reaction wrench on base_link
+  during the uav_sway.
+
+Runs in about a minute (no ROS; the figure-8 task runs twice in simulated time).
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .host_sim import figure8_task, rail_sweep, sway
+
+
+def write_plots(out: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out.mkdir(parents=True, exist_ok=True)
+    rail, uav = rail_sweep(), sway("uav_sway")
+    fig, ax = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    ax[0].plot(rail["t"], rail["position_error"] * 1e3, label="rail sweep (FK, rail included)")
+    ax[0].plot(uav["t"], uav["position_error"] * 1e3, label="uav_sway (FK on host_pose)")
+    ax[0].plot(uav["t"], uav["truth_position_error"] * 1e3, "--",
+               label="uav_sway (mock truth)")
+    ax[0].axhline(8.0, color="r", lw=0.8, label="max bound 8 mm (RMS bound 3 mm)")
+    ax[0].set_ylabel("tool position error (mm)")
+    ax[0].legend(fontsize=8)
+    ax[1].plot(rail["t"], np.degrees(rail["orientation_error"]), label="rail sweep")
+    ax[1].plot(uav["t"], np.degrees(uav["orientation_error"]), label="uav_sway (FK)")
+    ax[1].plot(uav["t"], np.degrees(uav["truth_orientation_error"]), "--",
+               label="uav_sway (truth)")
+    ax[1].axhline(2.0, color="r", lw=0.8, label="bound 2 deg")
+    ax[1].set_ylabel("orientation error (deg)")
+    ax[1].set_xlabel("time since compensation enabled (s)")
+    ax[1].legend(fontsize=8)
+    for a in ax:
+        a.grid(alpha=0.3)
+    fig.suptitle("host_compensation on the mock's simulated servos (1 step of transport)")
+    fig.tight_layout()
+    err = out / "host_tool_error.png"
+    fig.savefig(err, dpi=110)
+    plt.close(fig)
+
+    base, low = figure8_task(None), figure8_task("min_reaction")
+    fig, ax = plt.subplots(2, 1, figsize=(9, 6))
+    for run, label in ((base, "default"), (low, "redundancy: min_reaction")):
+        ax[0].plot(run["t"], run["moment"], label=f"{label} (peak {run['moment'].max():.2f} "
+                   f"N·m, {100 * run['metrics']['track_reached_fraction']:.1f} % of the "
+                   "waypoints within 1 mm)")
+    ax[0].set_ylabel("|base moment| (N·m)")
+    ax[0].set_xlabel("time along the figure-8 (s)")
+    ax[0].legend(fontsize=8)
+    w = uav["wrench"]
+    for i, name in enumerate(("Mx", "My", "Mz")):
+        ax[1].plot(uav["t"], w[:, 3 + i], label=f"{name} (N·m)")
+    ax[1].plot(uav["t"], w[:, 2] / 10.0, label="Fz / 10 (N)")
+    ax[1].set_xlabel("time since compensation enabled, uav_sway (s)")
+    ax[1].set_ylabel("reaction on base_link")
+    ax[1].legend(fontsize=8, ncol=4)
+    for a in ax:
+        a.grid(alpha=0.3)
+    fig.suptitle("What the arm does to its mount (base_reaction, from the measured joints)")
+    fig.tight_layout()
+    rea = out / "host_reaction.png"
+    fig.savefig(rea, dpi=110)
+    plt.close(fig)
+    for name, run in (("rail sweep", rail), ("uav_sway", uav)):
+        p = run["position_error"]
+        print(f"{name}: RMS {np.sqrt(np.mean(p ** 2)) * 1e3:.2f} mm, max {p.max() * 1e3:.2f} "
+              f"mm, {math.degrees(run['orientation_error'].max()):.2f} deg")
+    print(f"figure-8 peak base moment: {base['moment'].max():.3f} N·m default, "
+          f"{low['moment'].max():.3f} N·m min_reaction "
+          f"({100 * (1 - low['moment'].max() / base['moment'].max()):.1f} % lower)")
+    return [err, rea]

@@ -1,0 +1,229 @@
+"""Host-compensation scenarios on the mock's simulation, no ROS (core tests, figures).
+
+- :func:`rail_sweep`: :class:`~hyperarm_ik.host.CompensationLoop` (what host_compensation
+  runs per joint state) drives the arm of the mock's ``JointSim`` (rail_arm: the servos'
+  acceleration-limited profiles and first-order lag, repeatability 0) while the rail sweeps
+  0 -> +0.2 -> -0.2 -> 0 m at 0.2 m/s; every command reaches the simulation one step after
+  the joint state it answers. Tool error by FK of the measured joints, rail included, and
+  the reaction the node publishes (:class:`~hyperarm_ik.host.ReactionModel`).
+- :func:`figure8_task`: the shipped figure-8 task (hyperarm_tasks, ``track_path``) run by
+  the task runner on the simulation, as shipped or with ``redundancy: min_reaction``; the
+  base moment over the figure-8's traversal, from the measured joint states.
+
+Needs hyperarm_driver (and hyperarm_tasks for the figure-8), imported when called.
+Units: s, m, rad, N, N·m.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from hyperarm_description.model import load_description
+
+from ..host import (AccelerationEstimator, CompensationConfig, CompensationLoop, Compensator,
+                    DelayEstimator, RailHost, ReactionModel)
+from ..host.reaction import STANDARD_GRAVITY as _GRAVITY
+from ..kinematics import Kinematics, rotation_angle
+
+__all__ = ["rail_sweep", "sway", "figure8_task", "Q0", "DT"]
+
+ARM = [f"joint{i}" for i in range(1, 10)]
+#: tool0 pointing down 0.2 m in front of the base (reachable while the base moves)
+Q0 = [1.367, 0.62, -1.871, 0.548, 1.726, -1.732, 1.335, -0.596, 0.726]
+DT = 0.01
+
+
+def _rail_setpoint(t: float, speed: float = 0.2, dwell: float = 0.3) -> float:
+    """0 -> +0.2 -> -0.2 -> 0 m at ``speed`` m/s, ``dwell`` s at each turning point."""
+    for a, b in zip((0.0, 0.2, -0.2), (0.2, -0.2, 0.0)):
+        d = abs(b - a) / speed
+        if t <= d:
+            return a + math.copysign(speed * t, b - a)
+        t -= d
+        if t <= dwell:
+            return b
+        t -= dwell
+    return 0.0
+
+
+def _sim(desc):
+    from hyperarm_driver.mock.config import load_mock_config
+    from hyperarm_driver.mock.joint_sim import JointSim
+
+    cfg = load_mock_config()
+    return JointSim(desc, dataclasses.replace(cfg, imperfections=dataclasses.replace(
+        cfg.imperfections, repeatability=0.0)))
+
+
+def rail_sweep(lead: bool = True, duration: float = 5.2,
+               reaction: bool = False) -> dict[str, np.ndarray]:
+    """The rail sweep (see the module doc) for ``duration`` s (5.2: the whole sweep): arrays
+    ``t`` (s), ``rail`` (m), ``position_error`` (m), ``orientation_error`` (rad), with
+    ``reaction`` also ``wrench`` ((n, 6) N, N·m at base_link), and ``answered`` (commands
+    per joint state)."""
+    desc = load_description(variant="rail_arm")
+    sim = _sim(desc)
+    sim.home_rail()
+    sim.command(ARM, Q0)
+    for _ in range(300):
+        sim.step(DT)
+    kin, rail, arm = Kinematics(variant="rail_arm"), RailHost(desc), Kinematics(variant="arm")
+    loop = CompensationLoop(Compensator(arm, CompensationConfig(profile_lead=lead)),
+                            DelayEstimator(0.04), 0.1, host_from_states=True)
+    model, accel = ReactionModel(arm), AccelerationEstimator()
+    idx = [sim.names.index(n) for n in ARM]
+    chain = [sim.names.index(n) for n in kin.joint_names]
+    ir = sim.names.index("rail")
+
+    def measured():
+        s = sim.state()
+        return s, s.position[idx], rail.state(s.position[ir], s.velocity[ir])
+
+    s, q, host = measured()
+    loop.on_state(sim.time, s.stamp, q, host, None, None)
+    ok, why, _goal = loop.enable(sim.time, q, host, "rail")
+    if not ok:
+        raise RuntimeError(why)
+    goal = kin.forward(s.position[chain])
+    out: dict[str, list] = {k: [] for k in ("t", "rail", "position_error",
+                                            "orientation_error", "wrench")}
+    pending, answered, n = None, 0, int(duration / DT)
+    t0 = sim.time
+    for k in range(n):
+        sim.command(["rail"], [_rail_setpoint(k * DT)])
+        if pending is not None:           # the previous answer arrives (one step later)
+            sim.command(ARM, pending)
+        sim.step(DT)
+        s, q, host = measured()
+        pending, _log = loop.on_state(sim.time, s.stamp, q, host, None, None)
+        answered += pending is not None
+        tool = kin.forward(s.position[chain])
+        dq = s.velocity[idx]
+        out["t"].append(sim.time - t0)
+        out["rail"].append(s.position[ir])
+        out["position_error"].append(float(np.linalg.norm(tool[:3, 3] - goal[:3, 3])))
+        out["orientation_error"].append(rotation_angle(goal[:3, :3], tool[:3, :3]))
+        if reaction:
+            out["wrench"].append(model.wrench(q, dq, accel.update(sim.time, dq)))
+    res = {k: np.array(v) for k, v in out.items() if v}
+    res["answered"] = np.array(answered / n)
+    return res
+
+
+def sway(motion: str = "uav_sway", duration: float = 4.2, lead: bool = True,
+         delay_steps: int = 1, config: CompensationConfig | None = None
+         ) -> dict[str, np.ndarray]:
+    """The mock's host motion ``motion`` (``uav_sway``, ``uav_sway_passive``) on the fixed
+    arm, compensated by :class:`CompensationLoop` on the host pose the mock publishes
+    (base_link in world, one per step): ``t``, the tool errors judged by FK of the joint
+    states on the host pose (``position_error``, ``orientation_error``) and by the mock's
+    truth (``truth_position_error``, ``truth_orientation_error``), ``wrench`` (the
+    reaction the node publishes), ``host`` ((n, 4, 4) host poses). Commands reach the
+    simulation ``delay_steps`` steps after the state they answer."""
+    from hyperarm_driver.mock.host_motion import HostMotion, load_host_motion
+
+    desc = load_description(variant="arm")
+    sim = _sim(desc)
+    sim.host = HostMotion(load_host_motion(motion), sim)
+    sim.command(ARM, Q0)
+    for _ in range(200):
+        sim.step(DT)
+    arm = Kinematics(variant="arm")
+    cfg = config if config is not None else CompensationConfig(profile_lead=lead)
+    loop = CompensationLoop(Compensator(arm, cfg), DelayEstimator(0.04), 0.1,
+                            host_from_states=False)
+    from ..host import HostPoseTracker
+
+    tracker = HostPoseTracker()
+    model, accel = ReactionModel(arm), AccelerationEstimator()
+    idx = [sim.names.index(n) for n in ARM]
+
+    def measured():
+        s = sim.state()
+        tracker.update(sim.time, sim.host.base_pose)
+        return s, s.position[idx]
+
+    s, q = measured()
+    loop.on_state(sim.time, s.stamp, q, tracker.state, tracker.stamp, sim.time)
+    ok, why, goal = loop.enable(sim.time, q, tracker.state, "host_pose")
+    if not ok:
+        raise RuntimeError(why)
+    goal_truth = sim.tool_pose().copy()
+    sim.host.enable()
+    out: dict[str, list] = {k: [] for k in ("t", "position_error", "orientation_error",
+                                            "truth_position_error",
+                                            "truth_orientation_error", "wrench", "host",
+                                            "mount")}
+    pending: list[np.ndarray] = []
+    t0 = sim.time
+    for _ in range(int(duration / DT)):
+        if len(pending) >= delay_steps and pending:
+            sim.command(ARM, pending.pop(0))
+        sim.step(DT)
+        s, q = measured()
+        command, _log = loop.on_state(sim.time, s.stamp, q, tracker.state, tracker.stamp,
+                                      sim.time)
+        if command is None:
+            raise RuntimeError(f"compensation stopped: {loop.reason}")
+        pending.append(command)
+        host = sim.host.base_pose            # the measured host pose (not the filtered one)
+        tool = host @ arm.forward(q)
+        truth = sim.tool_pose()
+        dq = s.velocity[idx]
+        out["t"].append(sim.time - t0)
+        out["position_error"].append(float(np.linalg.norm(tool[:3, 3] - goal[:3, 3])))
+        out["orientation_error"].append(rotation_angle(goal[:3, :3], tool[:3, :3]))
+        out["truth_position_error"].append(float(np.linalg.norm(truth[:3, 3]
+                                                                 - goal_truth[:3, 3])))
+        out["truth_orientation_error"].append(rotation_angle(goal_truth[:3, :3],
+                                                             truth[:3, :3]))
+        out["wrench"].append(model.wrench(q, dq, accel.update(sim.time, dq),
+                                          gravity_base=host[:3, :3].T @ _GRAVITY))
+        out["host"].append(host.copy())
+        mount = getattr(sim.host, "mount", None)
+        out["mount"].append(np.zeros(6) if mount is None else mount.displacement.copy())
+    return {k: np.array(v) for k, v in out.items()}
+
+
+def figure8_task(redundancy: str | None = None) -> dict[str, object]:
+    """The figure-8 task on the simulation (see the module doc): ``t`` (s), ``moment``
+    (N·m, norm of the base moment) over the traversal, and the task's ``metrics``."""
+    from hyperarm_tasks.runner import Runner
+    from hyperarm_tasks.sequence import find_task, load_task
+    from hyperarm_tasks.testing import SimRobot
+
+    desc = load_description(variant="arm")
+    kin = Kinematics(variant="arm")
+    text = find_task("figure8").read_text()
+    if redundancy is not None:
+        text = text.replace("    min_reached:", f"    redundancy: {redundancy}\n    min_reached:",
+                            1)
+    sim = _sim(desc)
+    robot = SimRobot(sim)
+    phase = {"now": ""}
+    trace: list[tuple[float, np.ndarray, np.ndarray]] = []
+    idx = [sim.names.index(n) for n in ARM]
+    step = robot.sleep
+
+    def sleep(seconds: float) -> None:      # record the measured states while tracking
+        step(seconds)
+        if phase["now"] == "tracking":
+            s = sim.state()
+            trace.append((s.stamp, s.position[idx].copy(), s.velocity[idx].copy()))
+
+    robot.sleep = sleep
+    with tempfile.TemporaryDirectory() as tmp:
+        (Path(tmp) / "figure8_host.yaml").write_text(text)
+        task = load_task("figure8_host", desc, [tmp])
+    result = Runner(robot, kin, task, on_feedback=lambda fb: phase.update(now=fb.phase)).run()
+    if not result.success:
+        raise RuntimeError(f"figure-8 task failed: {result.message}")
+    reaction, accel = ReactionModel(kin), AccelerationEstimator()
+    moment = [float(np.linalg.norm(reaction.wrench(q, dq, accel.update(t, dq))[3:]))
+              for t, q, dq in trace]
+    t = np.array([tr[0] for tr in trace])
+    return {"t": t - t[0], "moment": np.array(moment), "metrics": dict(result.metrics)}

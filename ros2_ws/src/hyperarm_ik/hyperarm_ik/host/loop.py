@@ -1,0 +1,117 @@
+"""The sequencing of the host-compensation loop (no ROS): what host_compensation does with
+each joint state, enable, disable and silence, on top of :class:`Compensator`.
+
+- One command per joint state while enabled, for the host pose when the arm will be there:
+  horizon = the host state's age (the joint state's own age when the host is the rail, the
+  host pose's age otherwise) + the measured delay from a command to the joints reaching it
+  (:class:`DelayEstimator`, fed after the command is out).
+- Enabling needs fresh joint states and a host state; it holds tool0 where it is.
+  Disabling, silence of the joint states (``stale_timeout``) or of the host pose stop the
+  stream, latched until enabled again.
+- Status changes (unreachable, reachable again, stopped) come back as ``(level, text)``
+  log lines, level ``"warn"`` or ``"info"``.
+
+Times in s on one clock (the node's); ``stamp`` values are the messages' header stamps.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .compensation import Compensator, DelayEstimator, HostState, Status
+
+__all__ = ["CompensationLoop"]
+
+Log = list[tuple[str, str]]
+
+
+class CompensationLoop:
+    """``host_from_states``: the host state comes with the joint states (the rail), so its
+    age is theirs; else it is a host pose with a stamp of its own."""
+
+    def __init__(self, comp: Compensator, delay: DelayEstimator, stale_timeout: float,
+                 host_from_states: bool) -> None:
+        self.comp, self.delay = comp, delay
+        self.stale_timeout = float(stale_timeout)
+        self.host_from_states = host_from_states
+        self.enabled = False
+        self.status, self.reason = "disabled", "disabled"
+        self.cycles = 0                    # commands since enabled
+        self.states = 0                    # joint states received while enabled
+        self.latency = 0.0                 # s, smoothed age of the joint states on arrival
+        self.last_state: float | None = None   # s, arrival of the last joint state
+        self.error = (0.0, 0.0)            # m, rad of the last command (predicted goal)
+
+    def on_state(self, now: float, stamp: float, q: np.ndarray, host: HostState | None,
+                 host_stamp: float | None, host_arrival: float | None
+                 ) -> tuple[np.ndarray | None, Log]:
+        """A joint state (arm joints ``q`` rad, header ``stamp`` s, 0 = unknown) arrived at
+        ``now``: the command to send (None: none) and the log lines."""
+        age = min(max(now - stamp, 0.0), 0.5) if stamp > 0.0 else 0.0
+        command, log = None, []
+        if self.enabled:
+            self.states += 1
+            if host is None or (not self.host_from_states and (
+                    host_arrival is None or now - host_arrival > self.stale_timeout)):
+                log += self.disable("host pose stale or missing: compensation stopped")
+            else:
+                command, log = self._cycle(now, age, host, host_stamp)
+                self.delay.measured(now - age, q)      # when the joints were there
+        self.latency += 0.1 * (age - self.latency)
+        self.last_state = now
+        return command, log
+
+    def _cycle(self, now: float, age: float, host: HostState,
+               host_stamp: float | None) -> tuple[np.ndarray, Log]:
+        dt = now - self.last_state if self.last_state is not None else 0.01
+        dt = min(max(dt, 1e-3), 0.1)
+        h_age = age if self.host_from_states or host_stamp is None else \
+            min(max(now - host_stamp, 0.0), 0.5)
+        step = self.comp.step(host, h_age + self.delay.delay, dt)
+        self.cycles += 1
+        self.error = (step.position_error, step.orientation_error)
+        log: Log = []
+        if step.status.value != self.status:
+            if step.status is Status.UNREACHABLE:
+                log.append(("warn", step.reason))
+            elif self.status == Status.UNREACHABLE.value:
+                log.append(("info", f"goal reachable again: {step.status.value}"))
+            self.status, self.reason = step.status.value, step.reason or step.status.value
+        self.delay.commanded(now, step.q)
+        return step.command, log
+
+    def enable(self, now: float, q: np.ndarray | None, host: HostState | None,
+               source: str) -> tuple[bool, str, np.ndarray | None]:
+        """(success, message, goal): hold tool0 where it is now (FK of ``q`` on ``host``)."""
+        fresh = self.last_state is not None and now - self.last_state <= self.stale_timeout
+        if not fresh or q is None:
+            return False, "cannot enable: no fresh joint_states", None
+        if host is None:
+            return False, f"cannot enable: no host pose yet ({source})", None
+        goal = self.comp.start(q, host)
+        self.delay.reset()
+        self.cycles = self.states = 0
+        self.enabled, self.status, self.reason = True, "tracking", "enabled"
+        return True, "", goal
+
+    def disable(self, why: str) -> Log:
+        log: Log = [("warn", f"host compensation off: {why}")] if self.enabled else []
+        self.enabled, self.status, self.reason = False, "disabled", why
+        self.comp.stop()
+        return log
+
+    def check_stale(self, now: float) -> Log:
+        """Joint states stopped while enabled: stop (latched) rather than resume later from
+        an old command."""
+        if self.enabled and self.last_state is not None \
+                and now - self.last_state > self.stale_timeout:
+            return self.disable(f"no joint_states for {self.stale_timeout:g} s: "
+                                "compensation stopped")
+        return []
+
+    def diagnostics(self) -> dict[str, object]:
+        """Figures for the node's diagnostics (status, counts, ms)."""
+        return {"enabled": self.enabled, "status": self.status, "reason": self.reason,
+                "cycles": self.cycles, "states": self.states, "latency_ms": f"{self.latency * 1e3:.2f}",
+                "loop_delay_ms": f"{self.delay.delay * 1e3:.2f}",
+                "position_error_m": f"{self.error[0]:.5f}",
+                "orientation_error_rad": f"{self.error[1]:.5f}"}
