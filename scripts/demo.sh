@@ -3,7 +3,8 @@
 #
 # run_task.sh starts mock_driver (its default work cell and noise: the arm's repeatability
 # is worse than the peg clearance, so the insertion needs the force-controlled dither),
-# task_node and task_recorder as separate processes (what `ros2 run` starts on the robot),
+# hybrid_force (the force-controlled insertion), task_node and task_recorder as separate
+# processes (what `ros2 run` starts on the robot),
 # and runs block_transfer (the block from the source peg onto the destination peg) then
 # block_transfer_back (and back), printing every step. The run is recorded to an MCAP file
 # and plotted to PNGs; the script says where. Real time: about 2 minutes.
