@@ -210,5 +210,5 @@ def test_hardware_mode_runs_on_the_dynamixel_driver(launch, executable, ros_doma
     assert f"run_task.sh: rest ready on the hardware (drivers with {params}) (arm)" in out
     assert out.count("run_task: succeeded") == 2
     assert [line.split()[0] for line in (logs / "pids").read_text().splitlines()] == \
-        ["dynamixel_driver", "task_node"]
+        ["dynamixel_driver", "hybrid_force", "task_node"]
     assert still_running(logs) == []

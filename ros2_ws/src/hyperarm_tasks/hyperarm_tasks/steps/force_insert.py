@@ -198,10 +198,16 @@ def run(step: ForceInsert, runner) -> None:
                     resumed += 1
                     robot.log("warn", f"{step.name}: force control went passive ({why}); "
                                       f"enabling it again ({resumed}/{MAX_RESUMES})")
-                    waited = robot.now()      # it refuses to start on stale joint states
-                    while robot.joint_states_age() > 0.05 and robot.now() - waited < 1.0:
+                    # it refuses to start on stale joint states (its own view of them):
+                    # asked again for up to 2 s while that is the reason
+                    waited = robot.now()
+                    while True:
+                        while robot.joint_states_age() > 0.05 and robot.now() - waited < 2.0:
+                            runner.tick()
+                        reason = robot.set_force_control(True)
+                        if not reason or "stale" not in reason or robot.now() - waited > 2.0:
+                            break
                         runner.tick()
-                    reason = robot.set_force_control(True)
                     if reason:
                         raise StepFailed("driver", f"force control could not be enabled "
                                          f"again: {reason}")
