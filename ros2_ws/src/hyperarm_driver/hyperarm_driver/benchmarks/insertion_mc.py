@@ -5,8 +5,10 @@ offsets and the servos' current model), the simulation core (no ROS) picks the b
 the source peg and brings it down onto the destination peg:
 
 - **blind**: a straight descent (streamed 2 mm setpoints) from above the peg to its base;
-- **dither**: the same descent, and if the block stops on the peg's top, a pressing x-y
-  spiral (4 mm below the top, out to 15 mm, streamed) until the block threads.
+- **dither**: the same descent, and if the block did not thread (it stopped on the peg's
+  top, or slid off its edge: pressed down this hard, the arm's springs push it sideways
+  more than friction holds), back up (streamed) and a pressing x-y spiral (4 mm below the
+  top, out to 15 mm, streamed) until the block threads.
 
 The script (one joint-space move to above the source, streamed descent, grasp, streamed
 lift, one joint-space move to above the destination, streamed descent) makes two moves, so
@@ -66,6 +68,7 @@ def _plan(sim: JointSim) -> dict:
     plan["up"] = line(s_block, s_above)
     plan["d_above"] = ik(d_above)
     plan["descent"] = line(d_above, d_base)
+    plan["ascent"] = plan["descent"][-2::-1] + [plan["d_above"]]
     # the descent's setpoint where the block's bottom reaches the peg's top
     z = [d_above[2] - (d_above[2] - d_base[2]) * k / len(plan["descent"])
          for k in range(1, len(plan["descent"]) + 1)]
@@ -116,6 +119,9 @@ def trial(desc, cfg, plan) -> tuple[bool, bool]:
         sim.step(DT)
     if sim.world.peg == plan["peg"].name:
         return True, True
+    # not threaded: back up, streamed (the block may have slid off the top's edge), then
+    # the pressing spiral
+    _stream(sim, plan["ascent"], 1.5)
     for q in plan["dither"]:
         sim.command(ARM, q.tolist())
         for _ in range(2):

@@ -11,14 +11,17 @@ current-based position with the effort as current limit), or OFF (torque disable
   position loop has a finite stiffness (``servo.stiffness``): external forces (the work
   cell's contacts) deflect the joint by torque/stiffness, and the servo's torque is limited
   to the stall torque (POSITION) or the commanded current limit (CURRENT_POSITION). When the
-  limit is reached the joint yields further, so the contact force stays bounded. Gravity
+  limit is reached the joint yields further (a yield state, at most its velocity limit per
+  step), so the contact force stays bounded by what it can exert. No position-class joint
+  moves more than its velocity limit in a step. Gravity
   and inertia are assumed compensated by the servo's integral action (no steady droop), but
   their torques, from pinocchio's RNEA on the description's link masses, are reported as
-  effort. A POSITION servo held at its stall torque for ``OVERLOAD_TIME`` s raises an
+  effort. A position-class servo held at its stall torque for ``OVERLOAD_TIME`` s raises an
   overload error and drops its torque, as a Dynamixel does.
 - TORQUE: the commanded effort (clamped to the stall torque) drives the joint through the
   rigid-body dynamics (pinocchio CRBA/RNEA, semi-implicit Euler with viscous damping),
-  against gravity and the contact forces. Without a new effort command for
+  against gravity and the contact forces (implicit contact springs, inelastic impacts, the
+  motor's torque-speed line up to the velocity limit as no-load speed). Without a new effort command for
   ``effort_timeout`` s the watchdog switches the joint to holding its position.
 - OFF: no torque; the joint moves under gravity and contacts with viscous friction.
 
@@ -894,8 +897,9 @@ class JointSim:
                         v: np.ndarray | None) -> np.ndarray:
         """Forces (N) of the contact rows: penalty springs in series with the servo springs,
         (I/k_env + J K⁻¹ Jᵀ) f = p0 over the active rows; a contact whose normal force would
-        pull is dropped; tangential forces outside the friction cone are set on its edge
-        (sliding) and the other rows re-solved with them fixed.
+        pull is dropped; a contact whose tangential force leaves the friction cone slides:
+        its friction, mu x its normal force along that direction, is substituted into the
+        system (its tangential rows dropped) and everything re-solved.
 
         The rows come as built by :meth:`_contact_rows`: per contact its normal row, then its
         tangential rows if any. The systems are tiny (3-6 rows), so the bookkeeping is done
@@ -1109,10 +1113,10 @@ class JointSim:
         self._underpowered = now
 
     def _overload(self, dt: float, held: np.ndarray) -> None:
-        """A POSITION servo (arm, gripper; rail) at its torque limit for OVERLOAD_TIME s:
-        overload error, torque off. E.g. a gripper closed on the block in plain position
-        mode, goal inside the block: the real servo overloads, hence current-based position
-        for grasping. The time at the limit is a leaky count (+dt at >= 98 % of the limit,
+        """A position-class servo (arm, gripper; rail) whose limit is its stall torque, at it
+        for OVERLOAD_TIME s: overload error, torque off (e.g. an arm joint pushing a link on
+        a pole; the gripper on the block does not get there: its spring gives ~3.5 N·m at
+        most, below its stall torque). The time at the limit is a leaky count (+dt at >= 98 % of the limit,
         -dt below), as a servo's thermal load: a servo that yields step after step against
         a contact, touching its limit every other step, overloads too."""
         stalled = held & (np.abs(self.effort) >= self.limit * OVERLOAD_FRACTION)
