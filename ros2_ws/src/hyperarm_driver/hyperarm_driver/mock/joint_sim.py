@@ -1083,26 +1083,17 @@ class JointSim:
         if not P.any():
             return q, dq, tau, tau_id
         prev = self.position[:nk]
-        step = self.vmax[:nk][P] * dt
-        lim = self.limit[:nk]
-        for _ in range(YIELD_ITERATIONS):
-            move = np.clip(q + dq, self.lower[:nk], self.upper[:nk]) - prev
-            ratio = float((np.abs(move[P]) / step).max())
-            if not ratio > 1.0:
-                return q, dq, tau, tau_id
-            shift = np.where(P, move * (1.0 / ratio - 1.0), 0.0)
-            self._yield[:nk] += shift
-            q = q + shift
-            dq, gen = self._contacts(q, P, v=None)
-            tau_id = pin.rnea(self.model, self.data, q + dq + self.offset[:nk], v, a)
-            tau = np.clip(tau_id - gen, -lim, lim)
-        # the contact solved at the scaled pose can still ask for more than a step (a stiff
-        # contact met on the way): the deflection is cut to the step, never an unchecked jump
         move = np.clip(q + dq, self.lower[:nk], self.upper[:nk]) - prev
-        ratio = float((np.abs(move[P]) / step).max())
-        if ratio > 1.0:
-            dq = np.where(P, prev + move / ratio - q, dq)
-        return q, dq, tau, tau_id
+        ratio = float((np.abs(move[P]) / (self.vmax[:nk][P] * dt)).max())
+        if not ratio > 1.0:
+            return q, dq, tau, tau_id
+        shift = np.where(P, move * (1.0 / ratio - 1.0), 0.0)
+        self._yield[:nk] += shift
+        q = q + shift
+        dq, gen = self._contacts(q, P, v=None)
+        tau_id = pin.rnea(self.model, self.data, q + dq + self.offset[:nk], v, a)
+        lim = self.limit[:nk]
+        return q, dq, np.clip(tau_id - gen, -lim, lim), tau_id
 
     def _check_underpowered(self, P: np.ndarray, tau_id: np.ndarray) -> None:
         """A current-limited (CURRENT_POSITION) servo whose limit is below its own gravity
