@@ -73,8 +73,7 @@ def test_position_arm_stops_against_a_pole_with_efforts():
     sim = _sweep(None)
     pole = sim.cfg.world.poles[0]
     assert sim.position[0] < 1.0                           # stopped far short of 1.6 rad
-    # one link pushes on the pole (a neighbour may graze it with no force)
-    (link, name, _, force), = [c for c in sim.link_contacts if np.linalg.norm(c[3]) > 0.5]
+    (link, name, _, force), = sim.link_contacts
     assert name == pole.name and link == "link4"
     assert np.linalg.norm(force) > 5.0                     # N: pushing hard
     assert abs(sim.effort[0]) > 0.5 * sim.stall[0]         # joint1 pushes back
@@ -94,8 +93,8 @@ def test_soft_arm_conforms_to_a_pole():
     hard = _sweep(None)
     assert soft.position[0] < 1.0 and soft.link_contacts
     assert abs(soft.effort[0]) == pytest.approx(soft.limit[0], rel=1e-6)
-    f_soft = sum(np.linalg.norm(c[3]) for c in soft.link_contacts)   # N, on the pole in all
-    f_hard = sum(np.linalg.norm(c[3]) for c in hard.link_contacts)
+    f_soft = np.linalg.norm(soft.link_contacts[0][3])
+    f_hard = np.linalg.norm(hard.link_contacts[0][3])
     assert 0.0 < f_soft < 0.5 * f_hard       # the rest is held by the other joints' springs
 
 

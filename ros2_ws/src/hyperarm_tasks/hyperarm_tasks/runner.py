@@ -384,7 +384,7 @@ class Runner:
         if reason:
             raise StepFailed("driver", f"driver refused: {reason}")
         chain_goal = [goal.get(n) for n in self.chain]
-        if all(v is not None for v in chain_goal):
+        if self.collisions is not None and all(v is not None for v in chain_goal):
             self.check_collisions(f"{self.step.name if self.step else 'move'} (joint goal)",
                                   self.q_measured(), np.array(chain_goal, dtype=float))
         t0 = self.robot.now()
