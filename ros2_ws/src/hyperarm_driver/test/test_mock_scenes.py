@@ -153,3 +153,108 @@ def test_link_contacts_on_debug_topic_and_in_diagnostics(rclpy_context, executor
                          {kv.key: kv.value for kv in s.values}.get("link_contacts", "")
                          
                          for s in diags), 10.0, what="link contacts in diagnostics")
+
+
+def _pole_depth(sim) -> float:
+    """Deepest capsule-pole interference (m) at the present joints, measured afresh from the
+    geometry (no contact memory): 0 without contact."""
+    sim._tool_at(sim.position[:sim.nk])
+    segments = []
+    for cap in sim.desc.capsules:
+        m = sim.data.oMf[sim.model.getFrameId(cap.frame)]
+        a, b = (m.act(p) for p in cap.endpoints())
+        segments.append((cap.name, cap.radius, a, b))
+    return max((c.depth for c in sim.world.pole_contacts(segments)), default=0.0)
+
+
+@pytest.mark.core
+@pytest.mark.parametrize("seed", [9, 11, 18, 40])
+def test_no_link_passes_through_a_pole_whatever_is_commanded(seed):
+    """Physical invariant (issue 9): position-mode joint goals, jumps and streams drawn at
+    random across the pole, with the shipped repeatability (a new move's offset): no link
+    is ever more than 2 mm into the pole, at any step, and no joint ever moves more than
+    twice its velocity limit in a step (the failures fixed here: an offset drawn anew while a
+    link pressed on the pole put it 9 mm in, and the contact solve then threw the arm through
+    it, 2.5 rad in one step)."""
+    cfg = load_mock_config(CELLS / "workcell_pole.yaml")
+    cfg = dataclasses.replace(cfg, imperfections=dataclasses.replace(cfg.imperfections,
+                                                                     seed=seed))
+    sim = JointSim(load_description(), cfg)
+    rng = np.random.default_rng(seed)
+    arm = [f"joint{i}" for i in range(1, 10)]
+    lo, hi = sim.lower[:9], sim.upper[:9]
+    deepest, fastest, touched = 0.0, 0.0, 0
+    q = np.zeros(9)
+    for move in range(12):
+        goal = np.clip(rng.uniform(-1.0, 1.0, 9) * np.r_[2.0, np.full(8, 1.0)], lo, hi)
+        goal[0] = rng.uniform(0.2, 1.6)        # joint1 swings the arm at the pole (45°)
+        streamed = move % 2 == 1
+        n = 40 if streamed else 1
+        for k in range(1, n + 1):
+            sim.command(arm, (q + (goal - q) * k / n).tolist())
+            for _ in range(2 if streamed else 120):
+                before = sim.position[:9].copy()
+                sim.step(DT)
+                fastest = max(fastest, float(np.max(np.abs(sim.position[:9] - before)
+                                                    / (sim.vmax[:9] * DT))))
+                deepest = max(deepest, _pole_depth(sim))
+                touched += bool(sim.link_contacts)
+            if sim.errors:
+                sim.reboot([])
+                sim.set_torque(True)
+        q = goal
+    assert touched > 20, "the random goals never drove a link onto the pole"
+    assert deepest <= 0.002, f"a link went {deepest * 1e3:.1f} mm into the pole"
+    assert fastest <= 2.0 + 1e-9, f"a joint moved {fastest:.2f} x its velocity limit in a step"
+
+
+@pytest.mark.core
+def test_a_new_move_while_a_link_presses_a_pole_draws_its_offset_once_free():
+    """The move rule's contact clause: a new move commanded while a link touches a pole
+    keeps the offset (the contact holds the arm) and draws it at the first step free of
+    contact."""
+    sim = _sweep(None)
+    assert sim.link_contacts
+    first = sim.offset[:9].copy()
+    cfg = sim.cfg
+    sim.cfg = dataclasses.replace(cfg, imperfections=dataclasses.replace(
+        cfg.imperfections, repeatability=0.006))
+    sim.command(["joint1"], [0.9])           # a new move (a jump of the goal), still pressing
+    sim.step(DT)
+    assert sim.link_contacts and np.array_equal(sim.offset[:9], first)
+    sim.command(["joint1"], [0.0])           # away from the pole
+    for _ in range(150):
+        sim.step(DT)
+        if not sim.link_contacts:
+            break
+    sim.step(DT)
+    assert not sim.link_contacts
+    assert not np.array_equal(sim.offset[:9], first)
+
+
+@pytest.mark.core
+@pytest.mark.parametrize("variant", ["arm", "rail_arm"])
+def test_position_arm_swung_into_a_thick_post_stops_and_overloads(variant, tmp_path):
+    """A 55 mm-radius post 0.30 m out, joint1 swung hard into it: the arm once went through
+    (0.56 to 2.1 rad in 0.1 s); it must stop at the post, at most 2 mm in, until joint1
+    overloads."""
+    import yaml
+    raw = yaml.safe_load((CELLS / "workcell_pole.yaml").read_text())
+    raw["world"]["poles"] = {"post": {"xy": [0.212, 0.212], "radius": 0.055, "height": 0.6}}
+    raw["imperfections"].update(seed=1)
+    (tmp_path / "post.yaml").write_text(yaml.safe_dump(raw))
+    sim = JointSim(load_description(variant=variant), load_mock_config(tmp_path / "post.yaml"))
+    arm = [f"joint{i}" for i in range(1, 10)]
+    sim.command(arm, [0.0] * 9)
+    for _ in range(100):
+        sim.step(DT)
+    j1 = sim._index["joint1"]
+    sim.command(["joint1"], [2.1])
+    deepest, furthest = 0.0, 0.0
+    for _ in range(400):
+        sim.step(DT)
+        deepest = max(deepest, _pole_depth(sim))
+        furthest = max(furthest, float(sim.position[j1]))
+    assert furthest < 1.0, f"joint1 got to {furthest:.2f} rad: through the post"
+    assert deepest <= 0.002, f"a link went {deepest * 1e3:.1f} mm into the post"
+    assert sim.errors.get("joint1") == "overload", sim.errors

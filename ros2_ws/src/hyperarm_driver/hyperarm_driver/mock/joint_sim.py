@@ -63,6 +63,10 @@ HARD_FACTOR = 50.0         # the stiff branch's stiffness / contact_stiffness
 RELINEARIZE = 1e-4         # rad: re-linearize when the solution is this far from the point
 CONTACT_MARGIN = 0.02      # m: a remembered peg top or side this far apart is still a row
 YIELD_ITERATIONS = 3       # contact solves per step at most while a servo gives way
+JUMP_FACTOR = 2.0          # a position-class joint moving more than this x its velocity
+                           # limit in one step: the contact solve failed (not taken)
+GUARD_DEPTH = 0.002        # m: a position-class step ending a link or the block deeper than
+                           # this in a contact (and deeper than before) is not taken
 
 
 class MockCommandError(MockError):
@@ -206,6 +210,9 @@ class JointSim:
         self._contact_rows_used = None
         self._warm: np.ndarray | None = None       # last step's contact deflection (rad)
         self._underpowered: set[str] = set()       # joints whose current limit < their load
+        self._depth = 0.0                          # m, deepest contact after the last step
+        self._redraw = False                       # a new move's offset waits for no contact
+        self.guarded_steps = 0                     # steps the position guard refused
         self.require_homing = bool(require_homing)
         self.homed = self.rail is None
         self.homing = False
@@ -353,13 +360,27 @@ class JointSim:
                 self._anchor[i] = goals[n]
             if new_move and imp.repeatability > 0.0:
                 # one draw per move, for every arm joint (the backlash of the whole arm
-                # settles anew); streamed small setpoints continue the same move
-                arm = np.flatnonzero(self._arm)
-                self.offset[arm] = self._rng.normal(0.0, imp.repeatability, len(arm))
+                # settles anew); streamed small setpoints continue the same move. An arm
+                # touching the cell (a link on a pole, the held block on a peg or the
+                # table) is held by the contact: its backlash settles anew once it is free
+                self._redraw = True
+                self._draw_offset()
 
         self._schedule(apply)
         return CommandReport(applied=tuple(names), clamped=tuple(clamped), mode=mode,
                              rejected=rejected)
+
+    def _draw_offset(self) -> None:
+        """Draw the pending new move's repeatability offset, unless a link or the held block
+        touches the work cell (then at the first step free of contact)."""
+        if not self._redraw:
+            return
+        if self.link_contacts or np.abs(self.contact_force).max() > 0.0:
+            return
+        self._redraw = False
+        arm = np.flatnonzero(self._arm)
+        self.offset[arm] = self._rng.normal(0.0, self.cfg.imperfections.repeatability,
+                                            len(arm))
 
     def _rail_problem(self, goals: dict, torques: dict) -> str:
         """Why the PMAC rail driver would refuse the rail's part of a command, or "": an
@@ -512,6 +533,9 @@ class JointSim:
             v[yielding] += self._yield_rate[:nk][yielding]
             a[yielding] = 0.0
         y_before = self._yield[:nk].copy()
+        # the contact memory the step starts from (restored if the guard refuses the step)
+        memory = (dict(self._pole_normals), {k: a.copy() for k, a in self._anchors.items()},
+                  self._warm)
         if D.any():
             q, v = self._dynamics(dt, q, v, a, P, D)
         dq, gen = self._contacts(q, P, v=None)
@@ -523,6 +547,8 @@ class JointSim:
         effort[P] = tau[P]
         effort[D] = self._applied_torque(D)
         qk = np.clip(q + dq, self.lower[:nk], self.upper[:nk])
+        if P.any():
+            qk, v, effort = self._guard(dt, qk, v, effort, P, D, memory, y_before)
         self._yield_rate[:nk] = (self._yield[:nk] - y_before) / dt
         self.velocity[:nk] = v
         self.position[:nk] = qk
@@ -548,6 +574,7 @@ class JointSim:
                     self._restart_profile(int(i), keep_goal=not self._gap_hold[i])
                 self._gap_hold[i] = False
         self._report_efforts(gapped)
+        self._draw_offset()
         self.events.extend(self.world.take_events())
         if self.host is not None:
             self.host.after_step(dt)
@@ -1094,6 +1121,58 @@ class JointSim:
         tau_id = pin.rnea(self.model, self.data, q + dq + self.offset[:nk], v, a)
         lim = self.limit[:nk]
         return q, dq, np.clip(tau_id - gen, -lim, lim), tau_id
+
+    def _deepest(self, q: np.ndarray) -> float:
+        """Deepest interference (m) of the block (held) and the links' capsules (poles) in
+        the work cell at chain positions ``q``; 0 without contact."""
+        tool = self._tool_at(q)
+        depths = [c.depth for c in self.world.contacts(tool)]
+        if self._poles:
+            depths += [c.depth for c in self._pole_contacts()]
+        return max(depths, default=0.0)
+
+    def _guard(self, dt: float, qk: np.ndarray, v: np.ndarray, effort: np.ndarray,
+               P: np.ndarray, D: np.ndarray, memory: tuple, y_before: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The last check of a step: the position-class joints ``P`` may not jump (move more
+        than JUMP_FACTOR times their velocity limit in the step) and, with no torque-mode joint in the chain,
+        may not end with a link or the block more than GUARD_DEPTH into a pole, a peg or
+        the table and deeper than after the last step. The contact solve is a linearization;
+        where it fails (a link caught edge-on, a near-singular yield solve) its pose is not
+        taken: the joints stay where they were, as against a rigid obstacle, and each
+        servo's spring is held at most at its torque limit there by its yield, so a servo
+        the obstacle blocks stays at its limit and overloads (OVERLOAD_TIME), as the real
+        one does. ``memory``: the contact memory (link contacts' sides, friction anchors,
+        warm start) at the step's start, restored with the pose; ``y_before``: the yields
+        at the step's start (the spring is held from there). Returns the positions,
+        velocities and efforts of the step."""
+        nk = self.nk
+        prev = self.position[:nk]
+        jump = P & (np.abs(qk - prev) > JUMP_FACTOR * self.vmax[:nk] * dt)
+        deep = False
+        depth = 0.0
+        if self.world.state is BlockState.HELD or self._poles:
+            depth = self._deepest(qk)
+            deep = not D.any() and depth > GUARD_DEPTH and depth > self._depth + 1e-4
+        if not jump.any() and not deep:
+            self._depth = depth
+            return qk, v, effort
+        self.guarded_steps += 1
+        qk = np.where(P, prev, qk)
+        v = np.where(P, 0.0, v)
+        zero = np.zeros(nk)
+        tau_g = pin.rnea(self.model, self.data, qk + self.offset[:nk], zero, zero)
+        k, lim = self.stiffness[:nk], self.limit[:nk]
+        rest = self._ref[:nk] + y_before - qk      # the springs' stretch
+        held = np.clip(rest, (-lim - tau_g) / k, (lim - tau_g) / k)
+        self._yield[:nk] = np.where(P, y_before + held - rest, self._yield[:nk])
+        effort = np.where(P, np.clip(tau_g + k * held, -lim, lim), effort)
+        # the contact state (forces, link contacts, friction anchors) of the pose kept
+        self._pole_normals, self._anchors, self._warm = memory
+        self._contacts(qk, np.zeros(nk, dtype=bool), v=None)
+        self._depth = self._deepest(qk) if (self.world.state is BlockState.HELD
+                                             or self._poles) else 0.0
+        return qk, v, effort
 
     def _check_underpowered(self, P: np.ndarray, tau_id: np.ndarray) -> None:
         """A current-limited (CURRENT_POSITION) servo whose limit is below its own gravity
