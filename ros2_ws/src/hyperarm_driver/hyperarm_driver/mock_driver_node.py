@@ -92,7 +92,8 @@ PARAMETERS: ParamSpec = {
 
 # Simulation events logged as warnings (a task relying on them would fail on the robot); the
 # others (grasped, released, threaded, unthreaded, homed, ...) are logged as info.
-WARNING_EVENTS = frozenset({"watchdog", "dropped", "hardware_error", "underpowered"})
+WARNING_EVENTS = frozenset({"watchdog", "dropped", "hardware_error", "underpowered",
+                            "blocked"})
 _LEVELS = {"OK": 0, "WARN": 1, "ERROR": 2}  # diagnostic_msgs/DiagnosticStatus levels
 _MAX_CATCH_UP = 5  # simulation steps per timer tick at most in real time
 

@@ -38,15 +38,16 @@ VARIANTS = ["arm", "rail_arm"]
 #
 # Per cycle (block from one peg to the other, then back in the next cycle): rail/home
 # (``homed``), the stretched arm swung into a pole in position mode until joint1 overloads
-# (``hardware_error``; set_torque then fails: latched until the reboot), reboot + torque on,
-# grasp (``grasped``), lift (``unthreaded``), a grip below the slip torque (``dropped``, onto
-# the peg it came from), grasp and lift again, descend onto the other peg (``threaded``),
-# open (``released``), an effort command followed by silence (``watchdog``), a current limit
-# below a joint's load (``underpowered``).
+# (``blocked`` by the pole, then ``hardware_error``; set_torque then fails: latched until
+# the reboot), reboot + torque on, grasp (``grasped``), lift (``unthreaded``), a grip
+# below the slip torque (``dropped``, onto the peg it came from), grasp and lift again,
+# descend onto the other peg (``threaded``), open (``released``), an effort command
+# followed by silence (``watchdog``), a current limit below a joint's load
+# (``underpowered``).
 
 ARM = [f"joint{i}" for i in range(1, 10)]
 EVENT_KINDS = {"grasped", "unthreaded", "dropped", "threaded", "hardware_error", "released",
-               "watchdog", "underpowered"}
+               "watchdog", "underpowered", "blocked"}
 OPEN, GRIP, WEAK = 1.3, 0.6, 0.1   # rad; N·m grip torque; N·m below grasp.min_effort
 
 

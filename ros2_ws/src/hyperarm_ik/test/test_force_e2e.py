@@ -289,7 +289,10 @@ def test_pressing_on_a_peg_top_with_the_mock(launch, rclpy_context, executor, wa
     arm.move(block)
     arm.grip(0.0, 0.6, wait=False)
     wait_for(lambda: probe.block_state == "held", 5.0, what="block held")
-    arm.move(block + [0.0, 0.0, 0.06])
+    # off the peg (8 cm high; the block's bottom 1.5 cm above its top), in 2 cm joint moves
+    # (nearly straight up: a threaded block dragged sideways jams against the peg)
+    for dz in (0.02, 0.04, 0.06, 0.08, 0.10):
+        arm.move(block + [0.0, 0.0, dz])
     top = -0.12                                       # destination peg top (z)
     # 13 mm off the peg's axis: the peg's top meets the block's bottom beside the hole
     over = np.array([0.35 + 0.013, -0.12, top + 0.015 + 0.01])

@@ -15,8 +15,9 @@ lift, one joint-space move to above the destination, streamed descent) makes two
 two offsets are drawn (the move rule, docs/mock.md): one at the grasp, one at the
 insertion. The **prediction** samples the same two offsets (N(0, repeatability²) per arm
 joint) and computes, by forward kinematics only, where the block's hole axis meets the
-peg's top: the blind rate predicted is the probability that it is within the radial
-clearance. The blind rate measured must match it (binomial standard error shown).
+block's top and bottom faces at the peg's top: the blind rate predicted is the probability
+that both are within the radial clearance of the peg's axis (a tilted hole is a tilted
+cylinder, docs/mock.md). The blind rate measured must match it (binomial standard error shown).
 
     python -m hyperarm_driver.benchmarks.insertion_mc [--seeds 200] [--samples 100000]
 """
@@ -145,12 +146,14 @@ def predict(desc, cfg, plan, samples: int, rng: np.random.Generator) -> float:
     peg = plan["peg"]
     clearance = cfg.world.clearance(peg.name)
     block0 = plan["block_start"]
+    half = cfg.world.block.size[2] / 2.0
     ok = 0
     for _ in range(samples):
         d1, d2 = rng.normal(0.0, sigma, 9), rng.normal(0.0, sigma, 9)
         grasp = np.linalg.inv(tool(plan["grasp"] + d1)) @ block0
         b = tool(plan["at_top"] + d2) @ grasp
-        ok += math.hypot(b[0, 3] - peg.xy[0], b[1, 3] - peg.xy[1]) <= clearance
+        rims = (b[:3, 3] + sign * half * b[:3, 2] for sign in (1.0, -1.0))
+        ok += all(math.hypot(r[0] - peg.xy[0], r[1] - peg.xy[1]) <= clearance for r in rims)
     return ok / samples
 
 

@@ -213,6 +213,7 @@ class JointSim:
         self._depth = 0.0                          # m, deepest contact after the last step
         self._redraw = False                       # a new move's offset waits for no contact
         self.guarded_steps = 0                     # steps the position guard refused
+        self._blocked = False                      # the last step was refused
         self.require_homing = bool(require_homing)
         self.homed = self.rail is None
         self.homing = False
@@ -1131,6 +1132,20 @@ class JointSim:
             depths += [c.depth for c in self._pole_contacts()]
         return max(depths, default=0.0)
 
+    def _blocked_by(self, qk: np.ndarray, jump: np.ndarray) -> str:
+        """The ``blocked`` event's text: the contacts at the refused pose, the joints."""
+        tool = self._tool_at(qk)
+        found = [f"{c.kind} {c.depth * 1e3:.1f} mm" for c in self.world.contacts(tool)
+                 if c.depth > 0.0]
+        if self._poles:
+            found += [f"{c.kind} {c.depth * 1e3:.1f} mm" for c in self._pole_contacts()
+                      if c.depth > 0.0]
+        names = [self.names[i] for i in np.flatnonzero(jump)]
+        what = ", ".join(found) or "a contact"
+        tail = f" (the contact solve would throw {', '.join(names)})" if names else ""
+        return (f"the arm is blocked: {what} at the commanded motion{tail}; the joints stay "
+                "where they are, their servos at most at their limits")
+
     def _guard(self, dt: float, qk: np.ndarray, v: np.ndarray, effort: np.ndarray,
                P: np.ndarray, D: np.ndarray, memory: tuple, y_before: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -1156,8 +1171,12 @@ class JointSim:
             deep = not D.any() and depth > GUARD_DEPTH and depth > self._depth + 1e-4
         if not jump.any() and not deep:
             self._depth = depth
+            self._blocked = False
             return qk, v, effort
         self.guarded_steps += 1
+        if not self._blocked:     # once per streak of refused steps: what blocks the arm
+            self._blocked = True
+            self.events.append(WorldEvent("blocked", self._blocked_by(qk, jump)))
         qk = np.where(P, prev, qk)
         v = np.where(P, 0.0, v)
         zero = np.zeros(nk)

@@ -18,7 +18,12 @@ The block gets threaded on a peg when its bottom goes below the peg's top while 
 axis is within the clearance of the peg's axis: that is the only way down a peg, so
 insertion succeeds only when aligned. Contacts are reported as penetrations along a normal;
 the robot model (``joint_sim``) turns them into forces through the contact stiffness and the
-servos' finite stiffness. Tilt of the block is ignored: the hole is treated as vertical.
+servos' finite stiffness. A tilted block's hole is a tilted cylinder: the peg (vertical)
+enters it only if both of the hole's rims (the circles where its axis meets the block's top
+and bottom faces) are within the clearance of the peg's axis (``accepts``), so a hole whose
+clearance is smaller than the tilt over the block's height (L·tan θ > 2 c) cannot be
+threaded at all, as a real peg jams; a block the hole cannot accept rests on the peg's top.
+The contact geometry is otherwise that of an upright block (footprints, the threaded side).
 """
 from __future__ import annotations
 
@@ -190,13 +195,31 @@ class World:
         p = self._pegs[peg]
         return math.hypot(block_pose[0, 3] - p.xy[0], block_pose[1, 3] - p.xy[1])
 
+    def rim_offsets(self, peg: str, block_pose: np.ndarray) -> tuple[float, float]:
+        """Horizontal distances (m) of the hole's two rims (its axis, the block's z, at the
+        block's top and bottom faces) from peg ``peg``'s axis."""
+        p = self._pegs[peg]
+        axis = block_pose[:3, 2] * self._half[2]
+        out = []
+        for sign in (1.0, -1.0):
+            rim = block_pose[:3, 3] + sign * axis
+            out.append(math.hypot(float(rim[0]) - p.xy[0], float(rim[1]) - p.xy[1]))
+        return out[0], out[1]
+
+    def accepts(self, peg: str, block_pose: np.ndarray) -> bool:
+        """Whether peg ``peg`` fits through the block's hole at this pose: both rims within
+        the radial clearance of its axis (upright, the hole's axis within the clearance)."""
+        c = self.cfg.block.hole_radius - self._pegs[peg].radius
+        return max(self.rim_offsets(peg, block_pose)) <= c
+
     def _touches_top(self, peg: str, block_pose: np.ndarray) -> bool:
-        """Whether the peg's top disc meets the block's bottom face (outside the hole)."""
+        """Whether the peg's top disc meets the block's bottom face (outside the hole), or
+        the peg's top meets the hole's wall (a hole too tilted to accept it)."""
         p = self._pegs[peg]
         ex, ey = p.xy[0] - float(block_pose[0, 3]), p.xy[1] - float(block_pose[1, 3])
         e = math.hypot(ex, ey)
         if e <= self.cfg.block.hole_radius - p.radius:
-            return False  # the disc is inside the hole
+            return not self.accepts(peg, block_pose)   # the disc is inside the hole
         if e >= self._corner + p.radius:
             return False  # beyond the block's corners
         # the peg's axis in the block's frame; tilt ignored: the hole is vertical
@@ -436,8 +459,7 @@ class World:
         else:
             for name, p in self._pegs.items():
                 top = self.cfg.table_height + p.height
-                if (bottom < top - THREAD_DEPTH
-                        and self.misalignment(name, pose) <= self.cfg.block.hole_radius - p.radius):
+                if bottom < top - THREAD_DEPTH and self.accepts(name, pose):
                     self.peg = name
                     self.events.append(WorldEvent("threaded", name))
                     break

@@ -65,6 +65,8 @@ class ForceInsert(Step):
     dither_speed: float = 0.04      # m/s along the pattern
     contact_threshold: float = 0.0015  # m, measured above commanded = stalled on the top
     align_tolerance: float = 0.012  # m, camera: block to peg axis when down (beside: > 2 cm)
+    camera_align: bool = True       # camera: put the held block over the target first
+    align_limit: float = 0.02       # m, the largest such correction (larger: clipped, warned)
 
 
 def build(raw: dict, ctx: BuildContext, index: int) -> ForceInsert:
@@ -89,7 +91,9 @@ def _build(raw: dict, ctx: BuildContext, index: int, d: dict) -> ForceInsert:
         pitch=ctx.si(d, "pitch", "length", 0.002, positive=True, path=("dither",)),
         dither_speed=ctx.si(d, "speed", "speed", 0.04, positive=True, path=("dither",)),
         contact_threshold=ctx.si(raw, "contact_threshold", "length", 0.0015, positive=True),
-        align_tolerance=ctx.si(raw, "align_tolerance", "length", 0.012, positive=True))
+        align_tolerance=ctx.si(raw, "align_tolerance", "length", 0.012, positive=True),
+        camera_align=bool(raw.get("camera_align", True)),
+        align_limit=ctx.si(raw, "align_limit", "length", 0.02, nonneg=True))
 
 
 class Dither:
@@ -138,11 +142,44 @@ def _check_on_axis(step: ForceInsert, runner) -> None:
                          f"of {step.target.relative_to} (beside it, not on it)")
 
 
+def _camera_aligned(step: ForceInsert, runner, target: np.ndarray) -> np.ndarray:
+    """The target with its x-y shifted so that the held block, as the camera sees it, comes
+    over the target: the block's offset from the measured tool (FK of joint_states) is the
+    grasp's and the arm's repeatability error, which the encoders do not see (docs/mock.md);
+    the tool's goal is the target minus that offset (the block is taken as held at tool0, as
+    block_transfer grasps it: down_to_block goes to the block's detected pose). Needs the
+    target relative to a detected object and the block among the task's objects; the shift
+    is at most ``align_limit``."""
+    objects = runner.task.objects
+    if (not step.camera_align or runner.holding is None or "block" not in objects
+            or step.target.relative_to not in objects):
+        return target
+    frames = 2 * runner.params.detection_frames
+    block = runner.detect("block", since=runner.robot.now(), frames=frames).xyz
+    tool = runner.tool_measured()[:3, 3]
+    # held at tool0 (the grasp puts tool0 at the block's detected pose): with the tool's
+    # FK at x the block is at x + (block - tool); the goal puts the block at the target
+    shift = -(block[:2] - tool[:2])
+    size = float(np.hypot(*shift))
+    if size > step.align_limit:
+        runner.robot.log("warn", f"{step.name}: the camera sees the block {size * 1000:.1f} mm "
+                                 f"from where the tool should put it; correcting by "
+                                 f"align_limit ({step.align_limit * 1000:.0f} mm) only")
+        shift *= step.align_limit / size
+    runner.metrics["camera_shift"] = float(np.hypot(*shift))
+    runner.robot.log("info", f"{step.name}: camera: the held block is "
+                             f"{size * 1000:.1f} mm off; x-y target shifted by "
+                             f"({shift[0] * 1000:+.1f}, {shift[1] * 1000:+.1f}) mm")
+    out = target.copy()
+    out[:2, 3] += shift
+    return out
+
+
 def run(step: ForceInsert, runner) -> None:
     robot = runner.robot
     if runner.holding is None:
         robot.log("warn", f"{step.name}: no grasp is held (inserting anyway)")
-    target = runner.resolve(step.target)
+    target = _camera_aligned(step, runner, runner.resolve(step.target))
     start = runner.tool_reference()
     z_contact = float(target[2, 3])
     z_bottom = z_contact - step.press
@@ -311,7 +348,8 @@ register(StepType(
     {"target": pose_schema(), "depth": quantity("length"), "press": quantity("length"),
      "force": quantity("force"), "stiffness": quantity("stiffness"),
      "descent_speed": quantity("speed"), "contact_threshold": quantity("length"),
-     "align_tolerance": quantity("length"),
+     "align_tolerance": quantity("length"), "camera_align": {"type": "boolean"},
+     "align_limit": quantity("length"),
      "dither": {"type": "object", "additionalProperties": False, "properties": {
          "pattern": {"enum": ["spiral", "circle"]}, "radius": quantity("length"),
          "pitch": quantity("length"), "speed": quantity("speed")}}},
