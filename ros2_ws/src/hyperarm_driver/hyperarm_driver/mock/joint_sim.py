@@ -214,6 +214,7 @@ class JointSim:
         self._redraw = False                       # a new move's offset waits for no contact
         self.guarded_steps = 0                     # steps the position guard refused
         self._blocked = False                      # the last step was refused
+        self._blocked_at = -math.inf               # s, the last blocked event
         self.require_homing = bool(require_homing)
         self.homed = self.rail is None
         self.homing = False
@@ -548,8 +549,7 @@ class JointSim:
         effort[P] = tau[P]
         effort[D] = self._applied_torque(D)
         qk = np.clip(q + dq, self.lower[:nk], self.upper[:nk])
-        if P.any():
-            qk, v, effort = self._guard(dt, qk, v, effort, P, D, memory, y_before)
+        qk, v, effort = self._guard(dt, qk, v, effort, P, D, memory, y_before)
         self._yield_rate[:nk] = (self._yield[:nk] - y_before) / dt
         self.velocity[:nk] = v
         self.position[:nk] = qk
@@ -1128,6 +1128,7 @@ class JointSim:
         the work cell at chain positions ``q``; 0 without contact."""
         tool = self._tool_at(q)
         depths = [c.depth for c in self.world.contacts(tool)]
+        depths.append(self.world.penetration(tool))       # the geometry alone, no memory
         if self._poles:
             depths += [c.depth for c in self._pole_contacts()]
         return max(depths, default=0.0)
@@ -1150,14 +1151,16 @@ class JointSim:
                P: np.ndarray, D: np.ndarray, memory: tuple, y_before: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The last check of a step: the position-class joints ``P`` may not jump (move more
-        than JUMP_FACTOR times their velocity limit in the step) and, with no torque-mode joint in the chain,
-        may not end with a link or the block more than GUARD_DEPTH into a pole, a peg or
-        the table and deeper than after the last step. The contact solve is a linearization;
-        where it fails (a link caught edge-on, a near-singular yield solve) its pose is not
-        taken: the joints stay where they were, as against a rigid obstacle, and each
-        servo's spring is held at most at its torque limit there by its yield, so a servo
-        the obstacle blocks stays at its limit and overloads (OVERLOAD_TIME), as the real
-        one does. ``memory``: the contact memory (link contacts' sides, friction anchors,
+        than JUMP_FACTOR times their velocity limit in the step), and no joint may end the
+        step with a link or the block more than GUARD_DEPTH into a pole, a peg or the table
+        and deeper than after the last step. The contact solve is a linearization (once per
+        step for the torque-mode joints ``D``); where it fails (a link caught edge-on, a
+        near-singular yield solve, a torque-driven block hitting the table fast) its pose is
+        not taken: the joints stay where they were, as against a rigid obstacle (the
+        torque-mode ones stopped: an inelastic impact), and each position-class servo's
+        spring is held at most at its torque limit there by its yield, so a servo the
+        obstacle blocks stays at its limit and overloads (OVERLOAD_TIME), as the real one
+        does. ``memory``: the contact memory (link contacts' sides, friction anchors,
         warm start) at the step's start, restored with the pose; ``y_before``: the yields
         at the step's start (the spring is held from there). Returns the positions,
         velocities and efforts of the step."""
@@ -1168,17 +1171,19 @@ class JointSim:
         depth = 0.0
         if self.world.state is BlockState.HELD or self._poles:
             depth = self._deepest(qk)
-            deep = not D.any() and depth > GUARD_DEPTH and depth > self._depth + 1e-4
+            deep = depth > GUARD_DEPTH and depth > self._depth + 1e-4
         if not jump.any() and not deep:
             self._depth = depth
             self._blocked = False
             return qk, v, effort
         self.guarded_steps += 1
-        if not self._blocked:     # once per streak of refused steps: what blocks the arm
-            self._blocked = True
+        if not self._blocked and self.time - self._blocked_at >= 1.0:
+            # once per streak of refused steps (at most once a second): what blocks the arm
+            self._blocked_at = self.time
             self.events.append(WorldEvent("blocked", self._blocked_by(qk, jump)))
-        qk = np.where(P, prev, qk)
-        v = np.where(P, 0.0, v)
+        self._blocked = True
+        qk = prev.copy()
+        v = np.zeros(nk)
         zero = np.zeros(nk)
         tau_g = pin.rnea(self.model, self.data, qk + self.offset[:nk], zero, zero)
         k, lim = self.stiffness[:nk], self.limit[:nk]

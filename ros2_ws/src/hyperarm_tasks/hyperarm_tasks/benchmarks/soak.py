@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import signal
 import subprocess
 import sys
 import tempfile
@@ -34,15 +35,52 @@ def _script() -> str:
     return str(Path(get_package_prefix("hyperarm_tasks")) / "lib" / "hyperarm_tasks" / "run_task.sh")
 
 
+def _run(cmd: list[str], timeout: float) -> tuple[int, str, str]:
+    """Run one run_task.sh (in its own session); on Ctrl-C, SIGTERM or the timeout, SIGTERM
+    it (it stops every process it started: SIGTERM, since a shell started in the background
+    ignores SIGINT) and wait for it, then kill what is left of its session, so no cycle's
+    stack is left behind."""
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, PYTHONUNBUFFERED="1"), start_new_session=True)
+    try:
+        stdout, stderr = proc.communicate(timeout=timeout)
+    except BaseException as exc:
+        proc.terminate()
+        try:
+            stdout, stderr = proc.communicate(timeout=30.0)
+        except subprocess.TimeoutExpired:
+            stdout, stderr = "", ""
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)     # anything it could not stop
+        except ProcessLookupError:
+            pass
+        if proc.returncode is None:
+            stdout, stderr = proc.communicate()
+        if isinstance(exc, subprocess.TimeoutExpired):
+            return 124, stdout, stderr + f"\nsoak: the cycle took more than {timeout:g} s"
+        raise
+    return proc.returncode, stdout, stderr
+
+
+def _terminate(signum, frame):   # SIGTERM: stop as Ctrl-C does (the cycle's stack first)
+    raise KeyboardInterrupt
+
+
+def _handle_signals() -> None:
+    """SIGINT and SIGTERM stop the soak (the cycle's stack first), also when it was started
+    in the background, where SIGINT is ignored on entry."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, _terminate)
+
+
 def run_cycle(seed: int, logs: Path, task: str = "block_transfer",
               options: list[str] | None = None) -> dict:
     t0 = time.monotonic()
-    done = subprocess.run([_script(), "--seed", str(seed), "--logs", str(logs / f"seed{seed}"),
-                           *(options or []), task], capture_output=True, text=True, timeout=600,
-                          env=dict(os.environ, PYTHONUNBUFFERED="1"))
-    out = {"seed": seed, "ok": done.returncode == 0, "wall": time.monotonic() - t0,
+    rc, stdout, stderr = _run([_script(), "--seed", str(seed), "--logs", str(logs / f"seed{seed}"),
+                               *(options or []), task], timeout=600)
+    out = {"seed": seed, "ok": rc == 0, "wall": time.monotonic() - t0,
            "message": "", "metrics": {}, "time": float("nan")}
-    for line in (done.stdout + done.stderr).splitlines():
+    for line in (stdout + stderr).splitlines():
         m = _RESULT.search(line)
         if m:
             out["message"] = m.group(2)
@@ -56,7 +94,7 @@ def run_cycle(seed: int, logs: Path, task: str = "block_transfer",
                     except ValueError:
                         pass
     if not out["message"]:
-        out["message"] = (done.stderr or done.stdout).strip().splitlines()[-1:] or ["no output"]
+        out["message"] = (stderr or stdout).strip().splitlines()[-1:] or ["no output"]
     return out
 
 
@@ -82,10 +120,15 @@ def main(argv: list[str] | None = None) -> int:
                *(["--workcell", args.workcell] if args.workcell else [])]
     if args.task != "block_transfer":
         return _soak_task(args, logs, options)
+    _handle_signals()
     results = []
     for k in range(args.cycles):
         seed = args.first_seed + k
-        r = run_cycle(seed, logs, options=options)
+        try:
+            r = run_cycle(seed, logs, options=options)
+        except KeyboardInterrupt:
+            print(f"\ninterrupted in cycle {k + 1} (seed {seed}); its stack stopped", flush=True)
+            break
         results.append(r)
         m = r["metrics"]
         print(f"cycle {k + 1:2d} seed {seed:3d}: {'ok  ' if r['ok'] else 'FAIL'} "
@@ -101,15 +144,22 @@ def main(argv: list[str] | None = None) -> int:
     print(f"dither turns: {_stats([r['metrics'].get('dither_turns', np.nan) for r in ok])}")
     print(f"insertion attempts: {_stats([r['metrics'].get('insertion_attempts', np.nan) for r in ok])}")
     print(f"logs: {logs}")
+    if len(results) < args.cycles:
+        return 130
     return 0 if len(ok) == len(results) else 1
 
 
 def _soak_task(args, logs: Path, options: list[str]) -> int:
     """Any other task: a line per cycle, then the statistics of every reported metric."""
+    _handle_signals()
     results = []
     for k in range(args.cycles):
         seed = args.first_seed + k
-        r = run_cycle(seed, logs, args.task, options)
+        try:
+            r = run_cycle(seed, logs, args.task, options)
+        except KeyboardInterrupt:
+            print(f"\ninterrupted in cycle {k + 1} (seed {seed}); its stack stopped", flush=True)
+            break
         results.append(r)
         figures = ", ".join(f"{n} {v:.4g}" for n, v in r["metrics"].items())
         print(f"cycle {k + 1:2d} seed {seed:3d}: {'ok  ' if r['ok'] else 'FAIL'} task "
@@ -122,6 +172,8 @@ def _soak_task(args, logs: Path, options: list[str]) -> int:
         print(f"{name}: min {_min(ok, name)}, "
               f"{_stats([r['metrics'].get(name, np.nan) for r in ok], '.4g')}")
     print(f"logs: {logs}")
+    if len(results) < args.cycles:
+        return 130
     return 0 if len(ok) == len(results) else 1
 
 
