@@ -23,15 +23,26 @@ def test_signal_to_the_soak_stops_the_cycles_stack(sig, executable, ros_domain, 
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             text=True)
     pids = logs / "seed4" / "pids"
-    deadline = time.monotonic() + 60.0
-    # the cycle's stack is up: its three nodes written to the pids file and running
-    while time.monotonic() < deadline and len(still_running(pids.parent)
-                                              if pids.exists() else []) < 3:
-        time.sleep(0.2)
-    assert pids.exists() and len(still_running(pids.parent)) >= 3, "no stack came up"
-    time.sleep(1.0)
-    proc.send_signal(sig)
-    out, _ = proc.communicate(timeout=45)
+    try:
+        deadline = time.monotonic() + 60.0
+        # the cycle's stack is up: its three nodes written to the pids file and running
+        while time.monotonic() < deadline and len(still_running(pids.parent)
+                                                  if pids.exists() else []) < 3:
+            time.sleep(0.2)
+        assert pids.exists() and len(still_running(pids.parent)) >= 3, "no stack came up"
+        time.sleep(1.0)
+        proc.send_signal(sig)
+        out, _ = proc.communicate(timeout=90)
+    except BaseException:   # the test failed: leave nothing running for the next tests
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+        for line in (pids.read_text().split() if pids.exists() else [])[1::2]:
+            try:
+                os.kill(int(line), signal.SIGKILL)
+            except (ProcessLookupError, ValueError):
+                pass
+        raise
     assert proc.returncode == 130, out
     assert "interrupted in cycle 1 (seed 4)" in out, out
     assert "Traceback" not in out, out

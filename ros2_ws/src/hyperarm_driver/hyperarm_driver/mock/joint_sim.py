@@ -210,7 +210,6 @@ class JointSim:
         self._contact_rows_used = None
         self._warm: np.ndarray | None = None       # last step's contact deflection (rad)
         self._underpowered: set[str] = set()       # joints whose current limit < their load
-        self._depth = 0.0                          # m, deepest contact after the last step
         self._redraw = False                       # a new move's offset waits for no contact
         self.guarded_steps = 0                     # steps the position guard refused
         self._blocked = False                      # the last step was refused
@@ -374,10 +373,12 @@ class JointSim:
 
     def _draw_offset(self) -> None:
         """Draw the pending new move's repeatability offset, unless a link or the held block
-        touches the work cell (then at the first step free of contact)."""
+        touches the work cell or the block is threaded on a peg (then at the first step free
+        of contact, off the peg)."""
         if not self._redraw:
             return
-        if self.link_contacts or np.abs(self.contact_force).max() > 0.0:
+        threaded = self.world.state is BlockState.HELD and self.world.peg is not None
+        if self.link_contacts or np.abs(self.contact_force).max() > 0.0 or threaded:
             return
         self._redraw = False
         arm = np.flatnonzero(self._arm)
@@ -536,8 +537,8 @@ class JointSim:
             a[yielding] = 0.0
         y_before = self._yield[:nk].copy()
         # the contact memory the step starts from (restored if the guard refuses the step)
-        memory = (dict(self._pole_normals), {k: a.copy() for k, a in self._anchors.items()},
-                  self._warm)
+        memory = (dict(self._pole_normals),
+                  {kind: xy.copy() for kind, xy in self._anchors.items()}, self._warm)
         if D.any():
             q, v = self._dynamics(dt, q, v, a, P, D)
         dq, gen = self._contacts(q, P, v=None)
@@ -549,7 +550,8 @@ class JointSim:
         effort[P] = tau[P]
         effort[D] = self._applied_torque(D)
         qk = np.clip(q + dq, self.lower[:nk], self.upper[:nk])
-        qk, v, effort = self._guard(dt, qk, v, effort, P, D, memory, y_before)
+        qk, v, effort, tau_id = self._guard(dt, qk, v, effort, tau_id, P, D, memory, y_before)
+        self._draw_offset()      # a pending new move's offset, once free of contact
         self._yield_rate[:nk] = (self._yield[:nk] - y_before) / dt
         self.velocity[:nk] = v
         self.position[:nk] = qk
@@ -575,7 +577,6 @@ class JointSim:
                     self._restart_profile(int(i), keep_goal=not self._gap_hold[i])
                 self._gap_hold[i] = False
         self._report_efforts(gapped)
-        self._draw_offset()
         self.events.extend(self.world.take_events())
         if self.host is not None:
             self.host.after_step(dt)
@@ -1148,12 +1149,14 @@ class JointSim:
                 "where they are, their servos at most at their limits")
 
     def _guard(self, dt: float, qk: np.ndarray, v: np.ndarray, effort: np.ndarray,
-               P: np.ndarray, D: np.ndarray, memory: tuple, y_before: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               tau_id: np.ndarray, P: np.ndarray, D: np.ndarray, memory: tuple,
+               y_before: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The last check of a step: the position-class joints ``P`` may not jump (move more
         than JUMP_FACTOR times their velocity limit in the step), and no joint may end the
-        step with a link or the block more than GUARD_DEPTH into a pole, a peg or the table
-        and deeper than after the last step. The contact solve is a linearization (once per
+        step with a link or the block more than GUARD_DEPTH into a pole, a peg or the table,
+        unless the pose it would keep instead (the last one, as it is now: host motion, a
+        new offset or a grasp may have moved it) is deeper still. The contact solve is a linearization (once per
         step for the torque-mode joints ``D``); where it fails (a link caught edge-on, a
         near-singular yield solve, a torque-driven block hitting the table fast) its pose is
         not taken: the joints stay where they were, as against a rigid obstacle (the
@@ -1163,7 +1166,7 @@ class JointSim:
         does. ``memory``: the contact memory (link contacts' sides, friction anchors,
         warm start) at the step's start, restored with the pose; ``y_before``: the yields
         at the step's start (the spring is held from there). Returns the positions,
-        velocities and efforts of the step."""
+        velocities, efforts and inverse-dynamics torques of the step."""
         nk = self.nk
         prev = self.position[:nk]
         jump = P & (np.abs(qk - prev) > JUMP_FACTOR * self.vmax[:nk] * dt)
@@ -1171,11 +1174,14 @@ class JointSim:
         depth = 0.0
         if self.world.state is BlockState.HELD or self._poles:
             depth = self._deepest(qk)
-            deep = depth > GUARD_DEPTH and depth > self._depth + 1e-4
+            if depth > GUARD_DEPTH:   # against the pose that would be kept, measured now
+                now, self._pole_normals = self._pole_normals, memory[0]
+                before = self._deepest(prev)
+                self._pole_normals = now
+                deep = depth > max(GUARD_DEPTH, before) + 1e-9
         if not jump.any() and not deep:
-            self._depth = depth
             self._blocked = False
-            return qk, v, effort
+            return qk, v, effort, tau_id
         self.guarded_steps += 1
         if not self._blocked and self.time - self._blocked_at >= 1.0:
             # once per streak of refused steps (at most once a second): what blocks the arm
@@ -1194,9 +1200,7 @@ class JointSim:
         # the contact state (forces, link contacts, friction anchors) of the pose kept
         self._pole_normals, self._anchors, self._warm = memory
         self._contacts(qk, np.zeros(nk, dtype=bool), v=None)
-        self._depth = self._deepest(qk) if (self.world.state is BlockState.HELD
-                                             or self._poles) else 0.0
-        return qk, v, effort
+        return qk, v, effort, tau_g
 
     def _check_underpowered(self, P: np.ndarray, tau_id: np.ndarray) -> None:
         """A current-limited (CURRENT_POSITION) servo whose limit is below its own gravity

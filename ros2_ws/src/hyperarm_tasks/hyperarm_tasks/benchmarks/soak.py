@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 _RESULT = re.compile(r"run_task: (\w+): (.*)")
+STOP_WAIT = 60.0   # s for run_task.sh to stop its stack (its client, then each node)
 _DONE = re.compile(r"done in ([0-9.]+) s \((.*)\)")
 
 
@@ -35,31 +36,88 @@ def _script() -> str:
     return str(Path(get_package_prefix("hyperarm_tasks")) / "lib" / "hyperarm_tasks" / "run_task.sh")
 
 
-def _run(cmd: list[str], timeout: float) -> tuple[int, str, str]:
-    """Run one run_task.sh (in its own session); on Ctrl-C, SIGTERM or the timeout, SIGTERM
-    it (it stops every process it started: SIGTERM, since a shell started in the background
-    ignores SIGINT) and wait for it, then kill what is left of its session, so no cycle's
-    stack is left behind."""
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=dict(os.environ, PYTHONUNBUFFERED="1"), start_new_session=True)
+_STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+
+
+def _run(cmd: list[str], timeout: float, pids: Path) -> tuple[int, str, str]:
+    """Run one run_task.sh (in its own session); on Ctrl-C, SIGTERM or the timeout, stop it
+    (:func:`_stop`) before going on, with SIGINT and SIGTERM held off meanwhile, so no
+    cycle's stack is left behind. ``pids``: its ``--logs`` directory's pids file."""
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+    try:
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True, env=dict(os.environ, PYTHONUNBUFFERED="1"),
+                                start_new_session=True, preexec_fn=_unblock)
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
     try:
         stdout, stderr = proc.communicate(timeout=timeout)
+        return proc.returncode, stdout, stderr
     except BaseException as exc:
-        proc.terminate()
+        signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
         try:
-            stdout, stderr = proc.communicate(timeout=30.0)
-        except subprocess.TimeoutExpired:
-            stdout, stderr = "", ""
-        try:
-            os.killpg(proc.pid, signal.SIGKILL)     # anything it could not stop
-        except ProcessLookupError:
-            pass
-        if proc.returncode is None:
-            stdout, stderr = proc.communicate()
+            stdout, stderr = _stop(proc, pids)
+        finally:   # a stop request that came meanwhile is delivered here
+            signal.pthread_sigmask(signal.SIG_SETMASK, held)
         if isinstance(exc, subprocess.TimeoutExpired):
             return 124, stdout, stderr + f"\nsoak: the cycle took more than {timeout:g} s"
         raise
-    return proc.returncode, stdout, stderr
+
+
+def _unblock() -> None:
+    """In the child before exec: the stop signals are blocked in the parent around the
+    fork, and a child would inherit that (run_task.sh's traps would never run)."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
+
+
+def _stop(proc: subprocess.Popen, pids: Path) -> tuple[str, str]:
+    """SIGTERM run_task.sh (it stops every process it started: SIGTERM, since a shell started
+    in the background ignores SIGINT), give it STOP_WAIT s, then SIGKILL what is left: its
+    session and every node in its pids file (run_task.sh starts each in a session of its
+    own)."""
+    proc.terminate()
+    try:
+        stdout, stderr = proc.communicate(timeout=STOP_WAIT)
+    except subprocess.TimeoutExpired:
+        stdout, stderr = "", "soak: run_task.sh did not stop in time: killed\n"
+    for pid in [proc.pid] + _listed(pids):
+        try:
+            os.killpg(pid, signal.SIGKILL) if pid == proc.pid else os.kill(pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
+    if proc.returncode is None:
+        proc.communicate()
+    return stdout, stderr
+
+
+def _listed(pids: Path) -> list[int]:
+    """The pids in a run_task.sh pids file ("name pid" lines), [] without one."""
+    try:
+        lines = pids.read_text().splitlines()
+    except OSError:
+        return []
+    return [int(line.split()[1]) for line in lines if len(line.split()) == 2
+            and line.split()[1].isdigit()]
+
+
+def _cycles(args, logs: Path, options: list[str], task: str, results: list[dict],
+            line) -> None:
+    """Run the cycles into ``results``, a line each (``line(k, seed, result)``); a stop
+    request (Ctrl-C, SIGTERM) ends them after the cycle's stack is stopped. Further stop
+    requests are ignored from then on: the summary is printed whole."""
+    k, seed = 0, args.first_seed
+    try:
+        for k in range(args.cycles):
+            seed = args.first_seed + k
+            results.append(run_cycle(seed, logs, task, options))
+            print(line(k, seed, results[-1]), flush=True)
+    except KeyboardInterrupt:
+        for sig in _STOP_SIGNALS:
+            signal.signal(sig, signal.SIG_IGN)
+        print(f"\ninterrupted in cycle {k + 1} (seed {seed}); its stack stopped", flush=True)
+        return
+    for sig in _STOP_SIGNALS:
+        signal.signal(sig, signal.SIG_IGN)
 
 
 def _terminate(signum, frame):   # SIGTERM: stop as Ctrl-C does (the cycle's stack first)
@@ -76,8 +134,9 @@ def _handle_signals() -> None:
 def run_cycle(seed: int, logs: Path, task: str = "block_transfer",
               options: list[str] | None = None) -> dict:
     t0 = time.monotonic()
-    rc, stdout, stderr = _run([_script(), "--seed", str(seed), "--logs", str(logs / f"seed{seed}"),
-                               *(options or []), task], timeout=600)
+    where = logs / f"seed{seed}"
+    rc, stdout, stderr = _run([_script(), "--seed", str(seed), "--logs", str(where),
+                               *(options or []), task], timeout=600, pids=where / "pids")
     out = {"seed": seed, "ok": rc == 0, "wall": time.monotonic() - t0,
            "message": "", "metrics": {}, "time": float("nan")}
     for line in (stdout + stderr).splitlines():
@@ -121,22 +180,18 @@ def main(argv: list[str] | None = None) -> int:
     if args.task != "block_transfer":
         return _soak_task(args, logs, options)
     _handle_signals()
-    results = []
-    for k in range(args.cycles):
-        seed = args.first_seed + k
-        try:
-            r = run_cycle(seed, logs, options=options)
-        except KeyboardInterrupt:
-            print(f"\ninterrupted in cycle {k + 1} (seed {seed}); its stack stopped", flush=True)
-            break
-        results.append(r)
+    results: list[dict] = []
+
+    def line(k: int, seed: int, r: dict) -> str:
         m = r["metrics"]
-        print(f"cycle {k + 1:2d} seed {seed:3d}: {'ok  ' if r['ok'] else 'FAIL'} "
-              f"task {r['time']:.1f} s (wall {r['wall']:.0f} s), insertion "
-              f"{m.get('insertion_time', float('nan')):.2f} s, dither turns "
-              f"{m.get('dither_turns', float('nan')):.1f}, attempts "
-              f"{m.get('insertion_attempts', float('nan')):.0f}"
-              + ("" if r["ok"] else f": {r['message']}"), flush=True)
+        return (f"cycle {k + 1:2d} seed {seed:3d}: {'ok  ' if r['ok'] else 'FAIL'} "
+                f"task {r['time']:.1f} s (wall {r['wall']:.0f} s), insertion "
+                f"{m.get('insertion_time', float('nan')):.2f} s, dither turns "
+                f"{m.get('dither_turns', float('nan')):.1f}, attempts "
+                f"{m.get('insertion_attempts', float('nan')):.0f}"
+                + ("" if r["ok"] else f": {r['message']}"))
+
+    _cycles(args, logs, options, "block_transfer", results, line)
     ok = [r for r in results if r["ok"]]
     print(f"\nsuccess: {len(ok)}/{len(results)}")
     print(f"cycle time (s): {_stats([r['time'] for r in ok])}")
@@ -152,19 +207,15 @@ def main(argv: list[str] | None = None) -> int:
 def _soak_task(args, logs: Path, options: list[str]) -> int:
     """Any other task: a line per cycle, then the statistics of every reported metric."""
     _handle_signals()
-    results = []
-    for k in range(args.cycles):
-        seed = args.first_seed + k
-        try:
-            r = run_cycle(seed, logs, args.task, options)
-        except KeyboardInterrupt:
-            print(f"\ninterrupted in cycle {k + 1} (seed {seed}); its stack stopped", flush=True)
-            break
-        results.append(r)
+    results: list[dict] = []
+
+    def line(k: int, seed: int, r: dict) -> str:
         figures = ", ".join(f"{n} {v:.4g}" for n, v in r["metrics"].items())
-        print(f"cycle {k + 1:2d} seed {seed:3d}: {'ok  ' if r['ok'] else 'FAIL'} task "
-              f"{r['time']:.1f} s (wall {r['wall']:.0f} s)"
-              + (f": {figures}" if r["ok"] else f": {r['message']}"), flush=True)
+        return (f"cycle {k + 1:2d} seed {seed:3d}: {'ok  ' if r['ok'] else 'FAIL'} task "
+                f"{r['time']:.1f} s (wall {r['wall']:.0f} s)"
+                + (f": {figures}" if r["ok"] else f": {r['message']}"))
+
+    _cycles(args, logs, options, args.task, results, line)
     ok = [r for r in results if r["ok"]]
     print(f"\n{args.task} success: {len(ok)}/{len(results)}")
     print(f"task time (s): {_stats([r['time'] for r in ok])}")

@@ -149,13 +149,22 @@ def _camera_aligned(step: ForceInsert, runner, target: np.ndarray) -> np.ndarray
     the tool's goal is the target minus that offset (the block is taken as held at tool0, as
     block_transfer grasps it: down_to_block goes to the block's detected pose). Needs the
     target relative to a detected object and the block among the task's objects; the shift
-    is at most ``align_limit``."""
+    is at most ``align_limit``; without fresh sightings of the block the target is kept (a
+    warning). The step moves to the shifted target at its descent speed (no jump: a jump
+    would be a new move, with a new repeatability error)."""
     objects = runner.task.objects
     if (not step.camera_align or runner.holding is None or "block" not in objects
             or step.target.relative_to not in objects):
         return target
     frames = 2 * runner.params.detection_frames
-    block = runner.detect("block", since=runner.robot.now(), frames=frames).xyz
+    try:
+        block = runner.detect("block", since=runner.robot.now(), frames=frames).xyz
+    except StepFailed as exc:
+        if exc.kind != "detection":
+            raise
+        runner.robot.log("warn", f"{step.name}: no camera alignment ({exc}); inserting from "
+                                 "the target as given")
+        return target
     tool = runner.tool_measured()[:3, 3]
     # held at tool0 (the grasp puts tool0 at the block's detected pose): with the tool's
     # FK at x the block is at x + (block - tool); the goal puts the block at the target
@@ -181,6 +190,9 @@ def run(step: ForceInsert, runner) -> None:
         robot.log("warn", f"{step.name}: no grasp is held (inserting anyway)")
     target = _camera_aligned(step, runner, runner.resolve(step.target))
     start = runner.tool_reference()
+    # the way from the start to the target's x-y (a camera correction): at descent_speed
+    lateral = target[:2, 3] - start[:2, 3]
+    lateral_time = float(np.hypot(*lateral)) / step.descent_speed
     z_contact = float(target[2, 3])
     z_bottom = z_contact - step.press
     use_force = robot.force_available()
@@ -215,6 +227,8 @@ def run(step: ForceInsert, runner) -> None:
             z_cmd = max(z_bottom, z_cmd - step.descent_speed * dt)
             goal = target.copy()
             goal[:3, 3] = target[:3, 3] + off
+            if now - t0 < lateral_time:     # still on the way to the target's x-y
+                goal[:2, 3] -= lateral * (1.0 - (now - t0) / lateral_time)
             goal[2, 3] = z_cmd
             if found_xy is not None:
                 # down the peg (being confirmed): the peg holds the block where the hole found
