@@ -49,6 +49,8 @@ STALL_WINDOW = 0.15   # s: the tool stalled if it moved down less than STALL_MOT
 STALL_MOTION = 3e-4   # m  (while the command went down more than twice that)
 CONTACT_WINDOW = 0.01  # m: a stall counts as contact only this close above the nominal top
 MAX_RESUMES = 10      # force control enabled again after it went passive on late joint states
+STILL_MOTION = 5e-4   # m: the tool moved less than this while the camera looked (alignment)
+ALIGN_TRIES = 3       # camera alignment: looks at most (the arm moved while it looked)
 
 
 @dataclass(frozen=True)
@@ -157,15 +159,24 @@ def _camera_aligned(step: ForceInsert, runner, target: np.ndarray) -> np.ndarray
             or step.target.relative_to not in objects):
         return target
     frames = 2 * runner.params.detection_frames
-    try:
-        block = runner.detect("block", since=runner.robot.now(), frames=frames).xyz
-    except StepFailed as exc:
-        if exc.kind != "detection":
-            raise
-        runner.robot.log("warn", f"{step.name}: no camera alignment ({exc}); inserting from "
-                                 "the target as given")
+    for _ in range(ALIGN_TRIES):
+        _settle(runner)
+        before = runner.tool_measured()[:3, 3]
+        try:
+            block = runner.detect("block", since=runner.robot.now(), frames=frames).xyz
+        except StepFailed as exc:
+            if exc.kind != "detection":
+                raise
+            runner.robot.log("warn", f"{step.name}: no camera alignment ({exc}); inserting "
+                                     "from the target as given")
+            return target
+        tool = runner.tool_measured()[:3, 3]
+        if np.linalg.norm(tool - before) < STILL_MOTION:
+            break      # the images saw the block where the tool is now
+    else:
+        runner.robot.log("warn", f"{step.name}: the arm kept moving while the camera looked "
+                                 "at the block; no camera alignment")
         return target
-    tool = runner.tool_measured()[:3, 3]
     # held at tool0 (the grasp puts tool0 at the block's detected pose): with the tool's
     # FK at x the block is at x + (block - tool); the goal puts the block at the target
     shift = -(block[:2] - tool[:2])
@@ -184,17 +195,26 @@ def _camera_aligned(step: ForceInsert, runner, target: np.ndarray) -> np.ndarray
     return out
 
 
+def _settle(runner, window: float = 0.2, timeout: float = 2.0) -> None:
+    """Wait (up to ``timeout`` s) until the measured tool moved less than STILL_MOTION over
+    the last ``window`` s."""
+    t0 = runner.robot.now()
+    seen: deque[tuple[float, np.ndarray]] = deque()
+    while runner.robot.now() - t0 < timeout:
+        now, p = runner.robot.now(), runner.tool_measured()[:3, 3]
+        seen.append((now, p))
+        while now - seen[0][0] > window:
+            seen.popleft()
+        if now - t0 >= window and np.linalg.norm(p - seen[0][1]) < STILL_MOTION:
+            return
+        runner.tick()
+
+
 def run(step: ForceInsert, runner) -> None:
     robot = runner.robot
     if runner.holding is None:
         robot.log("warn", f"{step.name}: no grasp is held (inserting anyway)")
-    target = _camera_aligned(step, runner, runner.resolve(step.target))
-    start = runner.tool_reference()
-    # the way from the start to the target's x-y (a camera correction): at descent_speed
-    lateral = target[:2, 3] - start[:2, 3]
-    lateral_time = float(np.hypot(*lateral)) / step.descent_speed
-    z_contact = float(target[2, 3])
-    z_bottom = z_contact - step.press
+    target = runner.resolve(step.target)
     use_force = robot.force_available()
     if use_force:
         reason = robot.set_force_control(True)
@@ -206,6 +226,20 @@ def run(step: ForceInsert, runner) -> None:
                           f"pressing with a position pseudo-goal {step.press * 1000:.0f} mm "
                           "below the contact height through joint_command")
         runner.metrics["pressing_fallback_logged"] = 1.0
+    try:
+        # the camera looks once the force node holds the arm: its taking over can settle
+        # the arm anew (on the robot, the backlash; on the mock, a new move's offset)
+        target = _camera_aligned(step, runner, target)
+    except BaseException:
+        if use_force:
+            runner.force_off()
+        raise
+    start = runner.tool_reference()
+    # the way from the start to the target's x-y (a camera correction): at descent_speed
+    lateral = target[:2, 3] - start[:2, 3]
+    lateral_time = float(np.hypot(*lateral)) / step.descent_speed
+    z_contact = float(target[2, 3])
+    z_bottom = z_contact - step.press
     dither = Dither(step, runner.attempt)
     q = runner.q_target if runner.q_target is not None else runner.q_measured()
     t0 = robot.now()
