@@ -18,7 +18,7 @@ if [ "$workers" -gt 1 ] && python -c "import xdist" 2>/dev/null; then
 fi
 start=$(date +%s)
 set +e
-python -m pytest "${parallel[@]}" "$@"
+python -m pytest "${parallel[@]}" --durations=25 "$@"
 rc=$?
 set -e
 echo "[test] pytest exit code $rc after $(( $(date +%s) - start )) s"
