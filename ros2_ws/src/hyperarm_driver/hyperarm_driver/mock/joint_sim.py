@@ -1126,10 +1126,13 @@ class JointSim:
 
     def _deepest(self, q: np.ndarray) -> float:
         """Deepest interference (m) of the block (held) and the links' capsules (poles) in
-        the work cell at chain positions ``q``; 0 without contact."""
+        the work cell at chain positions ``q``; 0 without contact. The wall of the hole of a
+        threaded block is left out: guarding it jammed blocks going down the peg (the
+        two-cycle e2e test), a known gap (docs/mock.md)."""
         tool = self._tool_at(q)
-        depths = [c.depth for c in self.world.contacts(tool)]
-        depths.append(self.world.penetration(tool))       # the geometry alone, no memory
+        wall = f"peg_side:{self.world.peg}" if self.world.peg is not None else None
+        depths = [c.depth for c in self.world.contacts(tool) if c.kind != wall]
+        depths.append(self.world.penetration(tool, threaded=False))   # the geometry alone
         if self._poles:
             depths += [c.depth for c in self._pole_contacts()]
         return max(depths, default=0.0)

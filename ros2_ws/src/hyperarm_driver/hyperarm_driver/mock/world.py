@@ -307,13 +307,13 @@ class World:
             # else: inside the footprint below the top (a penetration the solver is
             # resolving) or over the hole below the top (threading): keep what it was
 
-    def penetration(self, tool_pose: np.ndarray) -> float:
+    def penetration(self, tool_pose: np.ndarray, threaded: bool = True) -> float:
         """Largest interpenetration (m) of the held block with the table and the pegs at
         this tool pose, from the geometry alone (no contact memory): the table's depth; per
         unthreaded peg overlapping the block (its top above the bottom, its disc over the
         footprint's solid part), the least of the vertical depth below its top and the
         sideways overlap; on the threaded peg, the excess over the clearance. 0 when not
-        held. For invariant checks."""
+        held; ``threaded`` False leaves the threaded peg out. For invariant checks."""
         if self.state is not BlockState.HELD:
             return 0.0
         pose = self.block_pose(tool_pose)
@@ -322,7 +322,8 @@ class World:
         for name, p in self._pegs.items():
             top = self.cfg.table_height + p.height
             if name == self.peg:
-                worst = max(worst, self.misalignment(name, pose) - self.cfg.clearance(name))
+                if threaded:
+                    worst = max(worst, self.misalignment(name, pose) - self.cfg.clearance(name))
                 continue
             if top <= bottom:
                 continue
