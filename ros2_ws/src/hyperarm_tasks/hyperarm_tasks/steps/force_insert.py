@@ -296,11 +296,18 @@ def run(step: ForceInsert, runner) -> None:
                     if reason:
                         raise StepFailed("driver", f"force control could not be enabled "
                                          f"again: {reason}")
-                    # a passive hold looks like a stall on the top: find the contact again,
-                    # descending from where the tool is now
-                    z_ref = t_contact = found_xy = None
-                    z_cmd = float(runner.tool_measured()[2, 3])
-                    z_bottom = z_contact - step.press
+                    # a contact height found before stays the reference (the peg's top, seen
+                    # through this move's arm error: the depth is judged from it; from the
+                    # nominal top the error alone could look like 5 mm down the peg); else
+                    # find the contact, descending from where the tool is now (a passive
+                    # hold looks like a stall on the top)
+                    found_xy = None
+                    if z_ref is not None:
+                        z_cmd = z_bottom = z_ref
+                    else:
+                        t_contact = None
+                        z_cmd = float(runner.tool_measured()[2, 3])
+                        z_bottom = z_contact - step.press
                     done_ticks = 0
                     history.clear()
                     last = robot.now()
