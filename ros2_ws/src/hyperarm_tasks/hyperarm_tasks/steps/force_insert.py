@@ -248,6 +248,7 @@ def run(step: ForceInsert, runner) -> None:
     z_ref, t_contact, best, dithering = None, None, 0.0, False
     done_ticks = 0
     resumed = 0
+    need_contact = False   # after a re-enable: down the peg only from a contact found since
     found_xy: np.ndarray | None = None   # force control: measured x-y where the hole found the peg
     history: deque[tuple[float, float, float]] = deque()
     try:
@@ -281,6 +282,7 @@ def run(step: ForceInsert, runner) -> None:
                     # late joint states (a loaded machine): the fault is latched until
                     # someone enables again; the step does, from the pose held now
                     resumed += 1
+                    need_contact = True
                     robot.log("warn", f"{step.name}: force control went passive ({why}); "
                                       f"enabling it again ({resumed}/{MAX_RESUMES})")
                     # it refuses to start on stale joint states (its own view of them):
@@ -296,18 +298,13 @@ def run(step: ForceInsert, runner) -> None:
                     if reason:
                         raise StepFailed("driver", f"force control could not be enabled "
                                          f"again: {reason}")
-                    # a contact height found before stays the reference (the peg's top, seen
-                    # through this move's arm error: the depth is judged from it; from the
-                    # nominal top the error alone could look like 5 mm down the peg); else
-                    # find the contact, descending from where the tool is now (a passive
-                    # hold looks like a stall on the top)
-                    found_xy = None
-                    if z_ref is not None:
-                        z_cmd = z_bottom = z_ref
-                    else:
-                        t_contact = None
-                        z_cmd = float(runner.tool_measured()[2, 3])
-                        z_bottom = z_contact - step.press
+                    # a passive hold looks like a stall on the top: find the contact again,
+                    # descending from where the tool is now; from now on only from a contact
+                    # found (judged from the nominal top, the arm's error alone can look like
+                    # 5 mm down the peg)
+                    z_ref = t_contact = found_xy = None
+                    z_cmd = float(runner.tool_measured()[2, 3])
+                    z_bottom = z_contact - step.press
                     done_ticks = 0
                     history.clear()
                     last = robot.now()
@@ -354,8 +351,8 @@ def run(step: ForceInsert, runner) -> None:
             if use_force:     # the force holds the tool down: down the peg is the depth
                 # (depth from a contact found since the last enable, or from the nominal
                 # top when the whole descent met none: the block went straight down the peg)
-                ok = dithering and depth >= step.depth and (z_ref is not None
-                                                            or z_cmd <= z_bottom + 1e-4)
+                ok = dithering and depth >= step.depth and (
+                    z_ref is not None or (not need_contact and z_cmd <= z_bottom + 1e-4))
                 best = max(best, depth)
             else:
                 ok = z_cmd <= z_bottom + 1e-4 and lag < step.contact_threshold
