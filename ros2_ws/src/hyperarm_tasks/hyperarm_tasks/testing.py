@@ -7,16 +7,38 @@ a driver refusal, as the mock logs them).
 """
 from __future__ import annotations
 
+import dataclasses
 from typing import Mapping, Sequence
 
 import numpy as np
 
 from hyperarm_driver.mock.camera import Camera
+from hyperarm_driver.mock.config import MockConfig, load_mock_config
 from hyperarm_driver.mock.joint_sim import JointSim
 
-from .perception import DetectionBuffer, camera_pose
+from .perception import DetectionBuffer, camera_pose, matrix_to_quat
 
-__all__ = ["SimRobot"]
+__all__ = ["SimRobot", "ForceSimRobot", "work_cell"]
+
+
+def work_cell(seed: int, hole_radius: float | None = None,
+              destination: Sequence[float] | None = None) -> MockConfig:
+    """The mock's default work cell with its imperfections and camera noise drawn from
+    ``seed``; optionally the block's ``hole_radius`` (m) and the destination peg's ``xy``
+    (m) changed."""
+    base = load_mock_config()
+    spec = base.world.spec            # the shared work-cell schema (hyperarm_description.world)
+    if hole_radius is not None:
+        spec = dataclasses.replace(spec, block=dataclasses.replace(
+            spec.block, hole_radius=hole_radius))
+    if destination is not None:
+        spec = dataclasses.replace(spec, pegs=tuple(
+            dataclasses.replace(p, xy=tuple(destination)) if p.name == "destination" else p
+            for p in spec.pegs))
+    return dataclasses.replace(
+        base, world=dataclasses.replace(base.world, spec=spec),
+        imperfections=dataclasses.replace(base.imperfections, seed=seed),
+        camera=dataclasses.replace(base.camera, seed=seed))
 
 
 class SimRobot:
@@ -74,7 +96,8 @@ class SimRobot:
             self.refused = str(exc)
 
     def hold(self) -> str | None:
-        self.sim.hold()
+        """The drivers' hold service: every servo where it is, the gripper's grip kept."""
+        self.sim.hold_keeping_grip([n for n in self.sim.names if n != self.sim.rail])
         self.held += 1
         return None
 
@@ -114,3 +137,89 @@ class SimRobot:
 
     def log(self, level: str, message: str) -> None:
         self.logs.append((level, message))
+
+
+class ForceSimRobot(SimRobot):
+    """:class:`SimRobot` with the force node's core in the loop: each simulation step the
+    controller gets the joint state (chain order) and its command goes to the simulation,
+    as ``hybrid_force`` does over topics, with the node's event handling (a stale passive
+    calls the driver's hold, any other passive holds the arm joints with one position
+    command). ``late``: (start, end) windows of simulated time in which no joint state
+    reaches the controller (a loaded machine: it goes passive on stale states)."""
+
+    def __init__(self, sim: JointSim, kin, dt: float = 0.01,
+                 late: Sequence[tuple[float, float]] = (), output: str = "position",
+                 **kw) -> None:
+        from hyperarm_ik.force.controller import ControllerConfig, ForceController
+        from hyperarm_ik.force.law import HybridLaw
+        from hyperarm_ik.force.parameters import PARAMETERS, build
+        super().__init__(sim, dt, **kw)
+        values = {name: v[0] for name, v in PARAMETERS.items()}
+        values["output"] = output
+        law_cfg, est_cfg, ctl_cfg = build(values)
+        from hyperarm_ik.force.wrench import WrenchEstimator
+        law = HybridLaw(kin, law_cfg)
+        self.ctl = ForceController(law, WrenchEstimator(law.na, est_cfg), None, ctl_cfg)
+        self.kin = kin
+        self.late = list(late)
+        self.passive: tuple[str, str] | None = None
+        self.events: list[tuple[float, str, str]] = []    # (time, kind, message)
+        self._chain = [self.sim.names.index(n) for n in self.ctl.names]
+        self._arm = [self.sim.names.index(n) for n in self.ctl.arm_names]
+        assert isinstance(ctl_cfg, ControllerConfig)
+
+    def _is_late(self) -> bool:
+        return any(a <= self.sim.time < b for a, b in self.late)
+
+    def _handle(self, event) -> None:
+        if event is None:
+            return
+        self.events.append((self.sim.time, event.kind, event.message))
+        from hyperarm_ik.force.controller import Mode
+        if self.ctl.mode is Mode.PASSIVE:
+            self.passive = (event.kind, event.message)
+        if event.hold and event.kind == "stale":
+            SimRobot.hold(self)
+        elif event.hold:
+            q = self.sim.state().position
+            self.sim.command(self.ctl.arm_names, [float(q[i]) for i in self._arm])
+
+    def sleep(self, seconds: float) -> None:
+        for _ in range(max(1, int(round(seconds / self.dt)))):
+            super().sleep(self.dt)
+            now = self.sim.time
+            if not self._is_late():
+                s = self.sim.state()
+                out, event = self.ctl.step(now, s.position[self._chain], s.velocity[self._chain],
+                                           s.effort[self._arm])
+                self._handle(event)
+                if out.efforts is not None:
+                    if out.positions is not None:
+                        self.sim.command(out.names, out.positions, out.efforts)
+                    else:
+                        self.sim.command(out.names, (), out.efforts)
+            self._handle(self.ctl.check_stale(now))
+
+    def joint_states_age(self) -> float:
+        return self.dt if self._is_late() else 0.0
+
+    def force_available(self) -> bool:
+        return True
+
+    def set_force_control(self, enabled: bool) -> str | None:
+        from hyperarm_ik.force.errors import ForceError
+        try:
+            event = self.ctl.enable(enabled, self.sim.time)
+        except ForceError as exc:
+            return f"cannot enable: {exc}"
+        self.passive = None
+        self._handle(event)
+        return None
+
+    def send_hybrid(self, goal) -> None:
+        _, event = self.ctl.on_goal(self.kin.root_frame, goal.xyz, matrix_to_quat(goal.rotation),
+                                    goal.stiffness, goal.force_axes, goal.wrench)
+        self._handle(event)
+
+    def force_passive(self) -> tuple[str, str] | None:
+        return self.passive

@@ -39,6 +39,30 @@ def _alive(logs: Path) -> list[str]:
     return out
 
 
+def _digest(logs: Path, tail: int = 25) -> str:
+    """What the nodes of a failed run said: every WARN, ERROR or FATAL line of each node's
+    log in ``logs`` and the last ``tail`` lines of the task node's (for a failure message:
+    the CI keeps only the test's output)."""
+    out = []
+    for log in sorted(Path(logs).glob("*.log")):
+        lines = log.read_text(errors="replace").splitlines()
+        bad = [ln for ln in lines if any(f"[{w}]" in ln for w in ("WARN", "ERROR", "FATAL"))
+               or "Traceback" in ln]
+        out.append(f"--- {log.name}: {len(bad)} warnings/errors of {len(lines)} lines")
+        out += bad[-40:]
+        if log.name == "task_node.log":
+            out.append(f"--- {log.name}: last {tail} lines")
+            out += lines[-tail:]
+    return "\n".join(out)
+
+
+@pytest.fixture
+def node_logs() -> Callable[[Path], str]:
+    """``node_logs(logs)``: the warnings and errors of a run's node logs, for an assertion's
+    message."""
+    return _digest
+
+
 @pytest.fixture
 def still_running() -> Callable[[Path], list[str]]:
     """``still_running(logs)``: what run_task.sh left behind (expected: [])."""

@@ -32,12 +32,12 @@ def _run(script, args, ros_domain, timeout):
 
 
 def test_two_cycles_there_and_back_recorded_and_plotted(executable, ros_domain, tmp_path,
-                                                        still_running):
+                                                        still_running, node_logs):
     logs, rec = tmp_path / "logs", tmp_path / "run.mcap"
     done = _run(_script(executable), ["--seed", "21", "--logs", str(logs), "--record", str(rec),
                                       "block_transfer", "block_transfer_back"], ros_domain, 170)
     out = done.stdout + done.stderr
-    assert done.returncode == 0, out
+    assert done.returncode == 0, out + node_logs(logs)
     assert out.count("run_task: succeeded") == 2, out
     for step in ("[8/12] insert (force_insert)", "[12/12] ready_end"):
         assert step in out

@@ -32,7 +32,8 @@ def test_figure8_reaches_its_waypoints_recorded_and_plotted(run_task_sh, tmp_pat
     assert (tmp_path / "png" / "tracking.png").stat().st_size > 10_000
 
 
-def test_rail_transport_carries_the_block_beyond_reach(run_task_sh, tmp_path, still_running):
+def test_rail_transport_carries_the_block_beyond_reach(run_task_sh, tmp_path, still_running,
+                                                       node_logs):
     """Issue 13: Jia et al.'s transport on the mock's rail work cell with its default noise:
     home, pick at one end, carry 2.6 m with the rail, insert, return (~55 s)."""
     from ament_index_python.packages import get_package_share_directory
@@ -41,7 +42,7 @@ def test_rail_transport_carries_the_block_beyond_reach(run_task_sh, tmp_path, st
     done = run_task_sh("--variant", "rail_arm", "--workcell", str(cell), "--seed", "41",
                        "--logs", str(logs), "rail_transport", timeout=170)
     out = done.stdout + done.stderr
-    assert done.returncode == 0, out
+    assert done.returncode == 0, out + node_logs(logs)
     for step in ("[1/13] home_rail", "[8/13] above_destination (move_to)",
                  "[9/13] insert (force_insert)", "[13/13] return (move_joints)"):
         assert step in out, out

@@ -2,36 +2,16 @@
 way it fails, cancel, retries. Simulated time, so each run takes a few seconds."""
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
-from hyperarm_driver.mock.config import load_mock_config
 from hyperarm_driver.mock.joint_sim import JointSim
 from hyperarm_tasks.runner import Runner
 from hyperarm_tasks.sequence import load_task
 from hyperarm_tasks.testing import SimRobot
+from hyperarm_tasks.testing import work_cell as cell
 
 pytestmark = [pytest.mark.core, pytest.mark.slow]
-
-
-def cell(seed: int, **world):
-    base = load_mock_config()
-    w = base.world
-    spec = w.spec            # the shared work-cell schema (hyperarm_description.world)
-    if "hole_radius" in world:
-        spec = dataclasses.replace(spec, block=dataclasses.replace(
-            spec.block, hole_radius=world["hole_radius"]))
-    if "destination" in world:
-        spec = dataclasses.replace(spec, pegs=tuple(
-            dataclasses.replace(p, xy=world["destination"]) if p.name == "destination" else p
-            for p in spec.pegs))
-    w = dataclasses.replace(w, spec=spec)
-    return dataclasses.replace(
-        base, world=w,
-        imperfections=dataclasses.replace(base.imperfections, seed=seed),
-        camera=dataclasses.replace(base.camera, seed=seed))
 
 
 def run(desc, kin, cfg, task="block_transfer", **robot_kw):

@@ -15,14 +15,21 @@ joint_states) stops above the commanded one (the servos deflect); that height is
 contact height. Under force control the z goal then stays at the contact height, so the
 block is pressed with ``force`` alone (stiffness x offset = 0 on the top) while the dither
 moves it, and it is down the peg when the measured tool is ``depth`` below the contact
-height (the force pushes it down by force / stiffness once the hole finds the peg). If the
+height (the force pushes it down by force / stiffness once the hole finds the peg). A block
+that meets no contact (straight down the peg) is down when the goal went the full ``press``
+below the nominal contact height and the force holds the tool more than
+``contact_threshold`` below its goal: nothing holds it up (judged from the nominal top
+alone, the grasp's and the arm's error can make a block on the top read 6 mm down). If the
 force node goes passive on late joint states, the step enables it again (at most 10 times;
 any other passive reason fails the attempt). With the pressing fallback the block is down
 the peg when the command is the full ``press`` below the contact height (more than
 ``depth``) and nothing holds the tool up any more (deflection below
-``contact_threshold``). Either way the camera then confirms that the block is on the
-peg's axis (within ``align_tolerance``), not down beside it. Encoders do not see the arm's
-repeatability error, so heights are judged by deflection, not by absolute tool height.
+``contact_threshold``). Either way the camera then confirms: the block must be half
+``depth`` below where it would rest on the top (else the drop was the tool's alone, e.g.
+a re-enable's lag with the block hanging above the top: the step searches on), and on
+the peg's axis (within ``align_tolerance``), not down beside it. Encoders do not see the
+arm's repeatability error, so heights are judged by deflection, not by absolute tool
+height.
 The depth reported is the measured drop below the contact height. Retries (``retry``)
 rotate and reverse the pattern.
 
@@ -127,10 +134,15 @@ class Dither:
         return self.theta / (2.0 * math.pi)
 
 
-def _check_on_axis(step: ForceInsert, runner) -> None:
-    """The camera: the block's hole must be on the peg's axis (not down beside the peg)."""
+def _camera_check(step: ForceInsert, runner, z_top: float) -> float | None:
+    """The camera, once the tool says the block is down: how far (m) the block is below
+    where it would rest on the peg's top, ``z_top`` (the target's height: tool0 at the held
+    block's centre, the target the tool's pose with the block on the top); if it is down
+    (half ``depth`` or more), its hole must be on the peg's axis (StepFailed if it went
+    down beside the peg). None without a camera judgement (the target not relative to an
+    object the camera sees)."""
     if step.target.relative_to not in runner.task.objects or "block" not in runner.task.objects:
-        return
+        return None
     # images taken now that the block is down (it moved along the dither before), more of
     # them than usual: block and peg are each seen with ~2 mm of noise per image
     frames = 2 * runner.params.detection_frames
@@ -138,10 +150,14 @@ def _check_on_axis(step: ForceInsert, runner) -> None:
     given = runner.robot.given_object(step.target.relative_to)
     peg = (given[:3, 3] if given is not None else
            runner.detect(step.target.relative_to, frames=frames).xyz)
+    seen = z_top - float(block[2])
+    if seen < 0.5 * step.depth:
+        return seen           # not down: where it is sideways does not matter
     off = float(np.hypot(*(block[:2] - peg[:2])))
     if off > step.align_tolerance:
         raise StepFailed("insertion", f"the block went down {off * 1000:.0f} mm off the axis "
                          f"of {step.target.relative_to} (beside it, not on it)")
+    return seen
 
 
 def _camera_aligned(step: ForceInsert, runner, target: np.ndarray) -> np.ndarray:
@@ -210,6 +226,21 @@ def _settle(runner, window: float = 0.2, timeout: float = 2.0) -> None:
         runner.tick()
 
 
+def _enable(runner, patience: float = 2.0) -> str | None:
+    """Enable force control; the force node's reason if it refuses. It refuses to start on
+    stale joint states (its own view of them: a loaded machine), so it is asked again, for
+    up to ``patience`` s, while that is the reason."""
+    robot = runner.robot
+    waited = robot.now()
+    while True:
+        while robot.joint_states_age() > 0.05 and robot.now() - waited < patience:
+            runner.tick()
+        reason = robot.set_force_control(True)
+        if not reason or "stale" not in reason or robot.now() - waited > patience:
+            return reason
+        runner.tick()
+
+
 def run(step: ForceInsert, runner) -> None:
     robot = runner.robot
     if runner.holding is None:
@@ -217,7 +248,7 @@ def run(step: ForceInsert, runner) -> None:
     target = runner.resolve(step.target)
     use_force = robot.force_available()
     if use_force:
-        reason = robot.set_force_control(True)
+        reason = _enable(runner)
         if reason:
             raise StepFailed("driver", f"force control could not be enabled: {reason}")
         runner.force_on = True
@@ -248,7 +279,7 @@ def run(step: ForceInsert, runner) -> None:
     z_ref, t_contact, best, dithering = None, None, 0.0, False
     done_ticks = 0
     resumed = 0
-    need_contact = False   # after a re-enable: down the peg only from a contact found since
+    rejected = 0          # "down" judgements the camera did not confirm
     found_xy: np.ndarray | None = None   # force control: measured x-y where the hole found the peg
     history: deque[tuple[float, float, float]] = deque()
     try:
@@ -282,26 +313,15 @@ def run(step: ForceInsert, runner) -> None:
                     # late joint states (a loaded machine): the fault is latched until
                     # someone enables again; the step does, from the pose held now
                     resumed += 1
-                    need_contact = True
                     robot.log("warn", f"{step.name}: force control went passive ({why}); "
                                       f"enabling it again ({resumed}/{MAX_RESUMES})")
-                    # it refuses to start on stale joint states (its own view of them):
-                    # asked again for up to 2 s while that is the reason
-                    waited = robot.now()
-                    while True:
-                        while robot.joint_states_age() > 0.05 and robot.now() - waited < 2.0:
-                            runner.tick()
-                        reason = robot.set_force_control(True)
-                        if not reason or "stale" not in reason or robot.now() - waited > 2.0:
-                            break
-                        runner.tick()
+                    reason = _enable(runner)
                     if reason:
                         raise StepFailed("driver", f"force control could not be enabled "
                                          f"again: {reason}")
                     # a passive hold looks like a stall on the top: find the contact again,
-                    # descending from where the tool is now; from now on only from a contact
-                    # found (judged from the nominal top, the arm's error alone can look like
-                    # 5 mm down the peg)
+                    # descending from where the tool is now (the hold may have moved the
+                    # arm: a contact found before is no reference any more)
                     z_ref = t_contact = found_xy = None
                     z_cmd = float(runner.tool_measured()[2, 3])
                     z_bottom = z_contact - step.press
@@ -349,10 +369,13 @@ def run(step: ForceInsert, runner) -> None:
             # repeatability error, but the deflection is the contact itself.
             depth = (z_ref if z_ref is not None else z_contact) - z_meas
             if use_force:     # the force holds the tool down: down the peg is the depth
-                # (depth from a contact found since the last enable, or from the nominal
-                # top when the whole descent met none: the block went straight down the peg)
-                ok = dithering and depth >= step.depth and (
-                    z_ref is not None or (not need_contact and z_cmd <= z_bottom + 1e-4))
+                # from a contact found since the last enable or, with none found, from the
+                # nominal top once nothing holds the tool up: the goal went the full press
+                # down and the feed-forward force pushes the tool below it (on the top the
+                # tool stays above its goal; the nominal top alone is off by the grasp's and
+                # the arm's error: a block on the top can read 6 mm "down" from it)
+                free = z_cmd <= z_bottom + 1e-4 and lag < -step.contact_threshold
+                ok = dithering and depth >= step.depth and (z_ref is not None or free)
                 best = max(best, depth)
             else:
                 ok = z_cmd <= z_bottom + 1e-4 and lag < step.contact_threshold
@@ -365,7 +388,25 @@ def run(step: ForceInsert, runner) -> None:
             runner.feedback("dithering" if dithering else "descending",
                             min((now - t0) / step.timeout, 0.99), goal[:3, 3], depth)
             if done_ticks >= 10:
-                _check_on_axis(step, runner)
+                seen = _camera_check(step, runner, z_contact)
+                if seen is not None and seen < 0.5 * step.depth:
+                    # the tool dropped, but not the block down the peg: a "contact" that was
+                    # the tool lagging its goal (a re-enable's start), the block hanging
+                    # above the top; search on from here
+                    rejected += 1
+                    best = max(seen, 0.0)    # the tool's depth was not the block's
+                    robot.log("info", f"{step.name}: the tool reads {depth * 1000:.1f} mm "
+                              f"down, but the camera sees the block {seen * 1000:.1f} mm "
+                              f"below the peg's top only (not down the peg); searching on")
+                    z_ref = t_contact = found_xy = None
+                    z_cmd = float(runner.tool_measured()[2, 3])
+                    z_bottom = z_contact - step.press
+                    done_ticks = 0
+                    history.clear()
+                    last = robot.now()
+                    continue
+                if seen is not None:
+                    runner.metrics["camera_depth"] = seen
                 if not use_force:
                     # The peg holds the block where the hole found it: the servos deflect
                     # the tool off the dither's last x-y. Later steps that keep x-y (down
@@ -386,7 +427,9 @@ def run(step: ForceInsert, runner) -> None:
                 raise StepFailed("insertion", f"insertion not achieved in {step.timeout:g} s "
                                  f"(best depth {best * 1000:.1f} mm of {step.depth * 1000:.1f} "
                                  f"mm, {dither.turns:.1f} dither turns up to "
-                                 f"{dither.radius() * 1000:.1f} mm)")
+                                 f"{dither.radius() * 1000:.1f} mm"
+                                 + (f"; {rejected} drops of the tool the camera saw were "
+                                    "not the block down the peg" if rejected else "") + ")")
             runner.tick(runner.chain if not use_force else ())
     finally:
         if use_force:
