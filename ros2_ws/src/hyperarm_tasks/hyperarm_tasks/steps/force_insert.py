@@ -282,8 +282,17 @@ def run(step: ForceInsert, runner) -> None:
     rejected = 0          # "down" judgements the camera did not confirm
     found_xy: np.ndarray | None = None   # force control: measured x-y where the hole found the peg
     history: deque[tuple[float, float, float]] = deque()
+    search_again = False   # the contact searched anew, descending from where the tool is
     try:
         while True:
+            if search_again:
+                search_again = False
+                z_ref = t_contact = found_xy = None
+                z_cmd = float(runner.tool_measured()[2, 3])
+                z_bottom = z_contact - step.press
+                done_ticks = 0
+                history.clear()
+                last = robot.now()
             now = robot.now()
             dt, last = now - last, now
             if dithering and done_ticks == 0:
@@ -322,12 +331,7 @@ def run(step: ForceInsert, runner) -> None:
                     # a passive hold looks like a stall on the top: find the contact again,
                     # descending from where the tool is now (the hold may have moved the
                     # arm: a contact found before is no reference any more)
-                    z_ref = t_contact = found_xy = None
-                    z_cmd = float(runner.tool_measured()[2, 3])
-                    z_bottom = z_contact - step.press
-                    done_ticks = 0
-                    history.clear()
-                    last = robot.now()
+                    search_again = True
                     continue
                 robot.send_hybrid(HybridCommand(goal[:3, 3], goal[:3, :3],
                                                 (2000.0, 2000.0, step.stiffness, 50.0, 50.0, 50.0),
@@ -398,12 +402,7 @@ def run(step: ForceInsert, runner) -> None:
                     robot.log("info", f"{step.name}: the tool reads {depth * 1000:.1f} mm "
                               f"down, but the camera sees the block {seen * 1000:.1f} mm "
                               f"below the peg's top only (not down the peg); searching on")
-                    z_ref = t_contact = found_xy = None
-                    z_cmd = float(runner.tool_measured()[2, 3])
-                    z_bottom = z_contact - step.press
-                    done_ticks = 0
-                    history.clear()
-                    last = robot.now()
+                    search_again = True
                     continue
                 if seen is not None:
                     runner.metrics["camera_depth"] = seen
