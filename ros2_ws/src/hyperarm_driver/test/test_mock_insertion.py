@@ -231,10 +231,6 @@ def test_threaded_block_rests_within_the_clearance(held, off, angle, push, push_
     assert sim.world.misalignment("destination", sim.world.block_pose()) <= clearance + 1e-12
 
 
-@pytest.mark.xfail(strict=False, reason="issue 9: the step guard leaves the threaded hole's "
-                   "wall out (taken out for a CI failure later traced to force_insert, not "
-                   "to the guard; to be put back); a threaded block dragged hard sideways "
-                   "still goes more than 2 mm into the wall")
 @settings(max_examples=5, deadline=None, derandomize=True, phases=NO_SHRINK,
           suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(seed=st.integers(0, 2**16))
