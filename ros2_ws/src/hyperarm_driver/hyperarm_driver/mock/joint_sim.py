@@ -69,6 +69,21 @@ GUARD_DEPTH = 0.002        # m: a step ending a link or the block deeper than th
                            # contact (unless the pose kept instead is deeper) is not taken
 
 
+def _any(x) -> bool:
+    """``x.any()`` for the step's small arrays (numpy's reduce costs ~3x more per call)."""
+    return np.count_nonzero(x) != 0
+
+
+def _clip(x, lo, hi):
+    """``np.clip`` for the step's small arrays (np.clip's overhead is ~3x this)."""
+    return np.minimum(np.maximum(x, lo), hi)
+
+
+def _absmax(x: np.ndarray) -> float:
+    """``np.abs(x).max()`` of a small non-empty array."""
+    return max(np.abs(x).tolist())
+
+
 class MockCommandError(MockError):
     """A command or request the simulated servos refuse (torque off, hardware error...)."""
 
@@ -180,7 +195,7 @@ class JointSim:
             if name not in self._index:
                 raise JointStateError(f"initial: unknown joint {name!r}")
             q0[self._index[name]] = value
-        q0 = np.clip(q0, self.lower, self.upper)
+        q0 = _clip(q0, self.lower, self.upper)
         self.time = 0.0
         self.mode = [self._hold_mode(i) for i in range(self.n)]
         self.goal = q0.copy()
@@ -219,6 +234,7 @@ class JointSim:
         self.homing = False
         self.host = None   # a host_motion.HostMotion: moves the root in world (set by its user)
         self._tool = np.eye(4)
+        self._fk_cache, self._fk_key, self._fk_pose = False, None, None
         self._update_tool()
         self._record()
 
@@ -240,11 +256,13 @@ class JointSim:
             self.kt_ratio[servos] = rng.uniform(1.0 - e, 1.0 + e, m)
             self.coulomb[servos] = cur.friction * rng.uniform(0.5, 1.5, m)
             self.quantum[servos] = cur.quantum
+        self._quantized = self.quantum > 0.0           # (constant: _quantize's arrays)
+        self._quantum_safe = np.where(self._quantized, self.quantum, 1.0)
 
     def _quantize(self, tau: np.ndarray | float, idx=slice(None)) -> np.ndarray:
         """Nominal torque (N·m) rounded to whole current units of the servos ``idx``."""
         q = self.quantum[idx]
-        return np.where(q > 0.0, np.round(tau / np.where(q > 0.0, q, 1.0)) * q, tau)
+        return np.where(self._quantized[idx], np.round(tau / self._quantum_safe[idx]) * q, tau)
 
     def _true_limit(self, nominal: np.ndarray) -> np.ndarray:
         """Torque limit (N·m) a servo really enforces for a nominal current limit."""
@@ -316,7 +334,7 @@ class JointSim:
         values = {}
         for n, i in zip(names, idx):
             if n in goals:
-                g = float(np.clip(goals[n], self.lower[i], self.upper[i]))
+                g = float(_clip(goals[n], self.lower[i], self.upper[i]))
                 if g != goals[n]:
                     clamped.append(n)
                 goals[n] = g
@@ -327,7 +345,7 @@ class JointSim:
                     if abs(t) > self.stall[i]:
                         clamped.append(n)
                 else:            # a torque
-                    lim = float(np.clip(t, -self.stall[i], self.stall[i]))
+                    lim = float(_clip(t, -self.stall[i], self.stall[i]))
                     if lim != t:
                         clamped.append(n)
                 values[n] = lim
@@ -517,6 +535,9 @@ class JointSim:
             self._pending.popleft()[1]()
         if self.host is not None:
             self.host.before_step(dt)
+        # a tool pose computed twice in the step (the guard's, the step's end) once: the
+        # model's placements (host motion) are the step's from here on
+        self._fk_cache, self._fk_key = not self._poles, None
         self._watchdog()
         gapped = self._gap > 0.0   # torque off during a mode switch (this step)
         held = np.array([m in _HOLDING for m in self.mode]) & ~gapped
@@ -532,14 +553,14 @@ class JointSim:
         a = np.zeros(nk)
         a[P] = ((self._ref_v[:nk] - self._prev_ref_v[:nk]) / dt)[P]
         yielding = P & (self._yield_rate[:nk] != 0.0)
-        if yielding.any():   # a joint giving way moves at its reference's rate plus its yield's
+        if _any(yielding):   # a joint giving way moves at its reference's rate plus its yield's
             v[yielding] += self._yield_rate[:nk][yielding]
             a[yielding] = 0.0
         y_before = self._yield[:nk].copy()
         # the contact memory the step starts from (restored if the guard refuses the step)
         memory = (dict(self._pole_normals),
                   {kind: xy.copy() for kind, xy in self._anchors.items()}, self._warm)
-        if D.any():
+        if _any(D):
             q, v = self._dynamics(dt, q, v, a, P, D)
         dq, gen = self._contacts(q, P, v=None)
         tau_id = pin.rnea(self.model, self.data, q + dq + self.offset[:nk], v, a)
@@ -549,7 +570,7 @@ class JointSim:
         effort = np.zeros(nk)
         effort[P] = tau[P]
         effort[D] = self._applied_torque(D)
-        qk = np.clip(q + dq, self.lower[:nk], self.upper[:nk])
+        qk = _clip(q + dq, self.lower[:nk], self.upper[:nk])
         qk, v, effort, tau_id = self._guard(dt, qk, v, effort, tau_id, P, D, memory, y_before)
         self._draw_offset()      # a pending new move's offset, once free of contact
         self._yield_rate[:nk] = (self._yield[:nk] - y_before) / dt
@@ -570,7 +591,7 @@ class JointSim:
         self._gripper(dt)
         self._overload(dt, held)
         self._sync_payload()
-        if gapped.any():   # after the gap: restart from where it is
+        if _any(gapped):   # after the gap: restart from where it is
             self._gap = np.maximum(self._gap - dt, 0.0)
             for i in np.flatnonzero(gapped & (self._gap == 0.0)):
                 if self.mode[i] in _HOLDING:   # hold / watchdog: hold where it is now
@@ -578,6 +599,7 @@ class JointSim:
                 self._gap_hold[i] = False
         self._report_efforts(gapped)
         self.events.extend(self.world.take_events())
+        self._fk_cache, self._fk_key = False, None
         if self.host is not None:
             self.host.after_step(dt)
         self._record()
@@ -593,11 +615,15 @@ class JointSim:
         moving = np.abs(self.velocity) > FRICTION_VELOCITY
         motor = self.effort + np.where(moving, np.sign(self.velocity) * self.coulomb, 0.0)
         out = self._quantize(motor / self.kt_ratio)
-        for i, m in enumerate(self.mode):
-            if m is ControlMode.OFF or gapped[i]:
-                out[i] = 0.0
-            elif m is ControlMode.TORQUE:
-                out[i] = self._quantize(self.tau_cmd[i], i)
+        modes = self.mode
+        torque = [i for i, m in enumerate(modes) if m is ControlMode.TORQUE]
+        if torque:
+            out[torque] = self._quantize(self.tau_cmd[torque], torque)
+        off = [i for i, m in enumerate(modes) if m is ControlMode.OFF]
+        if off:
+            out[off] = 0.0
+        if _any(gapped):
+            out[gapped] = 0.0
         if self.rail:
             r = self._index[self.rail]
             out[r] = self.effort[r]
@@ -641,7 +667,7 @@ class JointSim:
     def _profile(self, dt: float, held: np.ndarray) -> None:
         """Velocity/acceleration-limited profile towards the goal, then the lag."""
         self._prev_ref_v = self._ref_v.copy()
-        if (not self._prof_v.any() and not self._ref_v.any()
+        if (not _any(self._prof_v) and not _any(self._ref_v)
                 and np.array_equal(self._prof_p, self.goal)
                 and np.array_equal(self._ref, self._prof_p)):
             return                                  # every joint settled on its goal
@@ -714,10 +740,10 @@ class JointSim:
         for _ in range(SUBSTEPS):
             gen = np.zeros(nk)
             lhs, tau_s = mdd, tau_d
-            if driven.any():
+            if _any(driven):
                 up, down = tau_d > stall - c_emf * v[D], tau_d < -stall - c_emf * v[D]
                 line = driven & (up | down)
-                if line.any():
+                if _any(line):
                     tau_s = np.where(line, np.where(up, stall, -stall) - c_emf * v[D], tau_d)
                     lhs = lhs + h * np.diag(np.where(line, c_emf, 0.0))
             if rows is not None:
@@ -725,7 +751,7 @@ class JointSim:
                 f = self._solve_contacts(jr, p0 - jr @ (q - q0), owner, tangential, kinv, v)
                 gen = jr.T @ f
                 on = f != 0.0
-                if on.any():   # the contact springs implicit too (stiff branch: 250 kN/m)
+                if _any(on):   # the contact springs implicit too (stiff branch: 250 kN/m)
                     jd = jr[on][:, D]
                     k_q = (jd.T * (1.0 / self._row_comp[on])) @ jd
                     lhs = lhs + (h * h) * k_q
@@ -738,7 +764,7 @@ class JointSim:
             qd = q[D] + h * vd
             at_limit = (qd <= lo) | (qd >= hi)
             v[D] = np.where(at_limit, 0.0, vd)
-            q[D] = np.clip(qd, lo, hi)
+            q[D] = _clip(qd, lo, hi)
         return q, v
 
     @staticmethod
@@ -815,7 +841,7 @@ class JointSim:
             f = self._solve_contacts(jr, p0, owner, tangential, kinv, v)
             solved = contacts, jr, p0, f, owner, tangential, points, q_lin
             deflection = kinv * (jr.T @ f)
-            if np.abs(q + deflection - q_lin).max() < RELINEARIZE:  # rad: re-linearizing
+            if _absmax(q + deflection - q_lin) < RELINEARIZE:  # rad: re-linearizing
                 break                                                # would change ~nothing
             q_lin = q + deflection
         if solved is None:
@@ -831,7 +857,7 @@ class JointSim:
         lo, hi = self.lower[:nk], self.upper[:nk]
         qd = q + dq
         stopped = ((qd < lo) & (dq < 0.0)) | ((qd > hi) & (dq > 0.0))
-        if stopped.any():   # joints pushed onto their mechanical stops are rigid there
+        if _any(stopped):   # joints pushed onto their mechanical stops are rigid there
             kinv = np.where(stopped, 0.0, kinv)
             f = self._solve_contacts(jr, p0, owner, tangential, kinv, v)
             dq = kinv * (jr.T @ f)
@@ -853,7 +879,7 @@ class JointSim:
         if self._poles:
             block = np.array([not contacts[o].kind.startswith("pole:") for o in owner])
             dirs = np.asarray(self._row_dirs)
-            self.contact_force = dirs[block].T @ f[block] if block.any() else np.zeros(3)
+            self.contact_force = dirs[block].T @ f[block] if _any(block) else np.zeros(3)
             self._link_rows = [(c, int(np.flatnonzero(owner == ci)[0]))
                                for ci, c in enumerate(contacts) if c.kind.startswith("pole:")]
             self._set_link_contacts(f)
@@ -1042,8 +1068,8 @@ class JointSim:
         y = self._yield[:nk]
         can = P & (np.abs(tau_id) <= lim)          # an under-powered joint is held (not sagging)
         over = can & (np.abs(tau) > lim) & (gen != 0.0)
-        if not over.any() and not y[P].any():
-            return q, dq, np.clip(tau, -lim, lim), tau_id
+        if not _any(over) and not _any(y[P]):
+            return q, dq, _clip(tau, -lim, lim), tau_id
         ref = q - y
         budget = self.vmax[:nk] * dt                 # the yield's travel left this step
         stiff = self.stiffness[:nk]
@@ -1053,14 +1079,14 @@ class JointSim:
             back = P & ~over & (y != 0.0)
             target[back] -= np.sign(y[back]) * np.minimum(np.abs(y[back]),
                                                          0.5 * slack[back] / stiff[back])
-            if over.any() and self._contact_rows_used is not None:
+            if _any(over) and self._contact_rows_used is not None:
                 f, dq_s, over = self._yield_solve(P, over, can, tau_id, tau, lim)
                 # the saturated joints end at q + dq_s, their spring at the limit torque
                 target[over] = y[over] + dq_s - (tau_id[over] - np.sign(tau[over])
                                                  * lim[over]) / stiff[over]
-            change = np.clip(target - y, -budget, budget)
+            change = _clip(target - y, -budget, budget)
             change[~P] = 0.0
-            if not np.abs(change).max() > 1e-12:
+            if not _absmax(change) > 1e-12:
                 break
             budget = budget - np.abs(change)
             y += change
@@ -1070,7 +1096,7 @@ class JointSim:
             tau = tau_id - gen
             can = P & (np.abs(tau_id) <= lim)
             over = can & (np.abs(tau) > lim) & (gen != 0.0)
-        return q, dq, np.clip(tau, -lim, lim), tau_id
+        return q, dq, _clip(tau, -lim, lim), tau_id
 
     def _yield_solve(self, P: np.ndarray, over: np.ndarray, can: np.ndarray,
                      tau_id: np.ndarray, tau: np.ndarray, lim: np.ndarray
@@ -1094,7 +1120,7 @@ class JointSim:
             f, dq_s = sol[:m], sol[m:]
             tau_new = tau_id - jr.T @ f
             newly = can & ~over & (np.abs(tau_new) > lim)
-            if not newly.any():
+            if not _any(newly):
                 break
             sign = np.where(newly, np.sign(tau_new), sign)
             over = over | newly
@@ -1109,11 +1135,11 @@ class JointSim:
         (recovered in the next steps), and the contact solved again there, so the pose
         reached is a contact equilibrium (no unchecked pose in between)."""
         nk = self.nk
-        if not P.any():
+        if not _any(P):
             return q, dq, tau, tau_id
         prev = self.position[:nk]
-        move = np.clip(q + dq, self.lower[:nk], self.upper[:nk]) - prev
-        ratio = float((np.abs(move[P]) / (self.vmax[:nk][P] * dt)).max())
+        move = _clip(q + dq, self.lower[:nk], self.upper[:nk]) - prev
+        ratio = max((np.abs(move[P]) / (self.vmax[:nk][P] * dt)).tolist())
         if not ratio > 1.0:
             return q, dq, tau, tau_id
         shift = np.where(P, move * (1.0 / ratio - 1.0), 0.0)
@@ -1122,7 +1148,7 @@ class JointSim:
         dq, gen = self._contacts(q, P, v=None)
         tau_id = pin.rnea(self.model, self.data, q + dq + self.offset[:nk], v, a)
         lim = self.limit[:nk]
-        return q, dq, np.clip(tau_id - gen, -lim, lim), tau_id
+        return q, dq, _clip(tau_id - gen, -lim, lim), tau_id
 
     def _deepest(self, q: np.ndarray) -> float:
         """Deepest interference (m) of the block (held) and the links' capsules (poles) in
@@ -1180,7 +1206,7 @@ class JointSim:
                 before = self._deepest(prev)
                 self._pole_normals = now
                 deep = depth > max(GUARD_DEPTH, before) + 1e-9
-        if not jump.any() and not deep:
+        if not _any(jump) and not deep:
             self._blocked = False
             return qk, v, effort, tau_id
         self.guarded_steps += 1
@@ -1195,9 +1221,9 @@ class JointSim:
         tau_g = pin.rnea(self.model, self.data, qk + self.offset[:nk], zero, zero)
         k, lim = self.stiffness[:nk], self.limit[:nk]
         rest = self._ref[:nk] + y_before - qk      # the springs' stretch
-        held = np.clip(rest, (-lim - tau_g) / k, (lim - tau_g) / k)
+        held = _clip(rest, (-lim - tau_g) / k, (lim - tau_g) / k)
         self._yield[:nk] = np.where(P, y_before + held - rest, self._yield[:nk])
-        effort = np.where(P, np.clip(tau_g + k * held, -lim, lim), effort)
+        effort = np.where(P, _clip(tau_g + k * held, -lim, lim), effort)
         # the contact state (forces, link contacts, friction anchors) of the pose kept
         self._pole_normals, self._anchors, self._warm = memory
         self._contacts(qk, np.zeros(nk, dtype=bool), v=None)
@@ -1228,7 +1254,7 @@ class JointSim:
         -dt below), as a servo's thermal load: a servo that yields step after step against
         a contact, touching its limit every other step, overloads too."""
         stalled = held & (np.abs(self.effort) >= self.limit * OVERLOAD_FRACTION)
-        if not stalled.any() and not self._saturated_for.any():
+        if not _any(stalled) and not _any(self._saturated_for):
             return
         stalled &= self.limit_cmd >= self.stall * (1.0 - 1e-9)   # at its stall torque
         self._saturated_for = np.where(stalled, self._saturated_for + dt,
@@ -1239,9 +1265,18 @@ class JointSim:
 
     def _tool_at(self, q: np.ndarray) -> np.ndarray:
         """True pose of tool0 (offsets included) at chain positions ``q`` (encoder values);
-        leaves ``self.data`` at that configuration."""
-        pin.framesForwardKinematics(self.model, self.data, q + self.offset[:self.nk])
-        return self.data.oMf[self.tool_id].homogeneous
+        leaves ``self.data`` at that configuration (but for a repeated ``q`` within a
+        step's cache, which is off with poles: their contacts read ``self.data``)."""
+        qt = q + self.offset[:self.nk]
+        if self._fk_cache:
+            key = qt.tobytes()
+            if key == self._fk_key:
+                return self._fk_pose
+        pin.framesForwardKinematics(self.model, self.data, qt)
+        pose = self.data.oMf[self.tool_id].homogeneous
+        if self._fk_cache:
+            self._fk_key, self._fk_pose = key, pose
+        return pose
 
     def _update_tool(self) -> None:
         self._tool = self._tool_at(self.position[:self.nk])
@@ -1267,14 +1302,14 @@ class JointSim:
             if present and reachable and q <= qc:
                 contact = True
                 q = qc
-                effort = float(np.clip(self.stiffness[g] * (self._ref[g] - qc),
+                effort = float(_clip(self.stiffness[g] * (self._ref[g] - qc),
                                        -self.limit[g], self.limit[g]))
             vel = (q - prev) / dt
         elif mode is ControlMode.TORQUE and not gap:
             effort = self.kt_ratio[g] * float(self._quantize(self.tau_cmd[g], g))
             drive = math.copysign(max(abs(effort) - self.coulomb[g], 0.0), effort)
-            vel = float(np.clip(drive / self.cfg.servo.damping, -self.vmax[g], self.vmax[g]))
-            q = float(np.clip(prev + vel * dt, self.lower[g], self.upper[g]))
+            vel = float(_clip(drive / self.cfg.servo.damping, -self.vmax[g], self.vmax[g]))
+            q = float(_clip(prev + vel * dt, self.lower[g], self.upper[g]))
             if present and reachable and q <= qc and effort < 0.0:
                 contact, q, vel = True, qc, 0.0
         else:

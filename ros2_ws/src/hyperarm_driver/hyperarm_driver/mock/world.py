@@ -125,6 +125,7 @@ class World:
     def __init__(self, cfg: WorldConfig) -> None:
         self.cfg = cfg
         self._pegs = {p.name: p for p in cfg.pegs}
+        self._table_z = cfg.table_height          # m (read per contact check: kept here)
         self.events: list[WorldEvent] = []
         self._grasp: np.ndarray | None = None    # tool0 -> block, while held
         self._pose = np.eye(4)
@@ -149,7 +150,7 @@ class World:
         """Pose of the centre of peg ``name``'s top (z up)."""
         p = self._pegs[name]
         out = np.eye(4)
-        out[:3, 3] = (p.xy[0], p.xy[1], self.cfg.table_height + p.height)
+        out[:3, 3] = (p.xy[0], p.xy[1], self._table_z + p.height)
         return out
 
     @property
@@ -291,7 +292,7 @@ class World:
             if name == self.peg or self.misalignment(name, pose) >= self._corner + p.radius + NEAR:
                 self._memory.pop(name, None)
                 continue
-            top = self.cfg.table_height + p.height
+            top = self._table_z + p.height
             over = self._touches_top(name, pose)
             if bottom >= top - TOP_SLACK and over:
                 self._memory[name] = ("top", None)
@@ -318,9 +319,9 @@ class World:
             return 0.0
         pose = self.block_pose(tool_pose)
         bottom = float(pose[2, 3]) - self._half[2]
-        worst = max(self.cfg.table_height - bottom, 0.0)
+        worst = max(self._table_z - bottom, 0.0)
         for name, p in self._pegs.items():
-            top = self.cfg.table_height + p.height
+            top = self._table_z + p.height
             if name == self.peg:
                 if threaded:
                     worst = max(worst, self.misalignment(name, pose) - self.cfg.clearance(name))
@@ -396,12 +397,12 @@ class World:
         bottom = centre[2] - self._half[2]
         out: list[Contact] = []
         up = _UP
-        depth = self.cfg.table_height - bottom
+        depth = self._table_z - bottom
         if depth > -margin:
             out.append(Contact("table", up, depth, np.array([centre[0], centre[1], bottom]),
                                frictional=True))
         for name, p in self._pegs.items():
-            top = self.cfg.table_height + p.height
+            top = self._table_z + p.height
             if name == self.peg:
                 e = self.misalignment(name, pose)
                 clearance = self.cfg.block.hole_radius - p.radius
@@ -411,7 +412,7 @@ class World:
                 else:
                     n, excess = (-rel / e if e > 0.0 else None), e - clearance
                 if n is not None and (excess > 0.0 or side_normal is not None):
-                    low = max(bottom, self.cfg.table_height)     # middle of the overlap
+                    low = max(bottom, self._table_z)     # middle of the overlap
                     z = low + 0.5 * (min(top, centre[2] + self._half[2]) - low)
                     out.append(Contact(f"peg_side:{name}", n, excess,
                                        np.array([centre[0], centre[1], z])))
@@ -427,17 +428,17 @@ class World:
                 elif kind == "side" and depth > -margin:
                     excess = self._side_depth(name, pose, n)
                     if excess > -margin:
-                        low = max(bottom, self.cfg.table_height)
+                        low = max(bottom, self._table_z)
                         z = low + 0.5 * (min(top, centre[2] + self._half[2]) - low)
                         out.append(Contact(f"peg_side:{name}", n, excess,
                                            np.array([centre[0], centre[1], z])))
                 continue
-            if depth <= 0.0 or centre[2] + self._half[2] <= self.cfg.table_height:
+            if depth <= 0.0 or centre[2] + self._half[2] <= self._table_z:
                 continue
             side = self._side_contact(name, pose)
             if side is not None and side[0] < depth:
                 excess, n = side   # beside the peg, low: pushed off sideways
-                low = max(bottom, self.cfg.table_height)
+                low = max(bottom, self._table_z)
                 z = low + 0.5 * (min(top, centre[2] + self._half[2]) - low)
                 out.append(Contact(f"peg_side:{name}", n, excess,
                                    np.array([centre[0], centre[1], z])))
@@ -453,13 +454,13 @@ class World:
         pose = self.block_pose(tool_pose)
         bottom = pose[2, 3] - self._half[2]
         if self.peg is not None:
-            top = self.cfg.table_height + self._pegs[self.peg].height
+            top = self._table_z + self._pegs[self.peg].height
             if bottom > top:
                 self.events.append(WorldEvent("unthreaded", self.peg))
                 self.peg = None
         else:
             for name, p in self._pegs.items():
-                top = self.cfg.table_height + p.height
+                top = self._table_z + p.height
                 if bottom < top - THREAD_DEPTH and self.accepts(name, pose):
                     self.peg = name
                     self.events.append(WorldEvent("threaded", name))
@@ -497,7 +498,7 @@ class World:
         xy = pose[:2, 3].copy()
         rest = np.eye(4)
         rest[:3, :3] = _yaw_only(pose[:3, :3])
-        z = self.cfg.table_height + self._half[2]
+        z = self._table_z + self._half[2]
         landed = self.peg
         if landed is None:
             for name, p in self._pegs.items():
@@ -508,10 +509,10 @@ class World:
         if landed is None:
             for name, p in self._pegs.items():
                 if self._touches_top(name, pose) and \
-                        pose[2, 3] - self._half[2] > self.cfg.table_height + p.height - 0.01:
+                        pose[2, 3] - self._half[2] > self._table_z + p.height - 0.01:
                     if self.misalignment(name, pose) <= p.radius:   # balanced on the top
                         on_top = name
-                        z = self.cfg.table_height + p.height + self._half[2]
+                        z = self._table_z + p.height + self._half[2]
                     else:                                           # tips off
                         xy = self._clear_of(name, pose)
                     break
