@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import re
+import signal
 import subprocess
 from pathlib import Path
 
@@ -39,7 +40,22 @@ def test_there_are_runnable_blocks_in_readme_and_guide():
 def test_block_runs(name, script, ros_domain):
     env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain),
                ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    proc = subprocess.run(["bash", "-e", "-c", script], cwd=ROOT, env=env,
-                          capture_output=True, text=True, timeout=170,
-                          start_new_session=True)
-    assert proc.returncode == 0, f"{name} failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+    # -x: a failing block's trace (stderr) names the command that failed; its own session,
+    # ended afterwards: a block that fails before its own cleanup (kill ...) leaves nothing
+    # running (a viewer left on port 8080 would fail the next run of the viewer's block)
+    proc = subprocess.Popen(["bash", "-e", "-x", "-c", script], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        out, err = proc.communicate(timeout=170)
+    finally:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        if proc.poll() is None:
+            proc.wait()
+    logs = {p: Path(p).read_text(errors="replace")[-1500:] for p in
+            re.findall(r"> (/tmp/[\w.-]+\.log)", script) if Path(p).exists()}
+    assert proc.returncode == 0, (f"{name} failed:\n{out[-3000:]}\n{err[-3000:]}\n"
+                                  + "\n".join(f"--- {p}:\n{t}" for p, t in logs.items()))
