@@ -496,3 +496,38 @@ def test_friction_fit_and_compensation(tmp_path):
         fit_friction(cal, names, model[:, :2], measured, v)
     with pytest.raises(CalibrationError, match="friction"):
         JointCalibration(friction=-0.1)
+
+
+def _enabled_controller(kin, q):
+    from hyperarm_ik.force.controller import ForceController
+    ctl = ForceController(HybridLaw(kin))
+    ctl.step(0.0, q, np.zeros(kin.nq), np.zeros(kin.nq))
+    ctl.enable(True, 0.0)
+    return ctl
+
+
+def test_stale_states_make_it_passive_but_not_its_own_scheduling_gap(kin):
+    """Joint states stopping make it passive within stale_timeout of the last one (checked
+    every 10 ms, as the node does). A gap in its own checks longer than stale_timeout (the
+    process itself not run: a loaded machine) is not judged as the states' silence: the
+    states queued meanwhile are read first, the next check judges (before, such a starved
+    node went passive with fresh states waiting)."""
+    from hyperarm_ik.force.controller import Mode
+    q = _configs(kin, 1)[0]
+    ctl = _enabled_controller(kin, q)
+    for t in np.arange(0.01, 0.095, 0.01):
+        assert ctl.check_stale(float(t)) is None
+    event = ctl.check_stale(0.105)
+    assert event is not None and event.kind == "stale" and ctl.mode is Mode.PASSIVE
+    # starved for 0.3 s, then the queued state: still active
+    ctl = _enabled_controller(kin, q)
+    assert ctl.check_stale(0.05) is None
+    assert ctl.check_stale(0.35) is None and ctl.mode is Mode.ACTIVE
+    ctl.step(0.351, q, np.zeros(kin.nq), np.zeros(kin.nq))
+    assert ctl.check_stale(0.36) is None and ctl.mode is Mode.ACTIVE
+    # starved, and no state came meanwhile either: the next check judges
+    ctl = _enabled_controller(kin, q)
+    assert ctl.check_stale(0.05) is None
+    assert ctl.check_stale(0.35) is None
+    event = ctl.check_stale(0.36)
+    assert event is not None and event.kind == "stale" and ctl.mode is Mode.PASSIVE

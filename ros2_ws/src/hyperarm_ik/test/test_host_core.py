@@ -254,3 +254,49 @@ def test_delay_estimator_finds_a_known_delay_and_ignores_standstill():
     assert still.delay == 0.02 and still.samples == 0
     with pytest.raises(HostConfigError):
         DelayEstimator(-1.0)
+
+
+def _enabled_loop(kin):
+    from hyperarm_ik.host import CompensationConfig, DelayEstimator
+    from hyperarm_ik.host.loop import CompensationLoop
+    loop = CompensationLoop(Compensator(kin, CompensationConfig()), DelayEstimator(0.04), 0.1,
+                            host_from_states=False)
+    host = HostState(np.eye(4))
+    loop.on_state(0.0, 0.0, Q0, host, 0.0, 0.0)
+    ok, message, _ = loop.enable(0.0, Q0, host, "host_pose")
+    assert ok, message
+    return loop, host
+
+
+def test_loop_stops_on_silence_but_not_on_its_own_scheduling_gap(kin):
+    """Joint states stopping stop the compensation (latched); a gap in the loop's own
+    calls longer than stale_timeout (the node not run: a loaded machine) is not taken for
+    the inputs' silence: neither the joint states' (check_stale) nor, for stale_timeout
+    after it, the host pose's (queued states are read before the queued host pose: the
+    clean-clone run's sway failure, the node stopped mid-sway)."""
+    loop, host = _enabled_loop(kin)
+    for t in np.arange(0.01, 0.095, 0.01):
+        assert loop.check_stale(float(t)) == []
+    assert loop.check_stale(0.105) and not loop.enabled
+    # starved 0.3 s: the check right after is not judged, the queued state runs a cycle
+    # with the host pose received before the gap
+    loop, host = _enabled_loop(kin)
+    assert loop.check_stale(0.05) == []
+    assert loop.check_stale(0.35) == [] and loop.enabled
+    for k in range(3):       # a burst of queued states before the queued host pose
+        command, log = loop.on_state(0.351 + 0.001 * k, 0.35, Q0, host, 0.0, 0.0)
+        assert command is not None and loop.enabled, log
+    assert loop.check_stale(0.36) == [] and loop.enabled
+    # the host pose then stays silent: judged stale_timeout after the gap
+    command, log = loop.on_state(0.44, 0.44, Q0, host, 0.0, 0.0)
+    assert loop.enabled, log
+    command, log = loop.on_state(0.46, 0.46, Q0, host, 0.0, 0.0)
+    assert command is None and not loop.enabled and "host pose stale" in loop.reason
+    # a host pose silent while the loop runs (states every 10 ms): stopped
+    loop, host = _enabled_loop(kin)
+    for t in np.arange(0.01, 0.2, 0.01):
+        command, log = loop.on_state(float(t), float(t), Q0, host, 0.0, 0.0)
+        if not loop.enabled:
+            break
+    assert not loop.enabled and 0.1 < t < 0.12
+    assert "host pose stale" in loop.reason

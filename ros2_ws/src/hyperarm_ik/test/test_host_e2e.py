@@ -236,7 +236,8 @@ def _answered(probe: Probe, first_state: int, wait_for) -> str:
         d = dict(probe.diag)
         sent = sum(s <= stop - 100_000_000 for s in probe.state_stamps[first_state:])
     cycles, states = int(d["cycles"]), int(d["states"])
-    text = f"node answered {cycles}/{states} joint states (the test saw {sent} before)"
+    text = (f"node answered {cycles}/{states} joint states (the test saw {sent} before; "
+            f"its last reason: {d.get('reason', '?')})")
     assert d["enabled"] == "False" and cycles == states and states >= sent, text
     return text
 

@@ -117,6 +117,7 @@ class ForceController:
         self.goal: HybridGoal | None = None
         self.stats = _Stats()
         self._last_state: float | None = None
+        self._checked: float | None = None      # s, the last check_stale
         self._last_cycle: float | None = None
         self._q: np.ndarray | None = None
         self.last_estimate: WrenchEstimate | None = None
@@ -186,7 +187,13 @@ class ForceController:
         return goal, None
 
     def check_stale(self, now: float) -> Event | None:
-        """Passive when ACTIVE and no joint state came for ``stale_timeout`` s."""
+        """Passive when ACTIVE and no joint state came for ``stale_timeout`` s. Not judged
+        right after this process itself did not run for ``stale_timeout`` s (no check since:
+        a loaded machine's scheduling, not the states' silence): the states queued
+        meanwhile are read first, and the next check judges."""
+        checked, self._checked = self._checked, now
+        if checked is not None and now - checked > self.config.stale_timeout:
+            return None
         if self.mode is not Mode.ACTIVE or self._last_state is None:
             return None
         age = now - self._last_state

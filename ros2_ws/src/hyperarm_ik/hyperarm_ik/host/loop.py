@@ -15,6 +15,8 @@ Times in s on one clock (the node's); ``stamp`` values are the messages' header 
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .compensation import Compensator, DelayEstimator, HostState, Status
@@ -39,6 +41,8 @@ class CompensationLoop:
         self.states = 0                    # joint states received while enabled
         self.latency = 0.0                 # s, smoothed age of the joint states on arrival
         self.last_state: float | None = None   # s, arrival of the last joint state
+        self._checked: float | None = None     # s, the last check_stale
+        self._host_grace = -math.inf           # s, host pose not judged stale before this
         self.error = (0.0, 0.0)            # m, rad of the last command (predicted goal)
 
     def on_state(self, now: float, stamp: float, q: np.ndarray, host: HostState | None,
@@ -48,9 +52,16 @@ class CompensationLoop:
         ``now``: the command to send (None: none) and the log lines."""
         age = min(max(now - stamp, 0.0), 0.5) if stamp > 0.0 else 0.0
         command, log = None, []
+        # this process not run for stale_timeout s (a loaded machine's scheduling): the
+        # host pose's silence across that gap is the node's own, and its queued host poses
+        # may be read only after several queued states: the host pose gets stale_timeout
+        # from here to arrive (cycles meanwhile use the last one, its age in the horizon)
+        if self.last_state is not None and now - self.last_state > self.stale_timeout:
+            self._host_grace = now + self.stale_timeout
+        judged = now >= self._host_grace
         if self.enabled:
             self.states += 1
-            if host is None or (not self.host_from_states and (
+            if host is None or (not self.host_from_states and judged and (
                     host_arrival is None or now - host_arrival > self.stale_timeout)):
                 log += self.disable("host pose stale or missing: compensation stopped")
             else:
@@ -101,7 +112,12 @@ class CompensationLoop:
 
     def check_stale(self, now: float) -> Log:
         """Joint states stopped while enabled: stop (latched) rather than resume later from
-        an old command."""
+        an old command. Not judged right after this process itself did not run for
+        ``stale_timeout`` s (no check since: a loaded machine's scheduling): the states
+        queued meanwhile are read first, and the next check judges."""
+        checked, self._checked = self._checked, now
+        if checked is not None and now - checked > self.stale_timeout:
+            return []
         if self.enabled and self.last_state is not None \
                 and now - self.last_state > self.stale_timeout:
             return self.disable(f"no joint_states for {self.stale_timeout:g} s: "
