@@ -112,6 +112,9 @@ HEADER = "schema_version: 1\nobjects: [block]\nsteps:\n"
     ("  - name: a\n    type: track_path\n    path: figure8\n    center: [0.4, 0]\n", 7,
      "is too short"),
     ("  - {name: a, type: track_path}\n", 4, "'path' is missing"),
+    ("  - name: a\n    type: force_insert\n    target: {relative_to: block}\n"
+     "    force: 1 N\n    stiffness: 1000 N/m\n", 7,
+     "force / stiffness (1.0 mm) must exceed contact_threshold (1.5 mm)"),
 ])
 def test_bad_files_are_rejected_with_their_line(tmp_path, desc, body, line, reason):
     path = tmp_path / "bad.yaml"

@@ -84,6 +84,12 @@ def build(raw: dict, ctx: BuildContext, index: int) -> ForceInsert:
     if step.press <= step.depth:
         raise ctx.FieldError(("press",), f"press ({step.press * 1000:.1f} mm) must exceed depth "
                              f"({step.depth * 1000:.1f} mm): the block is pressed that far")
+    sink = step.force / step.stiffness
+    if sink <= step.contact_threshold:
+        raise ctx.FieldError(("force",), f"force / stiffness ({sink * 1000:.1f} mm) must exceed "
+                             f"contact_threshold ({step.contact_threshold * 1000:.1f} mm): "
+                             "under force control a block that meets no contact is down "
+                             "when the force holds the tool that far below its goal")
     return step
 
 
