@@ -150,14 +150,14 @@ class ForceSimRobot(SimRobot):
     def __init__(self, sim: JointSim, kin, dt: float = 0.01,
                  late: Sequence[tuple[float, float]] = (), output: str = "position",
                  **kw) -> None:
-        from hyperarm_ik.force.controller import ControllerConfig, ForceController
+        from hyperarm_ik.force.controller import ForceController
         from hyperarm_ik.force.law import HybridLaw
         from hyperarm_ik.force.parameters import PARAMETERS, build
+        from hyperarm_ik.force.wrench import WrenchEstimator
         super().__init__(sim, dt, **kw)
         values = {name: v[0] for name, v in PARAMETERS.items()}
         values["output"] = output
         law_cfg, est_cfg, ctl_cfg = build(values)
-        from hyperarm_ik.force.wrench import WrenchEstimator
         law = HybridLaw(kin, law_cfg)
         self.ctl = ForceController(law, WrenchEstimator(law.na, est_cfg), None, ctl_cfg)
         self.kin = kin
@@ -166,7 +166,6 @@ class ForceSimRobot(SimRobot):
         self.events: list[tuple[float, str, str]] = []    # (time, kind, message)
         self._chain = [self.sim.names.index(n) for n in self.ctl.names]
         self._arm = [self.sim.names.index(n) for n in self.ctl.arm_names]
-        assert isinstance(ctl_cfg, ControllerConfig)
 
     def _is_late(self) -> bool:
         return any(a <= self.sim.time < b for a, b in self.late)
