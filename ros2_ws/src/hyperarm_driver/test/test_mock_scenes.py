@@ -22,13 +22,13 @@ DT = 0.01
 
 
 @pytest.mark.core
-@pytest.mark.parametrize("name", ["workcell.yaml", "workcell_pole.yaml",
+@pytest.mark.parametrize("name", ["workcell.yaml", "workcell_pole.yaml", "workcell_post.yaml",
                                   "workcell_no_block.yaml", "workcell_rail.yaml"])
 def test_shipped_work_cells_load_for_the_mock_and_the_ik(name):
     cfg = load_mock_config(CELLS / name)
     assert load_world(CELLS / name) == cfg.world.spec     # the IK reads the same cell
     assert (cfg.world.block is None) == (name == "workcell_no_block.yaml")
-    assert bool(cfg.world.poles) == (name == "workcell_pole.yaml")
+    assert bool(cfg.world.poles) == (name in ("workcell_pole.yaml", "workcell_post.yaml"))
 
 
 @pytest.mark.core
@@ -235,12 +235,12 @@ def test_a_new_move_while_a_link_presses_a_pole_draws_its_offset_once_free():
 @pytest.mark.core
 @pytest.mark.parametrize("variant", ["arm", "rail_arm"])
 def test_position_arm_swung_into_a_thick_post_stops_and_overloads(variant, tmp_path):
-    """A 55 mm-radius post 0.30 m out, joint1 swung hard into it: the arm once went through
-    (0.56 to 2.1 rad in 0.1 s); it must stop at the post, at most 2 mm in, until joint1
-    overloads."""
+    """The shipped post cell's 55 mm-radius post 0.30 m out, joint1 swung hard into it: the
+    arm once went through (0.56 to 2.1 rad in 0.1 s); it must stop at the post, at most 2 mm
+    in, until joint1 overloads."""
     import yaml
-    raw = yaml.safe_load((CELLS / "workcell_pole.yaml").read_text())
-    raw["world"]["poles"] = {"post": {"xy": [0.212, 0.212], "radius": 0.055, "height": 0.6}}
+    raw = yaml.safe_load((CELLS / "workcell_post.yaml").read_text())
+    assert raw["world"]["poles"]["post"]["radius"] == 0.055
     raw["imperfections"].update(seed=1)
     (tmp_path / "post.yaml").write_text(yaml.safe_dump(raw))
     sim = JointSim(load_description(variant=variant), load_mock_config(tmp_path / "post.yaml"))

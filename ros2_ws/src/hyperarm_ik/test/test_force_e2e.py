@@ -402,73 +402,49 @@ def test_step_tracking_and_no_sag(launch, rclpy_context, executor, wait_for, tmp
     assert all(v < 0.001 for v in sag.values()), sag
 
 
-def _wrap_cell(tmp_path, sim) -> tuple[str, float]:
-    """The shipped pole work cell with its pole replaced by a 55 mm-radius post at 45°,
-    0.30 m from the base (repeatability 0, a seed), and the joint1 angle (rad) that puts its pole inside the U of the wrap postures: joints
-    5 and 7 at 90° make a U whose inside, 8.3 cm from link4, link7 and the link5-link6
-    side, must hold the pole (radius 55 mm: a thin pole fits between two links at one bend,
-    link5 + link6 running straight for 17 cm between the yaw joints 5 and 7). joint1 turns
-    the flat arm about the vertical through the base: it aims the U at the pole; the U's
-    distance from the base must match the pole's (checked)."""
+def _post_cell(tmp_path) -> str:
+    """The shipped ``workcell_post.yaml`` (a 55 mm-radius post 0.30 m out at 45°) with
+    repeatability 0 and a seed."""
     import yaml
-    import pinocchio as pin
     from ament_index_python.packages import get_package_share_directory
 
-    src = f"{get_package_share_directory('hyperarm_driver')}/config/workcell_pole.yaml"
+    src = f"{get_package_share_directory('hyperarm_driver')}/config/workcell_post.yaml"
     data = yaml.safe_load(open(src, encoding="utf-8"))
-    # (the shipped pole is 15 mm; this post was shipped for a while, but with the wave-4
-    # yield physics the mock let a position-controlled arm swung into it pass through)
-    data["world"]["poles"] = {"pole1": {"xy": [0.214, 0.214], "radius": 0.055, "height": 0.6}}
-    (pole,) = data["world"]["poles"].values()
-    m, d = sim.model, sim.model.createData()
-    pin.forwardKinematics(m, d, np.r_[_wrap_posture(math.pi / 2, 0.0),
-                                      np.zeros(m.nq - 9)])
-    at = {m.names[i]: d.oMi[i].translation for i in range(1, m.njoints)}
-    d4 = at["joint5"] - at["joint4"]
-    d56 = at["joint7"] - at["joint5"]
-    p = at["joint5"] + 0.083 * d56 / np.linalg.norm(d56) - 0.075 * d4 / np.linalg.norm(d4)
-    xy = np.asarray(pole["xy"], dtype=float)
-    assert abs(np.linalg.norm(p[:2]) - np.linalg.norm(xy)) < 0.003, (p, xy)
-    assert pole["radius"] >= 0.05, pole
-    joint1 = math.atan2(xy[1], xy[0]) - math.atan2(p[1], p[0])
     data["imperfections"].update({"repeatability": 0.0, "seed": 2})
-    out = tmp_path / "workcell_pole.yaml"
+    out = tmp_path / "workcell_post.yaml"
     out.write_text(yaml.safe_dump(data), encoding="utf-8")
-    return str(out), joint1
+    return str(out)
 
 
-def _wrap_posture(bend: float, joint1: float) -> np.ndarray:
-    """joint1 at ``joint1`` (rad), the yaw joints 5 and 7 bent by ``bend`` (rad), the rest
-    0."""
-    q = np.zeros(9)
-    q[0], q[4], q[6] = joint1, bend, bend
-    return q
+# the wrap (docs/force.md, "Whole-arm compliance"): the torque output (every joint soft),
+# a null-space posture spring of 1 N·m/rad, a soft goal leading the tool (N/m, N·m/rad)
+WRAP_PARAMS = {"output": "torque", "posture_stiffness": 1.0}
+WRAP_STIFFNESS = [200.0, 200.0, 200.0, 2.0, 2.0, 2.0]
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason="issue 9/10: with the mock's wave-4 yield physics (a "
-                   "servo at its current limit gives way at most its velocity limit per step) "
-                   "the soft arm ends with 2 links on the pole (link5 2-4 N, link8 0.2-1.1 N, "
-                   "plus the gripper), not 3; it had link5, link6, link8 at 6-17 N before")
 def test_whole_arm_compliance_closes_around_a_pole(launch, rclpy_context, executor, wait_for,
                                                    tmp_path):
-    """Whole-arm compliance through the node in the pole work cell with a 55 mm post
-    (_wrap_cell): from an open posture
-    (the pole inside the arm's open U, nothing touching), compliance on, the goal leads the
-    tool (tool pose of a closed posture, in 4 steps) and the null-space posture is that
-    closed posture, which lies inside the pole: the arm ends with at least 3 links on the
-    pole (debug/contacts, the mock's ground truth; the gripper's capsule not counted) and
-    bounded contact forces (every link's
-    below 25 N, not growing)."""
+    """Whole-arm compliance through the node in the shipped post cell: from an open wrap
+    posture (hyperarm_tasks.testing.wrap_postures: the post inside the arm's open U,
+    nothing touching), force control in the torque output, compliance on, the goal leads
+    the tool (tool pose of the closed posture, in 4 steps) and the null-space posture is
+    that closed posture, which lies inside the post: the arm ends with at least 3 links on
+    the post (debug/contacts, the mock's ground truth; the gripper's capsule not counted)
+    and bounded contact forces (every link's below 25 N, not growing)."""
     from diagnostic_msgs.msg import DiagnosticArray
+    from hyperarm_driver.mock.config import load_mock_config
     from hyperarm_driver.mock.joint_sim import JointSim
+    from hyperarm_tasks.testing import wrap_postures
 
-    sim = JointSim(load_description())
-    cell, joint1 = _wrap_cell(tmp_path, sim)
-    q_open, q_closed = _wrap_posture(0.5, joint1), _wrap_posture(2.0, joint1)
+    cell = _post_cell(tmp_path)
+    sim = JointSim(load_description(), load_mock_config(cell))
+    (post,) = sim.cfg.world.poles
+    q_open, q_closed = wrap_postures(sim, post)
     launch("hyperarm_driver", "mock_driver", params={"workcell_file": cell})
     posture = "[" + ",".join(f"{v:.4f}" for v in q_closed) + "]"
-    launch("hyperarm_ik", "hybrid_force", params=dict(MOCK_PARAMS, posture=posture))
+    launch("hyperarm_ik", "hybrid_force", params=dict(MOCK_PARAMS, posture=posture,
+                                                      **WRAP_PARAMS))
     probe = ForceProbe(rclpy_context, executor, wait_for)
     contacts: list = []
     probe.node.create_subscription(DiagnosticArray, contract.CONTACTS_TRUTH,
@@ -486,7 +462,7 @@ def test_whole_arm_compliance_closes_around_a_pole(launch, rclpy_context, execut
     kin = arm.kin
     for s in (0.25, 0.5, 0.75, 1.0):
         t = kin.forward(q_open + s * (q_closed - q_open))
-        probe.send_goal(t[:3, 3], t[:3, :3], STIFF)
+        probe.send_goal(t[:3, 3], t[:3, :3], WRAP_STIFFNESS)
         time.sleep(1.0)                 # the goal's pace (it leads the tool), not a wait
 
     def links(msg) -> dict:

@@ -18,7 +18,7 @@ from hyperarm_driver.mock.joint_sim import JointSim
 
 from .perception import DetectionBuffer, camera_pose, matrix_to_quat
 
-__all__ = ["SimRobot", "ForceSimRobot", "work_cell"]
+__all__ = ["SimRobot", "ForceSimRobot", "work_cell", "wrap_postures"]
 
 
 def work_cell(seed: int, hole_radius: float | None = None,
@@ -39,6 +39,42 @@ def work_cell(seed: int, hole_radius: float | None = None,
         base, world=dataclasses.replace(base.world, spec=spec),
         imperfections=dataclasses.replace(base.imperfections, seed=seed),
         camera=dataclasses.replace(base.camera, seed=seed))
+
+
+def wrap_postures(sim: JointSim, pole, open_bend: float = 0.5,
+                  closed_bend: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """Arm joint angles (rad, joint1..9) of an open and a closed wrap around the vertical
+    ``pole`` (a :class:`~hyperarm_description.world.PoleSpec`; the scene of
+    ``workcell_post.yaml`` and of the whole-arm compliance tests).
+
+    The flat arm (pitch joints 2, 4, 6, 8 at 0) bent by 90° at the yaw joints 5 and 7 is a U:
+    link3-link4, then link5-link6 (17 cm between joints 5 and 7), then link7 and the
+    upright link9. The U's inside, 8.3 cm from either side and 7.5 cm back from joint 5,
+    holds a post of about 55 mm radius. joint1 aims that point at the pole (its distance
+    from the base must match the pole's, within 3 mm: else ValueError). The open posture
+    bends joints 5 and 7 by ``open_bend``, the closed one by ``closed_bend`` (inside the
+    pole). Arm variant only (ValueError on rail_arm)."""
+    import pinocchio as pin
+
+    def bent(bend: float, joint1: float) -> np.ndarray:
+        q = np.zeros(9)
+        q[0], q[4], q[6] = joint1, bend, bend
+        return q
+    if sim.rail:
+        raise ValueError("wrap_postures: the arm variant only")
+    m = sim.model
+    d = m.createData()
+    pin.forwardKinematics(m, d, np.r_[bent(np.pi / 2, 0.0), np.zeros(m.nq - 9)])
+    at = {m.names[i]: d.oMi[i].translation for i in range(1, m.njoints)}
+    d4 = at["joint5"] - at["joint4"]
+    d56 = at["joint7"] - at["joint5"]
+    p = at["joint5"] + 0.083 * d56 / np.linalg.norm(d56) - 0.075 * d4 / np.linalg.norm(d4)
+    xy = np.asarray(pole.xy, dtype=float)
+    if abs(np.linalg.norm(p[:2]) - np.linalg.norm(xy)) > 0.003:
+        raise ValueError(f"the U's inside is {np.linalg.norm(p[:2]):.3f} m from the base, "
+                         f"the pole {np.linalg.norm(xy):.3f} m")
+    joint1 = float(np.arctan2(xy[1], xy[0]) - np.arctan2(p[1], p[0]))
+    return bent(open_bend, joint1), bent(closed_bend, joint1)
 
 
 class SimRobot:
@@ -145,11 +181,12 @@ class ForceSimRobot(SimRobot):
     as ``hybrid_force`` does over topics, with the node's event handling (a stale passive
     calls the driver's hold, any other passive holds the arm joints with one position
     command). ``late``: (start, end) windows of simulated time in which no joint state
-    reaches the controller (a loaded machine: it goes passive on stale states)."""
+    reaches the controller (a loaded machine: it goes passive on stale states); ``params``: the node's parameters (name:
+    value, as ``hybrid_force`` declares them) that differ from their defaults."""
 
     def __init__(self, sim: JointSim, kin, dt: float = 0.01,
                  late: Sequence[tuple[float, float]] = (), output: str = "position",
-                 **kw) -> None:
+                 params: Mapping[str, object] | None = None, **kw) -> None:
         from hyperarm_ik.force.controller import ForceController
         from hyperarm_ik.force.law import HybridLaw
         from hyperarm_ik.force.parameters import PARAMETERS, build
@@ -157,6 +194,7 @@ class ForceSimRobot(SimRobot):
         super().__init__(sim, dt, **kw)
         values = {name: v[0] for name, v in PARAMETERS.items()}
         values["output"] = output
+        values.update(params or {})
         law_cfg, est_cfg, ctl_cfg = build(values)
         law = HybridLaw(kin, law_cfg)
         self.ctl = ForceController(law, WrenchEstimator(law.na, est_cfg), None, ctl_cfg)
