@@ -821,19 +821,20 @@ class JointSim:
                 # (threaded: the hole's wall is curved)
                 warm = None
         q_lin, solved = (q, None) if warm is None else (q + warm, None)
-        side = None
+        # threaded: the wall's normal where the arm's compliance really puts the block
+        side = self._wall_normal(q, q, kinv)
         # (a warm start that missed gets the cold start's number of re-linearizations)
         for _ in range((LINEARIZATIONS + (warm is not None)) if v is None else 1):
             # re-linearizing, the threaded peg's side is the plane of its normal at q (a
             # linear solution may overshoot the curved side, even past the axis)
-            rows = self._contact_rows(q_lin, side if q_lin is not q else None)
+            rows = self._contact_rows(q_lin, side)
             if rows is None and q_lin is not q:   # contact lost where it was: try q itself
                 q_lin = q
                 rows = self._contact_rows(q)
             if rows is None:
                 break
             contacts, jr, p0, owner, tangential, points = rows
-            if q_lin is q:
+            if q_lin is q and side is None:
                 side = next((c.normal for c in contacts if c.kind.startswith("peg_side:")
                              and self.world.peg and c.kind.endswith(":" + self.world.peg)),
                             None)
@@ -844,6 +845,8 @@ class JointSim:
             if _absmax(q + deflection - q_lin) < RELINEARIZE:  # rad: re-linearizing
                 break                                                # would change ~nothing
             q_lin = q + deflection
+            if side is not None:     # the wall's normal seen from the new linearization
+                side = self._wall_normal(q_lin, q, kinv, side)
         if solved is None:
             self.contact_force = np.zeros(3)
             self._last_rows = None
@@ -892,6 +895,58 @@ class JointSim:
                                   and f[int(np.flatnonzero(owner == ci)[0])] > 0.0}
         self._last_rows = (self._row_dirs, points, owner, f, block)
         return dq, jr.T @ f
+
+    def _wall_normal(self, q_lin: np.ndarray, q: np.ndarray, kinv: np.ndarray,
+                     previous: np.ndarray | None = None) -> np.ndarray | None:
+        """The normal (3,, horizontal, unit) of the threaded hole's wall against the held
+        block, for the contact solve linearized at ``q_lin`` from the undeflected joints
+        ``q`` (servo compliances ``kinv``, rad/N·m): None when the block at ``q`` is within
+        the clearance (no wall contact), ``previous`` when there is no better one.
+
+        The wall is a circle of radius r (the clearance) about the peg's axis, far more
+        curved than the arm's deflections: the plane of its normal at ``q`` lets the block
+        slide tangentially (the arm's compliance C at the block is not isotropic) and end
+        centimetres deep in the curved wall. Solved in the horizontal plane instead: the
+        block's offset from the axis at ``q``, b0, moves by C F under the wall's force
+        F = -lam u, and ends on the ray u at the distance r + lam / k_env:
+        (rho I + lam C) u = b0, rho = r + lam / k_env, |u| = 1; |u(lam)| falls with lam,
+        so lam is found by bisection. The normal is -u."""
+        at = self.world.hole_offset(self._tool_at(q_lin))
+        if at is None:
+            return previous
+        centre, b_lin = at
+        qt = q_lin + self.offset[:self.nk]
+        j6 = pin.computeFrameJacobian(self.model, self.data, qt, self.tool_id,
+                                      pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+        jp = (j6[:3] - _skew(centre - self.data.oMf[self.tool_id].translation) @ j6[3:])[:2]
+        b0 = b_lin + jp @ (q - q_lin)
+        r = self.cfg.world.clearance(self.world.peg)
+        e0 = math.hypot(b0[0], b0[1])
+        if e0 <= r:
+            return previous
+        c = (jp * kinv) @ jp.T
+        c00, c01, c11 = float(c[0, 0]), float(0.5 * (c[0, 1] + c[1, 0])), float(c[1, 1])
+        bx, by = float(b0[0]), float(b0[1])
+        k_env = self.cfg.world.contact_stiffness
+
+        def u_of(lam: float) -> tuple[float, float]:
+            rho = r + lam / k_env
+            a, b, d = rho + lam * c00, lam * c01, rho + lam * c11
+            det = a * d - b * b
+            return (d * bx - b * by) / det, (a * by - b * bx) / det
+        lo, hi = 0.0, k_env * (e0 - r)       # at hi: |u| <= 1 (C >= 0)
+        for _ in range(40):
+            mid = 0.5 * (lo + hi)
+            ux, uy = u_of(mid)
+            if ux * ux + uy * uy > 1.0:
+                lo = mid
+            else:
+                hi = mid
+        ux, uy = u_of(hi)
+        norm = math.hypot(ux, uy)
+        if not norm > 0.0:
+            return previous
+        return np.array([-ux / norm, -uy / norm, 0.0])
 
     def _contact_rows(self, q: np.ndarray, side_normal: np.ndarray | None = None):
         """Contact rows of the held block at chain positions ``q``: the contacts, the
@@ -1152,14 +1207,13 @@ class JointSim:
 
     def _deepest(self, q: np.ndarray) -> float:
         """Deepest interference (m) of the block (held) and the links' capsules (poles) in
-        the work cell at chain positions ``q``; 0 without contact. The wall of the hole of a
-        threaded block is left out, a known gap (docs/mock.md): guarded, it jammed a
-        threaded block's lift off its peg (the wall's penalty contact ends 2.3 mm past the
-        clearance under the arm's sideways pull, and the guard then refuses every step)."""
+        the work cell at chain positions ``q``; 0 without contact. The wall of a threaded
+        block's hole counts (its excess over the clearance): the contact solve puts the
+        wall's normal where the arm's compliance really takes the block (``_wall_normal``),
+        so a sideways pull ends within ~1-2 mm of it and the guard rarely has to act."""
         tool = self._tool_at(q)
-        wall = f"peg_side:{self.world.peg}" if self.world.peg is not None else None
-        depths = [c.depth for c in self.world.contacts(tool) if c.kind != wall]
-        depths.append(self.world.penetration(tool, threaded=False))   # the geometry alone
+        depths = [c.depth for c in self.world.contacts(tool)]
+        depths.append(self.world.penetration(tool))   # the geometry alone
         if self._poles:
             depths += [c.depth for c in self._pole_contacts()]
         return max(depths, default=0.0)

@@ -196,6 +196,15 @@ class World:
         p = self._pegs[peg]
         return math.hypot(block_pose[0, 3] - p.xy[0], block_pose[1, 3] - p.xy[1])
 
+    def hole_offset(self, tool_pose: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """For a held block threaded on a peg, at ``tool_pose``: the block's centre (3,) and
+        its hole axis's horizontal offset (2,) from the peg's axis (m); else None."""
+        if self.peg is None or self.state is not BlockState.HELD:
+            return None
+        centre = self.block_pose(tool_pose)[:3, 3]
+        xy = self._pegs[self.peg].xy
+        return centre, np.array([centre[0] - xy[0], centre[1] - xy[1]])
+
     def rim_offsets(self, peg: str, block_pose: np.ndarray) -> tuple[float, float]:
         """Horizontal distances (m) of the hole's two rims (its axis, the block's z, at the
         block's top and bottom faces) from peg ``peg``'s axis."""
