@@ -9,7 +9,10 @@
   issue's bounds;
 - ``host_reaction.png``: the base moment (norm) over the figure-8 task's traversal, as
   shipped and with ``redundancy: min_reaction``, and the reaction wrench on base_link
-  during the uav_sway.
+  during the uav_sway;
+- ``host_passive_mount.png``: ``uav_sway_passive`` for 20 s, the tool's error and the
+  mount's deflection, on the shipped mount (an 8 kg airframe) and on a 0.5 kg plate (the
+  same modes and damping ratio), which the compensation drives unstable.
 
 Runs in about a minute (no ROS; the figure-8 task runs twice in simulated time).
 """
@@ -78,11 +81,50 @@ def write_plots(out: Path) -> list[Path]:
     rea = out / "host_reaction.png"
     fig.savefig(rea, dpi=110)
     plt.close(fig)
-    for name, run in (("rail sweep", rail), ("uav_sway", uav)):
+    passive = sway("uav_sway_passive", duration=20.0)
+    light = sway(_light_mount(), duration=20.0)
+    fig, ax = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    for run, label, color in ((passive, "shipped mount (8 kg airframe)", "C0"),
+                              (light, "0.5 kg plate, same modes and damping ratio", "C1")):
+        ax[0].plot(run["t"], run["position_error"] * 1e3, color=color,
+                   label=f"{label}: tool (FK)")
+        ax[1].plot(run["t"], np.linalg.norm(run["mount"][:, :3], axis=1) * 1e3, color=color,
+                   label=f"{label}: translation (mm)")
+        ax[1].plot(run["t"], np.linalg.norm(run["mount"][:, 3:], axis=1) * 1e3, "--",
+                   color=color, alpha=0.7, label=f"{label}: rotation (mrad)")
+    ax[0].axhline(8.0, color="r", lw=0.8, label="max bound 8 mm (RMS bound 3 mm)")
+    ax[0].set_ylabel("tool position error (mm)")
+    ax[0].set_yscale("log")
+    ax[1].set_ylabel("mount deflection")
+    ax[1].set_xlabel("time since compensation enabled (s)")
+    for a in ax:
+        a.legend(fontsize=8)
+        a.grid(alpha=0.3)
+    fig.suptitle("uav_sway on a passive mount: the arm's reactions move its base")
+    fig.tight_layout()
+    mnt = out / "host_passive_mount.png"
+    fig.savefig(mnt, dpi=110)
+    plt.close(fig)
+    for name, run in (("rail sweep", rail), ("uav_sway", uav),
+                      ("uav_sway_passive, 20 s", passive), ("0.5 kg plate, 20 s", light)):
         p = run["position_error"]
         print(f"{name}: RMS {np.sqrt(np.mean(p ** 2)) * 1e3:.2f} mm, max {p.max() * 1e3:.2f} "
               f"mm, {math.degrees(run['orientation_error'].max()):.2f} deg")
     print(f"figure-8 peak base moment: {base['moment'].max():.3f} N·m default, "
           f"{low['moment'].max():.3f} N·m min_reaction "
           f"({100 * (1 - low['moment'].max() / base['moment'].max()):.1f} % lower)")
-    return [err, rea]
+    return [err, rea, mnt]
+
+
+def _light_mount():
+    """``uav_sway_passive`` with the mount's body a 0.5 kg plate (0.002 kg·m²), its springs
+    and dampers scaled to the same ~4 / 8 Hz modes and damping ratio ~0.1 with the arm."""
+    import dataclasses
+
+    from hyperarm_driver.mock.host_motion import MountSpec, load_host_motion
+
+    spec = load_host_motion("uav_sway_passive")
+    return dataclasses.replace(spec, name="uav_sway_light_mount", mount=MountSpec(
+        mass=0.5, inertia=(0.002, 0.002, 0.002),
+        stiffness=(1200.0, 1200.0, 1200.0, 150.0, 150.0, 150.0),
+        damping=(9.5, 9.5, 9.5, 0.6, 0.6, 0.6)))

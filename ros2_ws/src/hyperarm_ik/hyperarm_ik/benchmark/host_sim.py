@@ -114,10 +114,11 @@ def rail_sweep(lead: bool = True, duration: float = 5.2,
     return res
 
 
-def sway(motion: str = "uav_sway", duration: float = 4.2, lead: bool = True,
+def sway(motion="uav_sway", duration: float = 4.2, lead: bool = True,
          delay_steps: int = 1, config: CompensationConfig | None = None
          ) -> dict[str, np.ndarray]:
-    """The mock's host motion ``motion`` (``uav_sway``, ``uav_sway_passive``) on the fixed
+    """The mock's host motion ``motion`` (a shipped name such as ``uav_sway`` or
+    ``uav_sway_passive``, a path, or a ``HostMotionSpec``) on the fixed
     arm, compensated by :class:`CompensationLoop` on the host pose the mock publishes
     (base_link in world, one per step): ``t``, the tool errors judged by FK of the joint
     states on the host pose (``position_error``, ``orientation_error``) and by the mock's
@@ -128,7 +129,8 @@ def sway(motion: str = "uav_sway", duration: float = 4.2, lead: bool = True,
 
     desc = load_description(variant="arm")
     sim = _sim(desc)
-    sim.host = HostMotion(load_host_motion(motion), sim)
+    spec = load_host_motion(motion) if isinstance(motion, (str, Path)) else motion
+    sim.host = HostMotion(spec, sim)
     sim.command(ARM, Q0)
     for _ in range(200):
         sim.step(DT)
