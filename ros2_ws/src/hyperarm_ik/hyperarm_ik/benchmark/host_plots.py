@@ -50,13 +50,8 @@ def write_plots(out: Path) -> list[Path]:
     ax[1].set_ylabel("orientation error (deg)")
     ax[1].set_xlabel("time since compensation enabled (s)")
     ax[1].legend(fontsize=8)
-    for a in ax:
-        a.grid(alpha=0.3)
-    fig.suptitle("host_compensation on the mock's simulated servos (1 step of transport)")
-    fig.tight_layout()
-    err = out / "host_tool_error.png"
-    fig.savefig(err, dpi=110)
-    plt.close(fig)
+    err = _save(plt, fig, ax, out / "host_tool_error.png",
+                "host_compensation on the mock's simulated servos (1 step of transport)")
 
     base, low = figure8_task(None), figure8_task("min_reaction")
     fig, ax = plt.subplots(2, 1, figsize=(9, 6))
@@ -74,13 +69,8 @@ def write_plots(out: Path) -> list[Path]:
     ax[1].set_xlabel("time since compensation enabled, uav_sway (s)")
     ax[1].set_ylabel("reaction on base_link")
     ax[1].legend(fontsize=8, ncol=4)
-    for a in ax:
-        a.grid(alpha=0.3)
-    fig.suptitle("What the arm does to its mount (base_reaction, from the measured joints)")
-    fig.tight_layout()
-    rea = out / "host_reaction.png"
-    fig.savefig(rea, dpi=110)
-    plt.close(fig)
+    rea = _save(plt, fig, ax, out / "host_reaction.png",
+                "What the arm does to its mount (base_reaction, from the measured joints)")
     passive = sway("uav_sway_passive", duration=20.0)
     light = sway(_light_mount(), duration=20.0)
     fig, ax = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
@@ -99,12 +89,8 @@ def write_plots(out: Path) -> list[Path]:
     ax[1].set_xlabel("time since compensation enabled (s)")
     for a in ax:
         a.legend(fontsize=8)
-        a.grid(alpha=0.3)
-    fig.suptitle("uav_sway on a passive mount: the arm's reactions move its base")
-    fig.tight_layout()
-    mnt = out / "host_passive_mount.png"
-    fig.savefig(mnt, dpi=110)
-    plt.close(fig)
+    mnt = _save(plt, fig, ax, out / "host_passive_mount.png",
+                "uav_sway on a passive mount: the arm's reactions move its base")
     for name, run in (("rail sweep", rail), ("uav_sway", uav),
                       ("uav_sway_passive, 20 s", passive), ("0.5 kg plate, 20 s", light)):
         p = run["position_error"]
@@ -114,6 +100,17 @@ def write_plots(out: Path) -> list[Path]:
           f"{low['moment'].max():.3f} N·m min_reaction "
           f"({100 * (1 - low['moment'].max() / base['moment'].max()):.1f} % lower)")
     return [err, rea, mnt]
+
+
+def _save(plt, fig, ax, path: Path, title: str) -> Path:
+    """Grid every axis, title, lay out and write ``fig`` to ``path``; close it."""
+    for a in ax:
+        a.grid(alpha=0.3)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
 
 
 def _light_mount():
