@@ -30,7 +30,8 @@ from hyperarm_description.ros_main import EXECUTORS, declare_robot_description, 
 
 from .errors import IKError
 from .host import (AccelerationEstimator, CompensationConfig, CompensationLoop, Compensator,
-                   DelayEstimator, HostPoseTracker, HostState, RailHost, ReactionModel)
+                   DelayEstimator, HostPoseTracker, HostState, LatestWrench, RailHost,
+                   ReactionModel)
 from .host.reaction import STANDARD_GRAVITY
 from .kinematics import Kinematics
 from .ros_conversions import pose_to_matrix
@@ -60,6 +61,14 @@ PARAMETERS: ParamSpec = {
     "reaction_acceleration": ("finite_difference", "joint accelerations in the reaction: "
                               "'finite_difference' of the measured velocities, or 'zero'",
                               OneOf(("finite_difference", "zero"))),
+    "reaction_host_acceleration": ("finite_difference", "the host's linear acceleration in "
+                                   "the reaction (a fictitious force on the links): "
+                                   "'finite_difference' of the host's velocity (host_pose's "
+                                   "twist or the rail's), or 'zero'",
+                                   OneOf(("finite_difference", "zero"))),
+    "contact_wrench_timeout": (0.2, "s: the force node's ee_wrench_base (the wrench the tool "
+                               "applies, base_link) enters the reaction while at most this "
+                               "old (by arrival); 0 = never", Range(0.0, 10.0)),
     "diagnostics_period": (1.0, "s between diagnostics", Range(0.05, 60.0)),
     "executor": ("events", "rclpy executor: 'events' (rclpy.experimental.EventsExecutor, the "
                  "least overhead per message) or 'single' (SingleThreadedExecutor)",
@@ -107,6 +116,10 @@ class HostCompensationNode(Node):
         self._host_time: float | None = None     # arrival (node clock) of the newest host_pose
         self._accel = AccelerationEstimator()
         self._fd = p["reaction_acceleration"] == "finite_difference"
+        self._host_accel = AccelerationEstimator() \
+            if p["reaction_host_acceleration"] == "finite_difference" else None
+        self._host_acc: np.ndarray | None = None     # m/s², world axes
+        self._contact = LatestWrench(p["contact_wrench_timeout"])
         self._compute = 0.0
         self._cmd = self.create_publisher(JointState, contract.JOINT_COMMAND,
                                           qos_for(contract.JOINT_COMMAND))
@@ -121,6 +134,8 @@ class HostCompensationNode(Node):
                                  qos_for(contract.HOST_POSE))
         self.create_subscription(PoseStamped, contract.HOST_COMP_GOAL, self._on_goal,
                                  qos_for(contract.HOST_COMP_GOAL))
+        self.create_subscription(WrenchStamped, contract.EE_WRENCH_BASE, self._on_contact_wrench,
+                                 qos_for(contract.EE_WRENCH_BASE))
         self.create_service(SetBool, contract.HOST_COMP_ENABLE, self._on_enable)
         self.create_timer(p["diagnostics_period"], self._publish_diagnostics)
         self.create_timer(min(0.05, p["stale_timeout"] / 2.0),
@@ -142,6 +157,17 @@ class HostCompensationNode(Node):
             self._warn(f"host_pose ignored: {exc}")
             return
         self._host_time = now
+
+    def _on_contact_wrench(self, msg: WrenchStamped) -> None:
+        if msg.header.frame_id != self._base:
+            self._warn(f"{contract.EE_WRENCH_BASE} ignored: needs frame {self._base!r}, got "
+                       f"{msg.header.frame_id!r}")
+            return
+        f, t = msg.wrench.force, msg.wrench.torque
+        try:
+            self._contact.update(self._now(), [f.x, f.y, f.z, t.x, t.y, t.z])
+        except IKError as exc:
+            self._warn(f"{contract.EE_WRENCH_BASE} ignored: {exc}")
 
     def _on_joint_states(self, msg: JointState) -> None:
         t0 = time.perf_counter()
@@ -228,8 +254,19 @@ class HostCompensationNode(Node):
         dq = np.array([c.velocity.get(n, 0.0) for n in self._arm])
         ddq = self._accel.update(now, dq) if self._fd else None
         r = host.pose[:3, :3] if host is not None else np.eye(3)
+        acc = None
+        if self._host_accel is not None and host is not None:
+            # differenced at the host state's own stamps (a repeated stamp: the last one)
+            t_host = _seconds(stamp) if self._rail is not None else self._tracker.stamp
+            a_world = self._host_accel.update(t_host, host.linear) \
+                if t_host is not None else None
+            if a_world is not None:
+                self._host_acc = a_world
+            acc = None if self._host_acc is None else r.T @ self._host_acc
         try:
-            w = self._reaction.wrench(q, dq, ddq, gravity_base=r.T @ STANDARD_GRAVITY)
+            w = self._reaction.wrench(q, dq, ddq, gravity_base=r.T @ STANDARD_GRAVITY,
+                                      base_acceleration=acc,
+                                      contact_wrench_base=self._contact.get(now))
         except IKError as exc:
             self._warn(f"reaction skipped: {exc}")
             return
@@ -243,6 +280,8 @@ class HostCompensationNode(Node):
     def _publish_diagnostics(self) -> None:
         loop = self._loop
         values = dict(loop.diagnostics(), host_source=self._source,
+                      contact_wrench="in use" if self._contact.get(self._now()) is not None
+                      else "none",
                       compute_ms=f"{self._compute * 1e3:.3f}")
         st = DiagnosticStatus(level=bytes([1 if loop.status == "unreachable" else 0]),
                               name="host_compensation", hardware_id="host_compensation",

@@ -300,3 +300,26 @@ def test_loop_stops_on_silence_but_not_on_its_own_scheduling_gap(kin):
             break
     assert not loop.enabled and 0.1 < t < 0.12
     assert "host pose stale" in loop.reason
+
+
+def test_latest_contact_wrench_is_used_while_fresh_and_refuses_bad_values():
+    """LatestWrench: the newest wrench while at most ``timeout`` s old, then None; a
+    malformed one raises HostStateError and the last good one stays; timeout 0 = never."""
+    from hyperarm_ik.host import HostStateError, LatestWrench
+
+    latest = LatestWrench(0.2)
+    assert latest.get(0.0) is None
+    latest.update(1.0, [0.0, 0.0, -2.0, 0.0, 0.1, 0.0])
+    np.testing.assert_array_equal(latest.get(1.15), [0.0, 0.0, -2.0, 0.0, 0.1, 0.0])
+    assert latest.get(1.25) is None
+    with pytest.raises(HostStateError):
+        latest.update(1.3, [0.0, math.nan, 0.0, 0.0, 0.0, 0.0])
+    with pytest.raises(HostStateError):
+        latest.update(1.3, [1.0, 2.0])
+    assert latest.get(1.1) is not None and latest.get(1.1)[2] == -2.0
+    never = LatestWrench(0.0)
+    never.update(0.0, np.zeros(6))
+    assert never.get(0.0) is None
+    for bad in (-1.0, math.inf, True, "0.2"):
+        with pytest.raises(HostConfigError):
+            LatestWrench(bad)

@@ -117,3 +117,88 @@ def test_enable_goal_and_host_pose_rules(rclpy_context, executor, wait_for):
         executor.remove_node(probe)
         node.destroy_node()
         probe.destroy_node()
+
+
+def test_reaction_takes_the_force_nodes_contact_wrench_and_the_hosts_acceleration(
+        rclpy_context, executor, wait_for):
+    """base_reaction adds the force node's ee_wrench_base (the wrench the tool applies, at
+    tool0, base_link) by the statics: the arm then pushes its mount with its weight minus
+    that wrench moved to base_link's origin; one in another frame or with a NaN is ignored;
+    once older than contact_wrench_timeout it no longer counts. A host_pose accelerating
+    at a along x adds -m a (the links' inertia) to the reaction's force."""
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+
+    from hyperarm_ik.host_compensation_node import HostCompensationNode
+
+    node = HostCompensationNode(context=rclpy_context, parameter_overrides=[
+        Parameter("stale_timeout", value=5.0), Parameter("contact_wrench_timeout", value=0.5)])
+    probe = Node("host_wrench_probe", namespace=contract.DEFAULT_NAMESPACE,
+                 context=rclpy_context)
+    executor.add_node(node)
+    executor.add_node(probe)
+    wrenches: list = []
+    probe.create_subscription(WrenchStamped, contract.BASE_REACTION,
+                              lambda m: wrenches.append(m), qos_for(contract.BASE_REACTION))
+    states = probe.create_publisher(JointState, contract.JOINT_STATES,
+                                    qos_for(contract.JOINT_STATES))
+    contact = probe.create_publisher(WrenchStamped, contract.EE_WRENCH_BASE,
+                                     qos_for(contract.EE_WRENCH_BASE))
+    host = probe.create_publisher(PoseStamped, contract.HOST_POSE, qos_for(contract.HOST_POSE))
+
+    def send_state():
+        msg = JointState()
+        msg.header.stamp = probe.get_clock().now().to_msg()
+        msg.name = list(contract.ARM_JOINTS)
+        msg.position = list(Q0)
+        states.publish(msg)
+
+    def reaction() -> np.ndarray:
+        n = len(wrenches)
+        wait_for(lambda: (send_state(), len(wrenches) > n)[1], 5.0, period=0.02,
+                 what="a reaction")
+        w = wrenches[-1].wrench
+        return np.array([w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z])
+
+    def publish_contact(w, frame=contract.BASE_FRAME):
+        msg = WrenchStamped()
+        msg.header.frame_id = frame
+        f, t = msg.wrench.force, msg.wrench.torque
+        f.x, f.y, f.z, t.x, t.y, t.z = (float(v) for v in w)
+        contact.publish(msg)
+
+    try:
+        kin = Kinematics(variant="arm")
+        model = ReactionModel(kin)
+        mass, _ = model.mass_and_com(np.array(Q0))
+        weight = reaction()
+        w = np.array([0.5, -1.0, -3.0, 0.02, 0.05, -0.01])   # the tool presses down
+        p_tool = kin.forward(np.array(Q0))[:3, 3]
+        expected = weight - np.r_[w[:3], w[3:] + np.cross(p_tool, w[:3])]
+        for bad, frame in ((w, "tool0"), (np.r_[w[:5], math.nan], contract.BASE_FRAME)):
+            publish_contact(bad, frame)
+            time.sleep(0.1)
+            np.testing.assert_allclose(reaction(), weight, atol=1e-9)
+        publish_contact(w)
+        wait_for(lambda: np.abs(reaction() - expected).max() < 1e-6, 5.0,
+                 what="the contact wrench in the reaction")
+        time.sleep(0.6)                                      # older than the timeout
+        np.testing.assert_allclose(reaction(), weight, atol=1e-9)
+        # the host accelerates at 2 m/s² along x (its poses stamped on their own clock)
+        a, t0 = 2.0, 100.0
+        for i in range(30):
+            t = 0.01 * i
+            msg = _pose(contract.WORLD_FRAME, x=0.5 * a * t * t)
+            msg.header.stamp.sec, msg.header.stamp.nanosec = int(t0 + t), \
+                int(round(((t0 + t) % 1.0) * 1e9))
+            host.publish(msg)
+            time.sleep(0.005)
+            send_state()
+            time.sleep(0.005)
+        got = reaction()
+        assert got[0] == pytest.approx(weight[0] - mass * a, abs=0.05 * mass * a), (got, weight)
+    finally:
+        executor.remove_node(node)
+        executor.remove_node(probe)
+        node.destroy_node()
+        probe.destroy_node()

@@ -6,7 +6,7 @@
 - ``loop``: the node's per-message sequencing (enable, horizon, silence) on top of it
   (:class:`CompensationLoop`);
 - ``reaction``: the wrench the arm exerts on its mount from pinocchio's RNEA
-  (:class:`ReactionModel`);
+  (:class:`ReactionModel`; the estimated contact wrench it adds: :class:`LatestWrench`);
 - ``redundancy``: IK that uses the three free joints to keep the centre of mass over the
   mount, lowering the base moment (:class:`ReactionMinimizer`).
 """
@@ -15,11 +15,11 @@ from .compensation import (CompensationConfig, Compensator, CompensationStep, De
 from .errors import (HostConfigError, HostError, HostGoalError, HostStateError,
                      NotStartedError)
 from .loop import CompensationLoop
-from .reaction import AccelerationEstimator, ReactionModel
+from .reaction import AccelerationEstimator, LatestWrench, ReactionModel
 from .redundancy import OBJECTIVES, ReactionMinimizer, RedundancyConfig
 
 __all__ = ["CompensationConfig", "Compensator", "CompensationStep", "DelayEstimator",
            "HostState", "HostPoseTracker", "RailHost", "AccelerationEstimator",
            "ReactionMinimizer", "RedundancyConfig", "OBJECTIVES", "CompensationLoop",
            "Status", "HostConfigError", "HostError", "HostGoalError", "HostStateError",
-           "NotStartedError", "ReactionModel"]
+           "NotStartedError", "ReactionModel", "LatestWrench"]

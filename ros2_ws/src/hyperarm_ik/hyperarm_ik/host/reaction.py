@@ -23,7 +23,7 @@ import pinocchio as pin
 from ..kinematics import Kinematics
 from .errors import HostConfigError, HostStateError
 
-__all__ = ["ReactionModel", "AccelerationEstimator", "STANDARD_GRAVITY"]
+__all__ = ["ReactionModel", "AccelerationEstimator", "LatestWrench", "STANDARD_GRAVITY"]
 
 STANDARD_GRAVITY = np.array([0.0, 0.0, -9.81])   # m/s^2, world -z
 
@@ -103,3 +103,27 @@ class AccelerationEstimator:
         if prev is None or t - prev[0] <= self.min_dt:
             return None
         return (self._prev[1] - prev[1]) / (t - prev[0])
+
+
+class LatestWrench:
+    """The newest estimated contact wrench ([force N; moment N·m], 6 numbers, e.g. the
+    force node's ``ee_wrench_base``) and its arrival time (s): :meth:`get` returns it while
+    it is at most ``timeout`` s old, else None (``timeout`` 0: never)."""
+
+    def __init__(self, timeout: float) -> None:
+        if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) \
+                or not 0.0 <= timeout < float("inf"):
+            raise HostConfigError(f"contact wrench timeout must be >= 0 s, got {timeout!r}")
+        self.timeout = float(timeout)
+        self._wrench: np.ndarray | None = None
+        self._time = 0.0
+
+    def update(self, now: float, wrench) -> None:
+        """Take ``wrench`` arrived at ``now``; raises :class:`HostStateError` for one that
+        is not 6 finite numbers (the last good one stays)."""
+        self._wrench, self._time = _vec(wrench, 6, "contact wrench"), float(now)
+
+    def get(self, now: float) -> np.ndarray | None:
+        if self._wrench is None or self.timeout == 0.0 or now - self._time > self.timeout:
+            return None
+        return self._wrench
