@@ -34,6 +34,15 @@ def _pose(frame: str, x: float = 0.0, w: float = 1.0) -> PoseStamped:
     return msg
 
 
+def _send_state(probe, publisher) -> None:
+    """One joint state of the nine arm joints at Q0, stamped now."""
+    msg = JointState()
+    msg.header.stamp = probe.get_clock().now().to_msg()
+    msg.name = list(contract.ARM_JOINTS)
+    msg.position = list(Q0)
+    publisher.publish(msg)
+
+
 def test_enable_goal_and_host_pose_rules(rclpy_context, executor, wait_for):
     from rclpy.node import Node
     from rclpy.parameter import Parameter
@@ -61,11 +70,7 @@ def test_enable_goal_and_host_pose_rules(rclpy_context, executor, wait_for):
     enable = probe.create_client(SetBool, contract.HOST_COMP_ENABLE)
 
     def send_state():
-        msg = JointState()
-        msg.header.stamp = probe.get_clock().now().to_msg()
-        msg.name = list(contract.ARM_JOINTS)
-        msg.position = list(Q0)
-        states.publish(msg)
+        _send_state(probe, states)
 
     def call(data: bool):
         wait_for(enable.service_is_ready, 10.0, what="enable service")
@@ -147,11 +152,7 @@ def test_reaction_takes_the_force_nodes_contact_wrench_and_the_hosts_acceleratio
     host = probe.create_publisher(PoseStamped, contract.HOST_POSE, qos_for(contract.HOST_POSE))
 
     def send_state():
-        msg = JointState()
-        msg.header.stamp = probe.get_clock().now().to_msg()
-        msg.name = list(contract.ARM_JOINTS)
-        msg.position = list(Q0)
-        states.publish(msg)
+        _send_state(probe, states)
 
     def reaction() -> np.ndarray:
         n = len(wrenches)
