@@ -30,8 +30,8 @@ from hyperarm_description.ros_main import EXECUTORS, declare_robot_description, 
 
 from .errors import IKError
 from .host import (AccelerationEstimator, CompensationConfig, CompensationLoop, Compensator,
-                   DelayEstimator, HostPoseTracker, HostState, LatestWrench, RailHost,
-                   ReactionModel)
+                   DelayEstimator, HostAccelerationEstimator, HostPoseTracker, HostState,
+                   LatestWrench, RailHost, ReactionModel)
 from .host.reaction import STANDARD_GRAVITY
 from .kinematics import Kinematics
 from .ros_conversions import pose_to_matrix
@@ -116,9 +116,9 @@ class HostCompensationNode(Node):
         self._host_time: float | None = None     # arrival (node clock) of the newest host_pose
         self._accel = AccelerationEstimator()
         self._fd = p["reaction_acceleration"] == "finite_difference"
-        self._host_accel = AccelerationEstimator() \
+        self._host_accel = HostAccelerationEstimator() \
             if p["reaction_host_acceleration"] == "finite_difference" else None
-        self._host_acc: np.ndarray | None = None     # m/s², world axes
+        self._stale = p["stale_timeout"]
         self._contact = LatestWrench(p["contact_wrench_timeout"])
         self._compute = 0.0
         self._cmd = self.create_publisher(JointState, contract.JOINT_COMMAND,
@@ -256,13 +256,18 @@ class HostCompensationNode(Node):
         r = host.pose[:3, :3] if host is not None else np.eye(3)
         acc = None
         if self._host_accel is not None and host is not None:
-            # differenced at the host state's own stamps (a repeated stamp: the last one)
-            t_host = _seconds(stamp) if self._rail is not None else self._tracker.stamp
-            a_world = self._host_accel.update(t_host, host.linear) \
-                if t_host is not None else None
-            if a_world is not None:
-                self._host_acc = a_world
-            acc = None if self._host_acc is None else r.T @ self._host_acc
+            # differenced at the host state's own stamps, while that state is trusted: the
+            # rail's with the joint states, a host_pose fresh and its twist over a baseline
+            if self._rail is not None:
+                t_host, trusted = _seconds(stamp), _seconds(stamp) > 0.0
+            else:
+                t_host = self._tracker.stamp
+                trusted = self._tracker.twist_full and self._host_time is not None \
+                    and now - self._host_time <= self._stale
+            a_world = self._host_accel.update(t_host, host.linear) if trusted else None
+            if not trusted:
+                self._host_accel.reset()
+            acc = None if a_world is None else r.T @ a_world
         try:
             w = self._reaction.wrench(q, dq, ddq, gravity_base=r.T @ STANDARD_GRAVITY,
                                       base_acceleration=acc,

@@ -323,3 +323,27 @@ def test_latest_contact_wrench_is_used_while_fresh_and_refuses_bad_values():
     for bad in (-1.0, math.inf, True, "0.2"):
         with pytest.raises(HostConfigError):
             LatestWrench(bad)
+
+
+def test_host_acceleration_is_differenced_over_its_baseline():
+    """HostAccelerationEstimator: velocities of a constant acceleration at 10 ms stamps give
+    that acceleration once a baseline (50 ms) is spanned, None before; a repeated stamp
+    returns the last estimate; after reset it waits for a baseline again (a velocity jump
+    right after a reset is no spike); bad settings and velocities are precise errors."""
+    from hyperarm_ik.host import HostAccelerationEstimator, HostStateError
+
+    est = HostAccelerationEstimator(0.05)
+    a = np.array([2.0, -1.0, 0.5])
+    got = [est.update(0.01 * k, a * 0.01 * k) for k in range(12)]
+    assert all(g is None for g in got[:5]) and got[5] is not None
+    for g in got[5:]:
+        np.testing.assert_allclose(g, a, rtol=1e-9)
+    np.testing.assert_allclose(est.update(0.11, np.zeros(3)), a)     # same stamp: the last
+    est.reset()
+    assert est.update(0.2, np.array([5.0, 0.0, 0.0])) is None        # no spike after a reset
+    assert est.update(0.21, np.array([5.0, 0.0, 0.0])) is None
+    with pytest.raises(HostStateError):
+        est.update(0.3, [math.nan, 0.0, 0.0])
+    for bad in (0.0, 2.0, True, "0.05"):
+        with pytest.raises(HostConfigError):
+            HostAccelerationEstimator(bad)

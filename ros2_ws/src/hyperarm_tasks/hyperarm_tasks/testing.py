@@ -12,6 +12,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from hyperarm_description.world import PoleSpec
 from hyperarm_driver.mock.camera import Camera
 from hyperarm_driver.mock.config import MockConfig, load_mock_config
 from hyperarm_driver.mock.joint_sim import JointSim
@@ -41,7 +42,7 @@ def work_cell(seed: int, hole_radius: float | None = None,
         camera=dataclasses.replace(base.camera, seed=seed))
 
 
-def wrap_postures(sim: JointSim, pole, open_bend: float = 0.5,
+def wrap_postures(sim: JointSim, pole: PoleSpec, open_bend: float = 0.5,
                   closed_bend: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
     """Arm joint angles (rad, joint1..9) of an open and a closed wrap around the vertical
     ``pole`` (a :class:`~hyperarm_description.world.PoleSpec`; the scene of
@@ -181,8 +182,9 @@ class ForceSimRobot(SimRobot):
     as ``hybrid_force`` does over topics, with the node's event handling (a stale passive
     calls the driver's hold, any other passive holds the arm joints with one position
     command). ``late``: (start, end) windows of simulated time in which no joint state
-    reaches the controller (a loaded machine: it goes passive on stale states); ``params``: the node's parameters (name:
-    value, as ``hybrid_force`` declares them) that differ from their defaults."""
+    reaches the controller (a loaded machine: it goes passive on stale states).
+    ``params``: the node's parameters (name: value, as ``hybrid_force`` declares them)
+    that differ from their defaults."""
 
     def __init__(self, sim: JointSim, kin, dt: float = 0.01,
                  late: Sequence[tuple[float, float]] = (), output: str = "position",

@@ -900,7 +900,8 @@ class JointSim:
                      previous: np.ndarray | None = None) -> np.ndarray | None:
         """The normal (3,, horizontal, unit) of the threaded hole's wall against the held
         block, for the contact solve linearized at ``q_lin`` from the undeflected joints
-        ``q`` (servo compliances ``kinv``, rad/N·m): None when the block at ``q`` is within
+        ``q`` (servo compliances ``kinv``: rad/N·m, m/N for the rail): None when the
+        block at ``q`` is within
         the clearance (no wall contact), ``previous`` when there is no better one.
 
         The wall is a circle of radius r (the clearance) about the peg's axis, far more
@@ -914,11 +915,11 @@ class JointSim:
         at = self.world.hole_offset(self._tool_at(q_lin))
         if at is None:
             return previous
-        centre, b_lin = at
+        point, b_lin = at
         qt = q_lin + self.offset[:self.nk]
         j6 = pin.computeFrameJacobian(self.model, self.data, qt, self.tool_id,
                                       pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
-        jp = (j6[:3] - _skew(centre - self.data.oMf[self.tool_id].translation) @ j6[3:])[:2]
+        jp = (j6[:3] - _skew(point - self.data.oMf[self.tool_id].translation) @ j6[3:])[:2]
         b0 = b_lin + jp @ (q - q_lin)
         r = self.cfg.world.clearance(self.world.peg)
         e0 = math.hypot(b0[0], b0[1])
@@ -929,12 +930,18 @@ class JointSim:
         bx, by = float(b0[0]), float(b0[1])
         k_env = self.cfg.world.contact_stiffness
 
+        f_hard, k_hard = k_env * HARD_DEPTH, HARD_FACTOR * k_env
+
         def u_of(lam: float) -> tuple[float, float]:
-            rho = r + lam / k_env
+            # the wall's spring as the solve has it: stiff beyond HARD_DEPTH
+            rho = r + (lam / k_env if lam <= f_hard else HARD_DEPTH + (lam - f_hard) / k_hard)
             a, b, d = rho + lam * c00, lam * c01, rho + lam * c11
             det = a * d - b * b
             return (d * bx - b * by) / det, (a * by - b * bx) / det
-        lo, hi = 0.0, k_env * (e0 - r)       # at hi: |u| <= 1 (C >= 0)
+        # at hi the spring alone reaches e0: rho(hi) = e0, so |u| <= 1 (C >= 0)
+        hi = k_env * (e0 - r) if e0 - r <= HARD_DEPTH else \
+            f_hard + k_hard * (e0 - r - HARD_DEPTH)
+        lo = 0.0
         for _ in range(40):
             mid = 0.5 * (lo + hi)
             ux, uy = u_of(mid)

@@ -197,13 +197,18 @@ class World:
         return math.hypot(block_pose[0, 3] - p.xy[0], block_pose[1, 3] - p.xy[1])
 
     def hole_offset(self, tool_pose: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """For a held block threaded on a peg, at ``tool_pose``: the block's centre (3,) and
-        its hole axis's horizontal offset (2,) from the peg's axis (m); else None."""
+        """For a held block threaded on a peg, at ``tool_pose``: the point (3,) of its wall
+        contact (the block's axis at the middle of its overlap with the peg, as in
+        :meth:`contacts`) and its hole axis's horizontal offset (2,) from the peg's axis
+        (m); else None."""
         if self.peg is None or self.state is not BlockState.HELD:
             return None
         centre = self.block_pose(tool_pose)[:3, 3]
-        xy = self._pegs[self.peg].xy
-        return centre, np.array([centre[0] - xy[0], centre[1] - xy[1]])
+        p = self._pegs[self.peg]
+        low = max(centre[2] - self._half[2], self._table_z)
+        z = low + 0.5 * (min(self._table_z + p.height, centre[2] + self._half[2]) - low)
+        return (np.array([centre[0], centre[1], z]),
+                np.array([centre[0] - p.xy[0], centre[1] - p.xy[1]]))
 
     def rim_offsets(self, peg: str, block_pose: np.ndarray) -> tuple[float, float]:
         """Horizontal distances (m) of the hole's two rims (its axis, the block's z, at the

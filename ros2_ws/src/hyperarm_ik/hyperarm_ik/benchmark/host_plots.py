@@ -14,16 +14,20 @@
   mount's deflection, on the shipped mount (an 8 kg airframe) and on a 0.5 kg plate (the
   same modes and damping ratio), which the compensation drives unstable.
 
-Runs in about a minute (no ROS; the figure-8 task runs twice in simulated time).
+Runs in about 20 s (no ROS; the figure-8 task runs twice in simulated time).
 """
 from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .host_sim import figure8_task, rail_sweep, sway
+
+if TYPE_CHECKING:
+    from hyperarm_driver.mock.host_motion import HostMotionSpec
 
 
 def write_plots(out: Path) -> list[Path]:
@@ -113,7 +117,7 @@ def _save(plt, fig, ax, path: Path, title: str) -> Path:
     return path
 
 
-def _light_mount():
+def _light_mount() -> HostMotionSpec:
     """``uav_sway_passive`` with the mount's body a 0.5 kg plate (0.002 kg·m²), its springs
     and dampers scaled to the same ~4 / 8 Hz modes and damping ratio ~0.1 with the arm."""
     import dataclasses

@@ -19,6 +19,7 @@ import dataclasses
 import math
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -28,6 +29,9 @@ from ..host import (AccelerationEstimator, CompensationConfig, CompensationLoop,
                     DelayEstimator, RailHost, ReactionModel)
 from ..host.reaction import STANDARD_GRAVITY as _GRAVITY
 from ..kinematics import Kinematics, rotation_angle
+
+if TYPE_CHECKING:
+    from hyperarm_driver.mock.host_motion import HostMotionSpec
 
 __all__ = ["rail_sweep", "sway", "figure8_task", "Q0", "DT"]
 
@@ -114,7 +118,7 @@ def rail_sweep(lead: bool = True, duration: float = 5.2,
     return res
 
 
-def sway(motion="uav_sway", duration: float = 4.2, lead: bool = True,
+def sway(motion: str | Path | HostMotionSpec = "uav_sway", duration: float = 4.2, lead: bool = True,
          delay_steps: int = 1, config: CompensationConfig | None = None
          ) -> dict[str, np.ndarray]:
     """The mock's host motion ``motion`` (a shipped name such as ``uav_sway`` or

@@ -15,11 +15,12 @@ from .compensation import (CompensationConfig, Compensator, CompensationStep, De
 from .errors import (HostConfigError, HostError, HostGoalError, HostStateError,
                      NotStartedError)
 from .loop import CompensationLoop
-from .reaction import AccelerationEstimator, LatestWrench, ReactionModel
+from .reaction import (AccelerationEstimator, HostAccelerationEstimator, LatestWrench,
+                       ReactionModel)
 from .redundancy import OBJECTIVES, ReactionMinimizer, RedundancyConfig
 
 __all__ = ["CompensationConfig", "Compensator", "CompensationStep", "DelayEstimator",
            "HostState", "HostPoseTracker", "RailHost", "AccelerationEstimator",
            "ReactionMinimizer", "RedundancyConfig", "OBJECTIVES", "CompensationLoop",
            "Status", "HostConfigError", "HostError", "HostGoalError", "HostStateError",
-           "NotStartedError", "ReactionModel", "LatestWrench"]
+           "NotStartedError", "ReactionModel", "LatestWrench", "HostAccelerationEstimator"]

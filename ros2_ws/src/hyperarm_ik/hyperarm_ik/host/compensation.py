@@ -155,10 +155,12 @@ class HostPoseTracker:
         self._history: list[tuple[float, np.ndarray]] = []
         self.state: HostState | None = None
         self.stamp: float | None = None
+        self.twist_full = False      # the twist is a difference over a whole baseline
 
     def reset(self) -> None:
         self._history.clear()
         self.state = self.stamp = None
+        self.twist_full = False
 
     def update(self, stamp: float, pose) -> HostState:
         """Add the pose (4x4, base_link in world) taken at ``stamp`` (s); returns the state.
@@ -176,7 +178,8 @@ class HostPoseTracker:
             h.pop(0)                             # keep one pose at least baseline s older
         lin, ang = np.zeros(3), np.zeros(3)
         t0, p0 = h[0]
-        if t0 <= stamp - self.baseline:         # the same test as the pruning above
+        self.twist_full = t0 <= stamp - self.baseline   # the same test as the pruning above
+        if self.twist_full:
             dt = stamp - t0
             lin = (pose[:3, 3] - p0[:3, 3]) / dt
             ang = pin.log3(pose[:3, :3] @ p0[:3, :3].T) / dt

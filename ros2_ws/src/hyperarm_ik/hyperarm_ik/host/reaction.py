@@ -23,7 +23,8 @@ import pinocchio as pin
 from ..kinematics import Kinematics
 from .errors import HostConfigError, HostStateError
 
-__all__ = ["ReactionModel", "AccelerationEstimator", "LatestWrench", "STANDARD_GRAVITY"]
+__all__ = ["ReactionModel", "AccelerationEstimator", "HostAccelerationEstimator", "LatestWrench",
+           "STANDARD_GRAVITY"]
 
 STANDARD_GRAVITY = np.array([0.0, 0.0, -9.81])   # m/s^2, world -z
 
@@ -127,3 +128,37 @@ class LatestWrench:
         if self._wrench is None or self.timeout == 0.0 or now - self._time > self.timeout:
             return None
         return self._wrench
+
+
+class HostAccelerationEstimator:
+    """The host's linear acceleration (m/s², the velocities' axes) from its velocities at
+    their stamps (s): the newest velocity minus the newest one at least ``baseline`` s
+    older, over their stamps' difference. A velocity that is itself a difference over a
+    short baseline is so not differenced again over one stamp (no spikes, noise divided by
+    the baseline once more). None until such a pair exists; a repeated or older stamp
+    returns the last estimate; :meth:`reset` after a gap or an untrusted velocity."""
+
+    def __init__(self, baseline: float = 0.05) -> None:
+        if isinstance(baseline, bool) or not isinstance(baseline, (int, float)) \
+                or not 1e-3 <= baseline <= 1.0:
+            raise HostConfigError(f"host acceleration baseline must be in 0.001..1 s, got "
+                                  f"{baseline!r}")
+        self.baseline = float(baseline)
+        self._history: list[tuple[float, np.ndarray]] = []
+        self._last: np.ndarray | None = None
+
+    def reset(self) -> None:
+        self._history.clear()
+        self._last = None
+
+    def update(self, stamp: float, velocity) -> np.ndarray | None:
+        h = self._history
+        if h and stamp <= h[-1][0]:
+            return self._last
+        h.append((float(stamp), _vec(velocity, 3, "host velocity")))
+        while len(h) > 2 and h[1][0] <= stamp - self.baseline:
+            h.pop(0)
+        t0, v0 = h[0]
+        if t0 <= stamp - self.baseline:
+            self._last = (h[-1][1] - v0) / (stamp - t0)
+        return self._last
