@@ -146,14 +146,8 @@ def launch(ros_domain: int, tmp_path: Path):
     started: list[Launched] = []
 
     def _launch(package: str, name: str, *args: str, params: dict | None = None,
-                namespace: str | None = None, env: dict | None = None,
-                niceness: int = 0) -> Launched:
-        """Start an installed executable; ``niceness`` < 0 runs it at a higher scheduling
-        priority where the machine allows (as a robot runs its control loops), else at the
-        normal one."""
+                namespace: str | None = None, env: dict | None = None) -> Launched:
         cmd = [executable_path(package, name), *args]
-        if niceness:     # coreutils' nice: without the privilege it says so and runs it anyway
-            cmd = ["nice", "-n", str(niceness), *cmd]
         ros_args: list[str] = []
         for key, value in (params or {}).items():
             if isinstance(value, bool):

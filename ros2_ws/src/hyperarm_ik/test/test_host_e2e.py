@@ -182,12 +182,8 @@ def _start(launch, probe_args, variant: str, wait_for, **mock_params):
     # arm command (what a real robot never does); the node runs on that clock
     mock = launch("hyperarm_driver", "mock_driver", params={
         "variant": variant, "repeatability": 0.0, "sim_speed": 1.0, **mock_params})
-    # the compensation at a higher priority than the rest, as a robot runs its control
-    # loops (docs/host.md): a loaded machine's scheduling stalls of tens of ms, each a rail
-    # motion of mm uncompensated, went past the 8 mm bound (where the test may not renice,
-    # nice runs it at the normal priority)
     comp = launch("hyperarm_ik", "host_compensation", params={
-        "variant": variant, "diagnostics_period": 0.2, "use_sim_time": True}, niceness=-10)
+        "variant": variant, "diagnostics_period": 0.2, "use_sim_time": True})
     probe = Probe(*probe_args)
     wait_for(lambda: probe.latest() is not None, 30.0, what=f"{variant} joint_states")
     return mock, comp, probe
