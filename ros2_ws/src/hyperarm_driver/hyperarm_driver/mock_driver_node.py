@@ -12,6 +12,7 @@ other nodes with ``use_sim_time:=true``.
 """
 from __future__ import annotations
 
+import collections
 import threading
 import time
 import traceback
@@ -42,7 +43,7 @@ from .common import (OneOf, ParamSpec, Range, answer_reboot, answer_set_torque,
                      declare_parameters, diagnostic_status)
 from .mock.camera import Camera, Frame, pose_from_xyz_rpy
 from .mock.config import MockError, load_mock_config
-from .mock.diagnostics import BusStats, mock_diagnostics
+from .mock.diagnostics import BusStats, DiagStatus, mock_diagnostics
 from .mock.host_motion import HostMotion, HostMotionError, load_host_motion
 from .mock.joint_sim import JointSim
 
@@ -82,6 +83,13 @@ PARAMETERS: ParamSpec = {
     "workcell_file": ("", "work-cell YAML ('' = the packaged config/workcell.yaml)", None),
     "sim_speed": (0.0, "0 = real time; > 0 = run at this multiple of real time and publish "
                        "/clock", _SimSpeed()),  # type: ignore[dict-item]
+    "lockstep_timeout": (0.0, "s of wall time, with sim_speed > 0: while a controller answers "
+                         "each joint_states with a joint_command of the same header.stamp, "
+                         "each tick waits for that answer, at most this long (then it steps "
+                         "and waits again only once an answer comes), as a lockstep "
+                         "simulator does: a controller's loop is judged apart from the "
+                         "machine's load (a real robot never waits); 0 = off",
+                         Range(0.0, 1.0)),
     "host_motion": ("", "scripted host motion: a host-motion YAML path or the name of a shipped "
                         "one (rail_sweep, uav_sway, uav_sway_passive); '' = none. Starts with "
                         "host_motion/enable true (docs/mock.md)", None),
@@ -136,6 +144,13 @@ class MockDriver(Node):
         self._frame_id = desc.camera.frame
         self._dt = 1.0 / p["rate"]
         self._speed = p["sim_speed"]
+        self._lockstep = p["lockstep_timeout"] if self._speed > 0.0 else 0.0
+        self._awaited: tuple[int, int] | None = None   # the stamp a command must answer
+        self._answered = threading.Event()
+        self._engaged = False     # a controller answers the states: wait for it
+        self._recent: collections.deque = collections.deque(maxlen=128)   # published stamps
+        self._recent_lock = threading.Lock()     # the sim thread appends, commands look up
+        self._lockstep_timeouts = 0
         self._diag_period = p["diagnostics_period"]
         self._shutdown_torque = p["shutdown_torque"]
         self._stats = BusStats()
@@ -196,6 +211,9 @@ class MockDriver(Node):
         self._failed = self.create_guard_condition(self._on_failure)
         self._loop = threading.Thread(target=self._run, name="mock_driver-sim", daemon=True)
         self._loop.start()
+        if p["lockstep_timeout"] > 0.0 and self._speed == 0.0:
+            self.get_logger().warn("lockstep_timeout needs sim_speed > 0 (simulated time): "
+                                   "ignored, the simulation runs in real time")
         if self.get_parameter("use_sim_time").value and self._speed == 0.0:
             self.get_logger().warn(
                 "use_sim_time is true but sim_speed is 0: nothing publishes /clock, so this "
@@ -228,6 +246,11 @@ class MockDriver(Node):
             last = now
             steps = max(int(owed + 0.5), 0)
             owed -= steps
+            if steps and self._lockstep > 0.0 and self._engaged \
+                    and not self._answered.wait(self._lockstep):
+                # no answer in time: step anyway, and wait again only once one comes
+                self._lockstep_timeouts += 1
+                self._engaged = False
             try:
                 with self._lock:
                     self._tick(steps)
@@ -264,6 +287,11 @@ class MockDriver(Node):
         msg.position = s.position.tolist()
         msg.velocity = s.velocity.tolist()
         msg.effort = s.effort.tolist()
+        if self._lockstep > 0.0:     # before publishing: a fast answer must not be missed
+            self._awaited = (msg.header.stamp.sec, msg.header.stamp.nanosec)
+            self._answered.clear()          # (after: a late answer to the last one is no answer)
+            with self._recent_lock:
+                self._recent.append(self._awaited)
         self._pub.publish(msg)
         w = self._sim.tool_wrench
         wrench = WrenchStamped()
@@ -336,6 +364,19 @@ class MockDriver(Node):
 
     # -- commands and services --------------------------------------------------------------
     def _on_command(self, msg: JointState) -> None:
+        try:
+            self._apply_command(msg)
+        finally:     # lockstep: the answer to the last state is in (applied, or refused)
+            stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
+            if self._lockstep > 0.0:
+                with self._recent_lock:
+                    answers = stamp in self._recent       # a controller answers the states
+                if answers:
+                    self._engaged = True
+                    if stamp == self._awaited:
+                        self._answered.set()
+
+    def _apply_command(self, msg: JointState) -> None:
         try:
             if (problem := velocity_problem(msg.name, msg.velocity)):
                 raise JointStateError(problem)
@@ -428,6 +469,13 @@ class MockDriver(Node):
         with self._lock:   # the simulation thread steps the time: read it with the statuses
             arr.header.stamp = self._time(self._sim.time)
             statuses = mock_diagnostics(self._sim, self._stats, self._diag_period, self._speed)
+        if self._lockstep > 0.0:
+            statuses.append(DiagStatus(
+                name="mock_driver: lockstep", hardware_id="mock", level="OK",
+                message=f"each step waits for the answering joint_command, at most "
+                        f"{self._lockstep:g} s",
+                values={"timeout_s": f"{self._lockstep:g}", "engaged": str(self._engaged),
+                        "timed_out": str(self._lockstep_timeouts)}))
         arr.status = [diagnostic_status(d.name, d.hardware_id, _LEVELS[d.level], d.message,
                                         d.values.items()) for d in statuses]
         self._diag.publish(arr)
