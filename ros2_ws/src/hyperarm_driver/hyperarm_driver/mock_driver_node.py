@@ -12,7 +12,6 @@ other nodes with ``use_sim_time:=true``.
 """
 from __future__ import annotations
 
-import collections
 import threading
 import time
 import traceback
@@ -46,6 +45,7 @@ from .mock.config import MockError, load_mock_config
 from .mock.diagnostics import BusStats, DiagStatus, mock_diagnostics
 from .mock.host_motion import HostMotion, HostMotionError, load_host_motion
 from .mock.joint_sim import JointSim
+from .mock.lockstep import Lockstep
 
 class _SimSpeed:
     """0 (real time) or a speed-up within 0.1..100."""
@@ -144,13 +144,8 @@ class MockDriver(Node):
         self._frame_id = desc.camera.frame
         self._dt = 1.0 / p["rate"]
         self._speed = p["sim_speed"]
-        self._lockstep = p["lockstep_timeout"] if self._speed > 0.0 else 0.0
-        self._awaited: tuple[int, int] | None = None   # the stamp a command must answer
-        self._answered = threading.Event()
-        self._engaged = False     # a controller answers the states: wait for it
-        self._recent: collections.deque = collections.deque(maxlen=128)   # published stamps
-        self._recent_lock = threading.Lock()     # the sim thread appends, commands look up
-        self._lockstep_timeouts = 0
+        self._lockstep = Lockstep(p["lockstep_timeout"]) \
+            if self._speed > 0.0 and p["lockstep_timeout"] > 0.0 else None
         self._diag_period = p["diagnostics_period"]
         self._shutdown_torque = p["shutdown_torque"]
         self._stats = BusStats()
@@ -246,11 +241,8 @@ class MockDriver(Node):
             last = now
             steps = max(int(owed + 0.5), 0)
             owed -= steps
-            if steps and self._lockstep > 0.0 and self._engaged \
-                    and not self._answered.wait(self._lockstep):
-                # no answer in time: step anyway, and wait again only once one comes
-                self._lockstep_timeouts += 1
-                self._engaged = False
+            if steps and self._lockstep is not None:
+                self._lockstep.wait()    # no answer in time: steps anyway (docs/mock.md)
             try:
                 with self._lock:
                     self._tick(steps)
@@ -287,11 +279,8 @@ class MockDriver(Node):
         msg.position = s.position.tolist()
         msg.velocity = s.velocity.tolist()
         msg.effort = s.effort.tolist()
-        if self._lockstep > 0.0:     # before publishing: a fast answer must not be missed
-            self._awaited = (msg.header.stamp.sec, msg.header.stamp.nanosec)
-            self._answered.clear()          # (after: a late answer to the last one is no answer)
-            with self._recent_lock:
-                self._recent.append(self._awaited)
+        if self._lockstep is not None:   # before publishing: a fast answer must not be missed
+            self._lockstep.published((msg.header.stamp.sec, msg.header.stamp.nanosec))
         self._pub.publish(msg)
         w = self._sim.tool_wrench
         wrench = WrenchStamped()
@@ -366,15 +355,9 @@ class MockDriver(Node):
     def _on_command(self, msg: JointState) -> None:
         try:
             self._apply_command(msg)
-        finally:     # lockstep: the answer to the last state is in (applied, or refused)
-            stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
-            if self._lockstep > 0.0:
-                with self._recent_lock:
-                    answers = stamp in self._recent       # a controller answers the states
-                if answers:
-                    self._engaged = True
-                    if stamp == self._awaited:
-                        self._answered.set()
+        finally:     # lockstep: the answer to a state is in (applied, or refused)
+            if self._lockstep is not None:
+                self._lockstep.answered((msg.header.stamp.sec, msg.header.stamp.nanosec))
 
     def _apply_command(self, msg: JointState) -> None:
         try:
@@ -469,13 +452,13 @@ class MockDriver(Node):
         with self._lock:   # the simulation thread steps the time: read it with the statuses
             arr.header.stamp = self._time(self._sim.time)
             statuses = mock_diagnostics(self._sim, self._stats, self._diag_period, self._speed)
-        if self._lockstep > 0.0:
+        if (ls := self._lockstep) is not None:
             statuses.append(DiagStatus(
                 name="mock_driver: lockstep", hardware_id="mock", level="OK",
                 message=f"each step waits for the answering joint_command, at most "
-                        f"{self._lockstep:g} s",
-                values={"timeout_s": f"{self._lockstep:g}", "engaged": str(self._engaged),
-                        "timed_out": str(self._lockstep_timeouts)}))
+                        f"{ls.timeout:g} s",
+                values={"timeout_s": f"{ls.timeout:g}", "engaged": str(ls.engaged),
+                        "timed_out": str(ls.timeouts)}))
         arr.status = [diagnostic_status(d.name, d.hardware_id, _LEVELS[d.level], d.message,
                                         d.values.items()) for d in statuses]
         self._diag.publish(arr)

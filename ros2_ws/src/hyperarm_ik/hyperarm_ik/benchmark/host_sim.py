@@ -118,8 +118,8 @@ def rail_sweep(lead: bool = True, duration: float = 5.2,
     return res
 
 
-def sway(motion: str | Path | HostMotionSpec = "uav_sway", duration: float = 4.2, lead: bool = True,
-         delay_steps: int = 1, config: CompensationConfig | None = None
+def sway(motion: str | Path | HostMotionSpec = "uav_sway", duration: float = 4.2,
+         lead: bool = True, delay_steps: int = 1, config: CompensationConfig | None = None
          ) -> dict[str, np.ndarray]:
     """The mock's host motion ``motion`` (a shipped name such as ``uav_sway`` or
     ``uav_sway_passive``, a path, or a ``HostMotionSpec``) on the fixed

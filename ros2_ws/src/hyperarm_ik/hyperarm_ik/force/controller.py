@@ -23,6 +23,7 @@ from typing import Sequence
 import numpy as np
 import pinocchio as pin
 
+from ..own_gap import OwnGap
 from .calibration import TorqueCalibration
 from .errors import ForceConfigError, InvalidGoalError, StateError
 from .law import OUTPUTS, Command, HybridGoal, HybridLaw, Payload, make_goal
@@ -117,7 +118,7 @@ class ForceController:
         self.goal: HybridGoal | None = None
         self.stats = _Stats()
         self._last_state: float | None = None
-        self._checked: float | None = None      # s, the last check_stale
+        self._own_gap = OwnGap(self.config.stale_timeout)    # between check_stale calls
         self._last_cycle: float | None = None
         self._q: np.ndarray | None = None
         self.last_estimate: WrenchEstimate | None = None
@@ -191,8 +192,7 @@ class ForceController:
         right after this process itself did not run for ``stale_timeout`` s (no check since:
         a loaded machine's scheduling, not the states' silence): the states queued
         meanwhile are read first, and the next check judges."""
-        checked, self._checked = self._checked, now
-        if checked is not None and now - checked > self.config.stale_timeout:
+        if self._own_gap.after_gap(now):
             return None
         if self.mode is not Mode.ACTIVE or self._last_state is None:
             return None

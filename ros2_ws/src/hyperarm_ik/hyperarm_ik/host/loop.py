@@ -19,6 +19,7 @@ import math
 
 import numpy as np
 
+from ..own_gap import OwnGap
 from .compensation import Compensator, DelayEstimator, HostState, Status
 
 __all__ = ["CompensationLoop"]
@@ -41,7 +42,7 @@ class CompensationLoop:
         self.states = 0                    # joint states received while enabled
         self.latency = 0.0                 # s, smoothed age of the joint states on arrival
         self.last_state: float | None = None   # s, arrival of the last joint state
-        self._checked: float | None = None     # s, the last check_stale
+        self._own_gap = OwnGap(self.stale_timeout)   # between check_stale calls
         self._host_grace = -math.inf           # s, host pose not judged stale before this
         self.error = (0.0, 0.0)            # m, rad of the last command (predicted goal)
 
@@ -115,8 +116,7 @@ class CompensationLoop:
         an old command. Not judged right after this process itself did not run for
         ``stale_timeout`` s (no check since: a loaded machine's scheduling): the states
         queued meanwhile are read first, and the next check judges."""
-        checked, self._checked = self._checked, now
-        if checked is not None and now - checked > self.stale_timeout:
+        if self._own_gap.after_gap(now):
             return []
         if self.enabled and self.last_state is not None \
                 and now - self.last_state > self.stale_timeout:
