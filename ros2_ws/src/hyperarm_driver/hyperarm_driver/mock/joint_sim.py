@@ -99,6 +99,15 @@ _HOLDING = (ControlMode.POSITION, ControlMode.CURRENT_POSITION)
 
 
 @dataclass(frozen=True)
+class _ModeSets:
+    """Which joints are in which mode (derived from ``JointSim.mode``)."""
+    holding: np.ndarray           # (n,) bool: position-class
+    torque: list[int]             # current (torque) mode
+    off: list[int]                # torque off
+    current_position: np.ndarray  # (nk,) bool: current-based position (chain joints)
+
+
+@dataclass(frozen=True)
 class CommandReport:
     """What became of a command: joints applied, joints clamped to a limit, their mode."""
 
@@ -123,7 +132,8 @@ _AXES.flags.writeable = False
 
 
 def _skew(r: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
+    x, y, z = r.tolist()
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
 class JointSim:
@@ -198,6 +208,8 @@ class JointSim:
         q0 = _clip(q0, self.lower, self.upper)
         self.time = 0.0
         self.mode = [self._hold_mode(i) for i in range(self.n)]
+        self._mode_key: tuple = ()
+        self._mode_sets: _ModeSets | None = None
         self.goal = q0.copy()
         self.limit_cmd = self.default_limit.copy()   # N·m (N rail), nominal, as commanded
         self.limit = self._true_limit(self.limit_cmd)  # what the servo really enforces
@@ -261,6 +273,9 @@ class JointSim:
 
     def _quantize(self, tau: np.ndarray | float, idx=slice(None)) -> np.ndarray:
         """Nominal torque (N·m) rounded to whole current units of the servos ``idx``."""
+        if idx is None:                  # every joint (no slicing: the step's hot path)
+            return np.where(self._quantized, np.round(tau / self._quantum_safe) * self.quantum,
+                            tau)
         q = self.quantum[idx]
         return np.where(self._quantized[idx], np.round(tau / self._quantum_safe[idx]) * q, tau)
 
@@ -287,6 +302,20 @@ class JointSim:
         if old is not ControlMode.OFF and (old is ControlMode.TORQUE) != (mode is ControlMode.TORQUE):
             self._gap[i] = self.cfg.servo.mode_switch_gap
         self.mode[i] = mode
+
+    def _modes(self) -> "_ModeSets":
+        """The joints of each mode, recomputed only when a mode changed (``self.mode`` is a
+        plain list, set in many places: compared as a tuple, ~0.3 µs)."""
+        key = tuple(self.mode)
+        if key != self._mode_key:
+            self._mode_key = key
+            self._mode_sets = _ModeSets(
+                holding=np.array([m in _HOLDING for m in key]),
+                torque=[i for i, m in enumerate(key) if m is ControlMode.TORQUE],
+                off=[i for i, m in enumerate(key) if m is ControlMode.OFF],
+                current_position=np.array([m is ControlMode.CURRENT_POSITION
+                                           for m in key[:self.nk]]))
+        return self._mode_sets
 
     def _sync_payload(self) -> None:
         """The held block's mass and inertia in the model's last link while held."""
@@ -540,18 +569,27 @@ class JointSim:
         self._fk_cache, self._fk_key = not self._poles, None
         self._watchdog()
         gapped = self._gap > 0.0   # torque off during a mode switch (this step)
-        held = np.array([m in _HOLDING for m in self.mode]) & ~gapped
+        any_gap = _any(gapped)
+        held = self._modes().holding
+        if any_gap:
+            held = held & ~gapped
         self._profile(dt, held)
         nk = self.nk
         P = held[:nk]
         D = ~P
-        q = self.position[:nk].copy()
-        self._yield[:nk][~P] = 0.0
-        q[P] = self._ref[:nk][P] + self._yield[:nk][P]
-        v = self.velocity[:nk].copy()
-        v[P] = self._ref_v[:nk][P]
-        a = np.zeros(nk)
-        a[P] = ((self._ref_v[:nk] - self._prev_ref_v[:nk]) / dt)[P]
+        dynamic = _any(D)
+        if dynamic:
+            q = self.position[:nk].copy()
+            self._yield[:nk][D] = 0.0
+            q[P] = self._ref[:nk][P] + self._yield[:nk][P]
+            v = self.velocity[:nk].copy()
+            v[P] = self._ref_v[:nk][P]
+            a = np.zeros(nk)
+            a[P] = ((self._ref_v[:nk] - self._prev_ref_v[:nk]) / dt)[P]
+        else:    # every chain joint position-class (the usual case): no masks needed
+            q = self._ref[:nk] + self._yield[:nk]
+            v = self._ref_v[:nk].copy()
+            a = (self._ref_v[:nk] - self._prev_ref_v[:nk]) / dt
         yielding = P & (self._yield_rate[:nk] != 0.0)
         if _any(yielding):   # a joint giving way moves at its reference's rate plus its yield's
             v[yielding] += self._yield_rate[:nk][yielding]
@@ -560,16 +598,25 @@ class JointSim:
         # the contact memory the step starts from (restored if the guard refuses the step)
         memory = (dict(self._pole_normals),
                   {kind: xy.copy() for kind, xy in self._anchors.items()}, self._warm)
-        if _any(D):
+        if dynamic:
             q, v = self._dynamics(dt, q, v, a, P, D)
-        dq, gen = self._contacts(q, P, v=None)
-        tau_id = pin.rnea(self.model, self.data, q + dq + self.offset[:nk], v, a)
-        tau = tau_id - gen
-        q, dq, tau, tau_id = self._limit_efforts(dt, q, v, a, P, dq, gen, tau_id, tau)
+        lim = self.limit[:nk]
+        if self.world.state is BlockState.HELD or self._poles or _any(self._yield[:nk]):
+            dq, gen = self._contacts(q, P, v=None)
+            tau_id = pin.rnea(self.model, self.data, q + dq + self.offset[:nk], v, a)
+            tau = tau_id - gen
+            q, dq, tau, tau_id = self._limit_efforts(dt, q, v, a, P, dq, gen, tau_id, tau)
+        else:   # nothing to touch, nothing given way: no contact solve, no yield
+            dq, gen = self._contacts(q, P, v=None)          # (clears the contact state)
+            tau_id = pin.rnea(self.model, self.data, q + self.offset[:nk], v, a)
+            tau = _clip(tau_id, -lim, lim)
         q, dq, tau, tau_id = self._rate_limit(dt, q, v, a, P, dq, tau, tau_id)
-        effort = np.zeros(nk)
-        effort[P] = tau[P]
-        effort[D] = self._applied_torque(D)
+        if dynamic:
+            effort = np.zeros(nk)
+            effort[P] = tau[P]
+            effort[D] = self._applied_torque(D)
+        else:
+            effort = tau.copy()
         qk = _clip(q + dq, self.lower[:nk], self.upper[:nk])
         qk, v, effort, tau_id = self._guard(dt, qk, v, effort, tau_id, P, D, memory, y_before)
         self._draw_offset()      # a pending new move's offset, once free of contact
@@ -591,38 +638,37 @@ class JointSim:
         self._gripper(dt)
         self._overload(dt, held)
         self._sync_payload()
-        if _any(gapped):   # after the gap: restart from where it is
+        if any_gap:   # after the gap: restart from where it is
             self._gap = np.maximum(self._gap - dt, 0.0)
             for i in np.flatnonzero(gapped & (self._gap == 0.0)):
                 if self.mode[i] in _HOLDING:   # hold / watchdog: hold where it is now
                     self._restart_profile(int(i), keep_goal=not self._gap_hold[i])
                 self._gap_hold[i] = False
-        self._report_efforts(gapped)
+        self._report_efforts(gapped if any_gap else None)
         self.events.extend(self.world.take_events())
         self._fk_cache, self._fk_key = False, None
         if self.host is not None:
             self.host.after_step(dt)
         self._record()
 
-    def _report_efforts(self, gapped: np.ndarray) -> None:
+    def _report_efforts(self, gapped: np.ndarray | None) -> None:
         """The efforts the servos report: the true torque (plus the friction the motor also
         overcomes while moving) through the true torque constant, in whole current units,
         converted back with the nominal one; in current mode the present current follows
-        the commanded one."""
+        the commanded one (``gapped``: the joints in a mode switch's gap, None if none)."""
         if not self.cfg.current.enabled:
             self.reported_effort = self.effort.copy()
             return
         moving = np.abs(self.velocity) > FRICTION_VELOCITY
         motor = self.effort + np.where(moving, np.sign(self.velocity) * self.coulomb, 0.0)
-        out = self._quantize(motor / self.kt_ratio)
-        modes = self.mode
-        torque = [i for i, m in enumerate(modes) if m is ControlMode.TORQUE]
+        out = self._quantize(motor / self.kt_ratio, None)
+        sets = self._modes()
+        torque = sets.torque
         if torque:
             out[torque] = self._quantize(self.tau_cmd[torque], torque)
-        off = [i for i, m in enumerate(modes) if m is ControlMode.OFF]
-        if off:
-            out[off] = 0.0
-        if _any(gapped):
+        if sets.off:
+            out[sets.off] = 0.0
+        if gapped is not None:
             out[gapped] = 0.0
         if self.rail:
             r = self._index[self.rail]
@@ -637,24 +683,28 @@ class JointSim:
             self.tool_wrench = np.zeros(6)
             return
         dirs, points, owner, f, block = rows
-        tx, ty, tz = (float(v) for v in self._tool[:3, 3])
+        fl, dl, own = f.tolist(), dirs.tolist(), owner.tolist()
+        keep = [True] * len(fl) if block is None else block.tolist()
+        per: dict[int, list[float]] = {}          # contact -> its force (N), world
+        for r, fr in enumerate(fl):   # a few rows: plain floats beat numpy's overhead here
+            if keep[r]:               # (not a link on a pole)
+                d, acc = dl[r], per.setdefault(own[r], [0.0, 0.0, 0.0])
+                acc[0] += fr * d[0]; acc[1] += fr * d[1]; acc[2] += fr * d[2]
+        tx, ty, tz = self._tool[:3, 3].tolist()
         fx = fy = fz = mx = my = mz = 0.0
-        for r, fr in enumerate(f.tolist()):     # a few rows: plain floats beat numpy here
-            if not block[r]:
-                continue                  # a link on a pole: not on the block
-            d, p = dirs[r], points[owner[r]]
-            ax, ay, az = fr * float(d[0]), fr * float(d[1]), fr * float(d[2])
-            rx, ry, rz = float(p[0]) - tx, float(p[1]) - ty, float(p[2]) - tz
+        for ci, (ax, ay, az) in per.items():
+            px, py, pz = points[ci].tolist()
+            rx, ry, rz = px - tx, py - ty, pz - tz
             fx += ax; fy += ay; fz += az
             mx += ry * az - rz * ay; my += rz * ax - rx * az; mz += rx * ay - ry * ax
-        force, torque = np.array([fx, fy, fz]), np.array([mx, my, mz])
-        tool = self._tool
-        rot = tool[:3, :3]
-        self.tool_wrench = np.r_[rot.T @ force, rot.T @ torque]
+        # the world-frame force and moment, rotated into tool0's axes (rows: v^T R = (R^T v)^T)
+        self.tool_wrench = (np.array([[fx, fy, fz], [mx, my, mz]]) @ self._tool[:3, :3]).ravel()
 
     def _watchdog(self) -> None:
-        late = [i for i in range(self.n) if self.mode[i] is ControlMode.TORQUE
-                and self.time - self._effort_time[i] > self.effort_timeout]
+        torque = self._modes().torque
+        if not torque:
+            return
+        late = [i for i in torque if self.time - self._effort_time[i] > self.effort_timeout]
         for i in late:
             self._restart_profile(i)
             self._switch(i, self._hold_mode(i))
@@ -668,8 +718,8 @@ class JointSim:
         """Velocity/acceleration-limited profile towards the goal, then the lag."""
         self._prev_ref_v = self._ref_v.copy()
         if (not _any(self._prof_v) and not _any(self._ref_v)
-                and np.array_equal(self._prof_p, self.goal)
-                and np.array_equal(self._ref, self._prof_p)):
+                and not _any(self._prof_p != self.goal)
+                and not _any(self._ref != self._prof_p)):
             return                                  # every joint settled on its goal
         e = self.goal - self._prof_p
         # Fastest speed v = m·a·dt from which braking at amax in steps of dt (v, v - a·dt,
@@ -840,8 +890,9 @@ class JointSim:
                             None)
             p0 = p0 + jr @ (q_lin - q)             # the interference at the undeflected q
             f = self._solve_contacts(jr, p0, owner, tangential, kinv, v)
-            solved = contacts, jr, p0, f, owner, tangential, points, q_lin
-            deflection = kinv * (jr.T @ f)
+            jtf = jr.T @ f
+            deflection = kinv * jtf
+            solved = contacts, jr, p0, f, owner, tangential, points, q_lin, jtf, deflection
             if _absmax(q + deflection - q_lin) < RELINEARIZE:  # rad: re-linearizing
                 break                                                # would change ~nothing
             q_lin = q + deflection
@@ -855,46 +906,50 @@ class JointSim:
                 self._pole_normals = {}
             self._anchors.clear()
             return zero, zero
-        contacts, jr, p0, f, owner, tangential, points, q_used = solved
-        dq = kinv * (jr.T @ f)
+        contacts, jr, p0, f, owner, tangential, points, q_used, jtf, dq = solved
         lo, hi = self.lower[:nk], self.upper[:nk]
         qd = q + dq
         stopped = ((qd < lo) & (dq < 0.0)) | ((qd > hi) & (dq > 0.0))
         if _any(stopped):   # joints pushed onto their mechanical stops are rigid there
             kinv = np.where(stopped, 0.0, kinv)
             f = self._solve_contacts(jr, p0, owner, tangential, kinv, v)
-            dq = kinv * (jr.T @ f)
+            jtf = jr.T @ f
+            dq = kinv * jtf
         self._contact_rows_used = jr, p0, f
         if v is None:   # move friction anchors of sliding contacts along with the block
-            moved = jr @ (q + dq - q_used)        # points were taken at q_used
+            anchors = self._anchors
             kinds = set()
+            moved = None
+            first = self._row_first        # each contact's first (normal) row
             for ci, c in enumerate(contacts):
                 kinds.add(c.kind)
-                if c.kind in self._anchors:
-                    t = np.flatnonzero((owner == ci) & tangential)
+                if c.kind in anchors:      # frictional: its two tangential rows follow
+                    if moved is None:
+                        moved = jr @ (q + dq - q_used)        # points were taken at q_used
+                    t = [first[ci] + 1, first[ci] + 2]
                     point = points[ci][:2] + moved[t]
-                    self._anchors[c.kind] = point + f[t] / self.cfg.world.contact_stiffness
-            for kind in list(self._anchors):
-                if kind not in kinds:
-                    del self._anchors[kind]
-        if v is None:
+                    anchors[c.kind] = point + f[t] / self.cfg.world.contact_stiffness
+            if not kinds.issuperset(anchors):
+                for kind in list(anchors):
+                    if kind not in kinds:
+                        del anchors[kind]
             self._warm = dq
+        dirs = self._row_dirs_array
         if self._poles:
             block = np.array([not contacts[o].kind.startswith("pole:") for o in owner])
-            dirs = np.asarray(self._row_dirs)
             self.contact_force = dirs[block].T @ f[block] if _any(block) else np.zeros(3)
-            self._link_rows = [(c, int(np.flatnonzero(owner == ci)[0]))
+            self._link_rows = [(c, self._row_first[ci])
                                for ci, c in enumerate(contacts) if c.kind.startswith("pole:")]
             self._set_link_contacts(f)
         else:
-            block = np.ones(len(f), dtype=bool)
-            self.contact_force = np.asarray(self._row_dirs).T @ f
+            block = None          # every row is on the block
+            self.contact_force = dirs.T @ f
         if v is None and self._poles:
             self._pole_normals = {c.kind: c.normal for ci, c in enumerate(contacts)
                                   if c.kind.startswith("pole:")
-                                  and f[int(np.flatnonzero(owner == ci)[0])] > 0.0}
-        self._last_rows = (self._row_dirs, points, owner, f, block)
-        return dq, jr.T @ f
+                                  and f[self._row_first[ci]] > 0.0}
+        self._last_rows = (dirs, points, owner, f, block)
+        return dq, jtf
 
     def _wall_normal(self, q_lin: np.ndarray, q: np.ndarray, kinv: np.ndarray,
                      previous: np.ndarray | None = None) -> np.ndarray | None:
@@ -969,7 +1024,9 @@ class JointSim:
         j6 = pin.computeFrameJacobian(self.model, self.data, qt, self.tool_id,
                                       pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
         rows, p0, owner, tangential, dirs, points = [], [], [], [], [], []
+        first = []
         for ci, c in enumerate(contacts):
+            first.append(len(rows))
             if c.kind.startswith("pole:"):     # on a link: that link's frame Jacobian
                 fid = self._capsule_frame[c.kind.rsplit(":", 1)[1]]
                 jf = pin.computeFrameJacobian(self.model, self.data, qt, fid,
@@ -988,7 +1045,8 @@ class JointSim:
                 for axis in (0, 1):
                     rows.append(jp[axis]); p0.append(anchor[axis] - c.point[axis])
                     owner.append(ci); tangential.append(True); dirs.append(_AXES[axis])
-        self._row_dirs = dirs
+        self._row_dirs_array = np.array(dirs)      # (rows, 3): each row's direction
+        self._row_first = first                    # each contact's first row
         return (contacts, np.array(rows), np.array(p0), np.array(owner),
                 np.array(tangential), points)
 
@@ -1031,17 +1089,34 @@ class JointSim:
         # Beyond HARD_DEPTH the surface stiffens (HARD_FACTOR x): normal rows pressed deeper
         # are solved again on the stiff branch, f = k d0 + k_hard (d - d0), so no servo can
         # push the block more than ~HARD_DEPTH into a surface.
-        deep = [i for i in range(m) if not tangential[i] and f[i] > k_env * HARD_DEPTH]
-        self._row_comp = np.full(m, 1.0 / k_env)
-        self._row_shift = np.zeros(m)
+        fl, tl = f.tolist(), tangential.tolist()
+        deep = [i for i in range(m) if not tl[i] and fl[i] > k_env * HARD_DEPTH]
+        self._row_deep = (m, deep)
         if deep:
-            k_hard = HARD_FACTOR * k_env
-            self._row_comp[deep] = 1.0 / k_hard
-            self._row_shift[deep] = HARD_DEPTH * (1.0 - k_env / k_hard)
             a_full = base.copy()
             a_full.flat[::m + 1] += self._row_comp
             f = self._solve_rows(a_full, p0 - self._row_shift, tangential, damp)
         return f
+
+    @property
+    def _row_comp(self) -> np.ndarray:
+        """Compliance (m/N) of each row of the last contact solve: 1/k_env, or the stiff
+        branch's 1/(HARD_FACTOR k_env) for a normal row pressed beyond HARD_DEPTH."""
+        m, deep = self._row_deep
+        k_env = self.cfg.world.contact_stiffness
+        out = np.full(m, 1.0 / k_env)
+        out[deep] = 1.0 / (HARD_FACTOR * k_env)
+        return out
+
+    @property
+    def _row_shift(self) -> np.ndarray:
+        """Interference offset (m) of each row of the last contact solve: the stiff
+        branch's force is k_env d0 + k_hard (d - d0), a spring k_hard shifted by this."""
+        m, deep = self._row_deep
+        out = np.zeros(m)
+        k_env = self.cfg.world.contact_stiffness
+        out[deep] = HARD_DEPTH * (1.0 - k_env / (HARD_FACTOR * k_env))
+        return out
 
     def _solve_rows(self, a_full: np.ndarray, p0: np.ndarray, tangential: np.ndarray,
                     damp: np.ndarray | None) -> np.ndarray:
@@ -1064,16 +1139,23 @@ class JointSim:
         for _ in range(4 * len(groups) + 4):
             free = [i for c in active for i in
                     ((groups[c][0],) if c in sliding else (groups[c][0], *groups[c][1]))]
-            f = np.zeros(m)                             # rows of dropped contacts: 0
             if not free:
+                f = np.zeros(m)                         # rows of dropped contacts: 0
                 break
-            a = a_full[np.ix_(free, free)]
+            if len(free) == m:                          # every row (the usual case)
+                a = a_full.copy() if sliding else a_full
+            else:
+                a = a_full[free][:, free]
             for c, u in sliding.items():
                 if c in active:
                     n, t = groups[c]
                     col = free.index(n)
-                    a[:, col] = a[:, col] + mu * (a_full[np.ix_(free, t)] @ u)
-            f[free] = np.linalg.solve(a, p0[free])
+                    a[:, col] = a[:, col] + mu * (a_full[free][:, t] @ u)
+            if len(free) == m:
+                f = np.linalg.solve(a, p0)
+            else:
+                f = np.zeros(m)                         # rows of dropped contacts: 0
+                f[free] = np.linalg.solve(a, p0[free])
             for c, u in sliding.items():
                 if c in active:
                     n, t = groups[c]
@@ -1084,14 +1166,15 @@ class JointSim:
             # pulls) makes its contact slide, then the normal forces are judged: a far
             # friction anchor must not make a real contact look pulling
             changed = False
+            fl = f.tolist()
             for c in active:
                 n, t = groups[c]
                 if not t or c in sliding:
                     continue
-                cap = mu * max(float(f[n]), 0.0)
-                norm = math.hypot(*(float(f[i]) for i in t))
+                cap = mu * max(fl[n], 0.0)
+                norm = math.hypot(*(fl[i] for i in t))
                 if norm > cap * (1.0 + 1e-9):
-                    sliding[c] = np.array([float(f[i]) for i in t]) / norm if norm > 0.0 \
+                    sliding[c] = np.array([fl[i] for i in t]) / norm if norm > 0.0 \
                         else np.zeros(len(t))
                     changed = True
             if changed:
@@ -1128,6 +1211,8 @@ class JointSim:
         nk = self.nk
         lim = self.limit[:nk]
         y = self._yield[:nk]
+        if self._contact_rows_used is None and not _any(y):   # no contact, no yield
+            return q, dq, _clip(tau, -lim, lim), tau_id
         can = P & (np.abs(tau_id) <= lim)          # an under-powered joint is held (not sagging)
         over = can & (np.abs(tau) > lim) & (gen != 0.0)
         if not _any(over) and not _any(y[P]):
@@ -1201,7 +1286,10 @@ class JointSim:
             return q, dq, tau, tau_id
         prev = self.position[:nk]
         move = _clip(q + dq, self.lower[:nk], self.upper[:nk]) - prev
-        ratio = max((np.abs(move[P]) / (self.vmax[:nk][P] * dt)).tolist())
+        if _any(~P):
+            ratio = max((np.abs(move[P]) / (self.vmax[:nk][P] * dt)).tolist())
+        else:
+            ratio = max((np.abs(move) / (self.vmax[:nk] * dt)).tolist())
         if not ratio > 1.0:
             return q, dq, tau, tau_id
         shift = np.where(P, move * (1.0 / ratio - 1.0), 0.0)
@@ -1299,10 +1387,10 @@ class JointSim:
         reports an ``underpowered`` event when a joint becomes so (once, until it recovers)
         and the node logs it as a warning: a task relying on it would fail on the robot."""
         nk = self.nk
-        cur = [i for i in range(nk) if self.mode[i] is ControlMode.CURRENT_POSITION]
-        if not cur and not self._underpowered:
-            return                                  # the usual case: nothing current-limited
-        now = {self.names[i] for i in cur if P[i] and abs(tau_id[i]) > self.limit[i]}
+        sagging = self._modes().current_position & P & (np.abs(tau_id) > self.limit[:nk])
+        if not _any(sagging) and not self._underpowered:
+            return                                  # the usual case: none under-powered
+        now = {self.names[i] for i in np.flatnonzero(sagging).tolist()}
         for name in sorted(now - self._underpowered):
             i = self._index[name]
             self.events.append(WorldEvent(
@@ -1317,10 +1405,10 @@ class JointSim:
         most, below its stall torque). The time at the limit is a leaky count (+dt at >= 98 % of the limit,
         -dt below), as a servo's thermal load: a servo that yields step after step against
         a contact, touching its limit every other step, overloads too."""
-        stalled = held & (np.abs(self.effort) >= self.limit * OVERLOAD_FRACTION)
+        stalled = held & (self.limit_cmd >= self.stall * (1.0 - 1e-9))   # at its stall torque
+        stalled &= np.abs(self.effort) >= self.limit * OVERLOAD_FRACTION
         if not _any(stalled) and not _any(self._saturated_for):
             return
-        stalled &= self.limit_cmd >= self.stall * (1.0 - 1e-9)   # at its stall torque
         self._saturated_for = np.where(stalled, self._saturated_for + dt,
                                        np.maximum(self._saturated_for - dt, 0.0))
         for i in np.flatnonzero(self._saturated_for >= OVERLOAD_TIME):
@@ -1434,6 +1522,6 @@ class JointSim:
         if rows is None:
             return np.zeros(6)
         dirs, points, owner, f, _ = rows
-        d = np.asarray(dirs, dtype=float).reshape(-1, 3) * np.asarray(f)[:, None]
+        d = dirs * f[:, None]
         p = np.asarray([points[o] for o in owner], dtype=float).reshape(-1, 3)
         return np.r_[d.sum(axis=0), np.cross(p, d).sum(axis=0)]

@@ -125,9 +125,13 @@ class World:
     def __init__(self, cfg: WorldConfig) -> None:
         self.cfg = cfg
         self._pegs = {p.name: p for p in cfg.pegs}
+        self._grasp_offset = np.asarray(cfg.grasp.offset, dtype=float)   # m, in tool0
         self._table_z = cfg.table_height          # m (read per contact check: kept here)
         self.events: list[WorldEvent] = []
         self._grasp: np.ndarray | None = None    # tool0 -> block, while held
+        self._held_key: bytes | None = None      # _pose_of's last tool pose, its block pose
+        self._held_pose = np.eye(4)
+        self._touch: dict[str, bool] = {}        # _touches_top's answers for _held_pose
         self._pose = np.eye(4)
         # per unthreaded peg near the held block, from its last actual pose (``track``):
         # ("top", None) resting on / above the top's disc, ("side", n) beside the peg (n:
@@ -165,6 +169,19 @@ class World:
             return tool_pose @ self._grasp  # type: ignore[operator]
         return self._pose.copy()
 
+    def _pose_of(self, tool_pose: np.ndarray) -> np.ndarray:
+        """:meth:`block_pose` for this module's read-only use: while held, the same array
+        for the same tool pose (a step asks several questions of one pose: its top and
+        side contacts, its penetration, the tracking), so that :meth:`_touches_top`'s
+        answers for it are kept too (pure functions of the peg and the pose)."""
+        if self.state is not BlockState.HELD:
+            return self.block_pose(tool_pose)
+        key = tool_pose.tobytes()
+        if key != self._held_key:
+            self._held_key, self._held_pose = key, tool_pose @ self._grasp
+            self._touch = {}
+        return self._held_pose
+
     def grasp_transform(self) -> np.ndarray:
         """tool0 -> block (4x4) while held; WorldError otherwise."""
         if self._grasp is None:
@@ -172,7 +189,7 @@ class World:
         return self._grasp.copy()
 
     def grasp_point(self, tool_pose: np.ndarray) -> np.ndarray:
-        return tool_pose[:3, :3] @ np.asarray(self.cfg.grasp.offset) + tool_pose[:3, 3]
+        return tool_pose[:3, :3] @ self._grasp_offset + tool_pose[:3, 3]
 
     def block_between_fingers(self, tool_pose: np.ndarray) -> bool:
         """Whether the (resting) block's centre is within the capture radius of the grasp
@@ -181,15 +198,16 @@ class World:
             return True
         if self.state is BlockState.ABSENT:
             return False
-        d = np.linalg.norm(self.grasp_point(tool_pose) - self._pose[:3, 3])
-        return bool(d <= self.cfg.grasp.capture_radius)
+        g, c = self.grasp_point(tool_pose).tolist(), self._pose[:3, 3].tolist()
+        d = math.hypot(g[0] - c[0], g[1] - c[1], g[2] - c[2])
+        return d <= self.cfg.grasp.capture_radius
 
     def width_between_fingers(self, tool_pose: np.ndarray) -> float:
         """Width (m) of the block along tool0's z axis, the fingers' closing direction (the
         finger joint turns about tool0's x axis; the hand points along tool0's -y)."""
-        y = tool_pose[:3, 2]
-        rot = self.block_pose(tool_pose)[:3, :3]
-        return float(sum(abs(float(y @ rot[:, i])) * self.cfg.block.size[i] for i in range(3)))
+        across = (tool_pose[:3, 2] @ self._pose_of(tool_pose)[:3, :3]).tolist()
+        size = self.cfg.block.size
+        return abs(across[0]) * size[0] + abs(across[1]) * size[1] + abs(across[2]) * size[2]
 
     def misalignment(self, peg: str, block_pose: np.ndarray) -> float:
         """Horizontal distance (m) of the block's hole axis from peg ``peg``'s axis."""
@@ -203,7 +221,7 @@ class World:
         (m); else None."""
         if self.peg is None or self.state is not BlockState.HELD:
             return None
-        centre = self.block_pose(tool_pose)[:3, 3]
+        centre = self._pose_of(tool_pose)[:3, 3]
         p = self._pegs[self.peg]
         low = max(centre[2] - self._half[2], self._table_z)
         z = low + 0.5 * (min(self._table_z + p.height, centre[2] + self._half[2]) - low)
@@ -230,6 +248,15 @@ class World:
     def _touches_top(self, peg: str, block_pose: np.ndarray) -> bool:
         """Whether the peg's top disc meets the block's bottom face (outside the hole), or
         the peg's top meets the hole's wall (a hole too tilted to accept it)."""
+        if block_pose is self._held_pose and self._held_key is not None:
+            known = self._touch.get(peg)
+            if known is None:
+                known = self._touch[peg] = self._top_overlap(peg, block_pose)
+            return known
+        return self._top_overlap(peg, block_pose)
+
+    def _top_overlap(self, peg: str, block_pose: np.ndarray) -> bool:
+        """:meth:`_touches_top`, computed."""
         p = self._pegs[peg]
         ex, ey = p.xy[0] - float(block_pose[0, 3]), p.xy[1] - float(block_pose[1, 3])
         e = math.hypot(ex, ey)
@@ -300,7 +327,7 @@ class World:
         if self.state is not BlockState.HELD:
             self._memory.clear()
             return
-        pose = self.block_pose(tool_pose)
+        pose = self._pose_of(tool_pose)
         bottom = float(pose[2, 3]) - self._half[2]
         for name, p in self._pegs.items():
             if name == self.peg or self.misalignment(name, pose) >= self._corner + p.radius + NEAR:
@@ -331,7 +358,7 @@ class World:
         held; ``threaded`` False leaves the threaded peg out. For invariant checks."""
         if self.state is not BlockState.HELD:
             return 0.0
-        pose = self.block_pose(tool_pose)
+        pose = self._pose_of(tool_pose)
         bottom = float(pose[2, 3]) - self._half[2]
         worst = max(self._table_z - bottom, 0.0)
         for name, p in self._pegs.items():
@@ -340,8 +367,9 @@ class World:
                 if threaded:
                     worst = max(worst, self.misalignment(name, pose) - self.cfg.clearance(name))
                 continue
-            if top <= bottom:
-                continue
+            if top <= bottom or math.hypot(p.xy[0] - float(pose[0, 3]), p.xy[1]
+                                           - float(pose[1, 3])) >= self._corner + p.radius:
+                continue   # below the bottom, or beyond the block's corners: no overlap
             n = self._outward(name, pose)
             if n is not None:
                 worst = max(worst, min(top - bottom, self._side_depth(name, pose, n)))
@@ -406,7 +434,7 @@ class World:
         must still see the surface it was pushed out by)."""
         if self.state is not BlockState.HELD:
             return []
-        pose = self.block_pose(tool_pose)
+        pose = self._pose_of(tool_pose)
         centre = pose[:3, 3]
         bottom = centre[2] - self._half[2]
         out: list[Contact] = []
@@ -449,6 +477,9 @@ class World:
                 continue
             if depth <= 0.0 or centre[2] + self._half[2] <= self._table_z:
                 continue
+            if math.hypot(p.xy[0] - float(centre[0]), p.xy[1] - float(centre[1])) \
+                    >= self._corner + p.radius:
+                continue   # beyond the block's corners: neither its side nor its top
             side = self._side_contact(name, pose)
             if side is not None and side[0] < depth:
                 excess, n = side   # beside the peg, low: pushed off sideways
@@ -465,7 +496,7 @@ class World:
         """Update threading from the held block's actual pose (after contact forces)."""
         if self.state is not BlockState.HELD:
             return
-        pose = self.block_pose(tool_pose)
+        pose = self._pose_of(tool_pose)
         bottom = pose[2, 3] - self._half[2]
         if self.peg is not None:
             top = self._table_z + self._pegs[self.peg].height
@@ -475,7 +506,11 @@ class World:
         else:
             for name, p in self._pegs.items():
                 top = self._table_z + p.height
-                if bottom < top - THREAD_DEPTH and self.accepts(name, pose):
+                # (the centre is midway between the rims: farther than the clearance from
+                # the axis, one rim is too: not accepted)
+                if bottom < top - THREAD_DEPTH \
+                        and self.misalignment(name, pose) <= self.cfg.clearance(name) \
+                        and self.accepts(name, pose):
                     self.peg = name
                     self.events.append(WorldEvent("threaded", name))
                     break
@@ -489,6 +524,7 @@ class World:
         if not self.block_between_fingers(tool_pose):
             raise WorldError("the block is not between the fingers")
         self._grasp = np.linalg.inv(tool_pose) @ self._pose
+        self._held_key = None
         if self.state is BlockState.ON_PEG_TOP:
             where, self.peg = f"on top of {self.peg}", None
         else:
@@ -508,6 +544,7 @@ class World:
             return
         pose = self.block_pose(tool_pose)
         self._grasp = None
+        self._held_key = None
         self._memory.clear()
         xy = pose[:2, 3].copy()
         rest = np.eye(4)
