@@ -105,6 +105,7 @@ class _ModeSets:
     torque: list[int]             # current (torque) mode
     off: list[int]                # torque off
     current_position: np.ndarray  # (nk,) bool: current-based position (chain joints)
+    chain_held: bool              # every chain joint position-class
 
 
 @dataclass(frozen=True)
@@ -247,6 +248,7 @@ class JointSim:
         self.host = None   # a host_motion.HostMotion: moves the root in world (set by its user)
         self._tool = np.eye(4)
         self._fk_cache, self._fk_key, self._fk_pose = False, None, None
+        self._travel: tuple = (None, None, None)   # _step_travel's dt and arrays
         self._update_tool()
         self._record()
 
@@ -269,13 +271,14 @@ class JointSim:
             self.coulomb[servos] = cur.friction * rng.uniform(0.5, 1.5, m)
             self.quantum[servos] = cur.quantum
         self._quantized = self.quantum > 0.0           # (constant: _quantize's arrays)
+        self._all_quantized = bool(self._quantized.all())
         self._quantum_safe = np.where(self._quantized, self.quantum, 1.0)
 
     def _quantize(self, tau: np.ndarray | float, idx=slice(None)) -> np.ndarray:
         """Nominal torque (N·m) rounded to whole current units of the servos ``idx``."""
         if idx is None:                  # every joint (no slicing: the step's hot path)
-            return np.where(self._quantized, np.round(tau / self._quantum_safe) * self.quantum,
-                            tau)
+            rounded = np.round(tau / self._quantum_safe) * self.quantum
+            return rounded if self._all_quantized else np.where(self._quantized, rounded, tau)
         q = self.quantum[idx]
         return np.where(self._quantized[idx], np.round(tau / self._quantum_safe[idx]) * q, tau)
 
@@ -314,7 +317,8 @@ class JointSim:
                 torque=[i for i, m in enumerate(key) if m is ControlMode.TORQUE],
                 off=[i for i, m in enumerate(key) if m is ControlMode.OFF],
                 current_position=np.array([m is ControlMode.CURRENT_POSITION
-                                           for m in key[:self.nk]]))
+                                           for m in key[:self.nk]]),
+                chain_held=all(m in _HOLDING for m in key[:self.nk]))
         return self._mode_sets
 
     def _sync_payload(self) -> None:
@@ -568,16 +572,17 @@ class JointSim:
         # model's placements (host motion) are the step's from here on
         self._fk_cache, self._fk_key = not self._poles, None
         self._watchdog()
-        gapped = self._gap > 0.0   # torque off during a mode switch (this step)
-        any_gap = _any(gapped)
-        held = self._modes().holding
+        any_gap = _any(self._gap)   # torque off during a mode switch (this step)
+        sets = self._modes()
+        held = sets.holding
         if any_gap:
+            gapped = self._gap > 0.0
             held = held & ~gapped
         self._profile(dt, held)
         nk = self.nk
         P = held[:nk]
         D = ~P
-        dynamic = _any(D)
+        dynamic = _any(D) if any_gap else not sets.chain_held
         if dynamic:
             q = self.position[:nk].copy()
             self._yield[:nk][D] = 0.0
@@ -590,8 +595,9 @@ class JointSim:
             q = self._ref[:nk] + self._yield[:nk]
             v = self._ref_v[:nk].copy()
             a = (self._ref_v[:nk] - self._prev_ref_v[:nk]) / dt
-        yielding = P & (self._yield_rate[:nk] != 0.0)
-        if _any(yielding):   # a joint giving way moves at its reference's rate plus its yield's
+        if _any(self._yield_rate[:nk]):
+            # a joint giving way moves at its reference's rate plus its yield's
+            yielding = P & (self._yield_rate[:nk] != 0.0)
             v[yielding] += self._yield_rate[:nk][yielding]
             a[yielding] = 0.0
         y_before = self._yield[:nk].copy()
@@ -660,7 +666,10 @@ class JointSim:
             self.reported_effort = self.effort.copy()
             return
         moving = np.abs(self.velocity) > FRICTION_VELOCITY
-        motor = self.effort + np.where(moving, np.sign(self.velocity) * self.coulomb, 0.0)
+        if _any(moving):
+            motor = self.effort + np.where(moving, np.sign(self.velocity) * self.coulomb, 0.0)
+        else:
+            motor = self.effort + 0.0      # (as above: -0.0 + 0.0 is 0.0)
         out = self._quantize(motor / self.kt_ratio, None)
         sets = self._modes()
         torque = sets.torque
@@ -915,7 +924,7 @@ class JointSim:
             f = self._solve_contacts(jr, p0, owner, tangential, kinv, v)
             jtf = jr.T @ f
             dq = kinv * jtf
-        self._contact_rows_used = jr, p0, f
+        self._contact_rows_used = jr, p0, f, self._rows_map
         if v is None:   # move friction anchors of sliding contacts along with the block
             anchors = self._anchors
             kinds = set()
@@ -1185,7 +1194,26 @@ class JointSim:
             # drop the one pulling most only: with it gone the others may push
             worst = min(pulling, key=lambda c: f[groups[c][0]])
             active = [c for c in active if c != worst]
+        self._rows_map = self._unknowns_map(m, groups, active, sliding, mu)
         return f
+
+    @staticmethod
+    def _unknowns_map(m: int, groups: list, active: list[int], sliding: dict, mu: float
+                      ) -> tuple[list[int], np.ndarray]:
+        """The rows solved for in an active-set solve's outcome and the map S (m x k) from
+        their forces to every row's: f = S f_free. A dropped contact's rows get nothing; a
+        sliding contact's tangential rows get mu u x its normal force."""
+        free = [i for c in active for i in
+                ((groups[c][0],) if c in sliding else (groups[c][0], *groups[c][1]))]
+        smap = np.zeros((m, len(free)))
+        col = {row: k for k, row in enumerate(free)}
+        for row, k in col.items():
+            smap[row, k] = 1.0
+        for c, u in sliding.items():
+            if c in active:
+                n, t = groups[c]
+                smap[t, col[n]] = mu * u
+        return free, smap
 
     def _limit_efforts(self, dt: float, q: np.ndarray, v: np.ndarray, a: np.ndarray,
                        P: np.ndarray, dq: np.ndarray, gen: np.ndarray, tau_id: np.ndarray,
@@ -1252,19 +1280,25 @@ class JointSim:
         joints that saturate in turn): the contact forces, the saturated joints' motion
         and which joints are saturated."""
         nk = self.nk
-        jr, p0, _ = self._contact_rows_used
-        m = len(p0)
+        jr, p0, _, (free, smap) = self._contact_rows_used
+        m, k = len(p0), len(free)
         sign = np.sign(tau)
         f, dq_s = np.zeros(m), np.zeros(int(over.sum()))
+        if not k:
+            return f, dq_s, over
+        comp, shift = self._row_comp, self._row_shift
         for _ in range(nk):
             kinv_u = np.where(P & ~over, 1.0 / self.stiffness[:nk], 0.0)
             js = jr[:, over]
             ns = js.shape[1]
-            lhs = np.block([[np.diag(self._row_comp) + (jr * kinv_u) @ jr.T, js],
-                            [js.T, np.zeros((ns, ns))]])
-            rhs = np.r_[p0 - self._row_shift, tau_id[over] - sign[over] * lim[over]]
+            # the contact solve's own rows: its dropped contacts' rows get no force, its
+            # sliding contacts' friction is mu x their normal force (f = S f_free), so the
+            # yield is solved against the contact the step really has, not a stuck one
+            a_s = ((np.diag(comp) + (jr * kinv_u) @ jr.T) @ smap)[free]
+            lhs = np.block([[a_s, js[free]], [js.T @ smap, np.zeros((ns, ns))]])
+            rhs = np.r_[(p0 - shift)[free], tau_id[over] - sign[over] * lim[over]]
             sol = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
-            f, dq_s = sol[:m], sol[m:]
+            f, dq_s = smap @ sol[:k], sol[k:]
             tau_new = tau_id - jr.T @ f
             newly = can & ~over & (np.abs(tau_new) > lim)
             if not _any(newly):
@@ -1289,7 +1323,7 @@ class JointSim:
         if _any(~P):
             ratio = max((np.abs(move[P]) / (self.vmax[:nk][P] * dt)).tolist())
         else:
-            ratio = max((np.abs(move) / (self.vmax[:nk] * dt)).tolist())
+            ratio = max((np.abs(move) / self._step_travel(dt)).tolist())
         if not ratio > 1.0:
             return q, dq, tau, tau_id
         shift = np.where(P, move * (1.0 / ratio - 1.0), 0.0)
@@ -1299,6 +1333,18 @@ class JointSim:
         tau_id = pin.rnea(self.model, self.data, q + dq + self.offset[:nk], v, a)
         lim = self.limit[:nk]
         return q, dq, _clip(tau_id - gen, -lim, lim), tau_id
+
+    def _step_travel(self, dt: float) -> np.ndarray:
+        """vmax·dt (rad, m) of the chain joints: the most a joint moves in a step of dt."""
+        if self._travel[0] != dt:
+            self._travel = (dt, self.vmax[:self.nk] * dt,
+                            JUMP_FACTOR * self.vmax[:self.nk] * dt)
+        return self._travel[1]
+
+    def _jump_travel(self, dt: float) -> np.ndarray:
+        """JUMP_FACTOR·vmax·dt: a position-class joint moving more in a step jumped."""
+        self._step_travel(dt)
+        return self._travel[2]
 
     def _deepest(self, q: np.ndarray) -> float:
         """Deepest interference (m) of the block (held) and the links' capsules (poles) in
@@ -1348,7 +1394,7 @@ class JointSim:
         velocities, efforts and inverse-dynamics torques of the step."""
         nk = self.nk
         prev = self.position[:nk]
-        jump = P & (np.abs(qk - prev) > JUMP_FACTOR * self.vmax[:nk] * dt)
+        jump = P & (np.abs(qk - prev) > self._jump_travel(dt))
         deep = False
         depth = 0.0
         if self.world.state is BlockState.HELD or self._poles:
