@@ -1227,7 +1227,10 @@ class JointSim:
 
             (I/k_env + J_u K_u⁻¹ J_uᵀ) f + J_s dq_s = p0,   J_sᵀ f = tau_id_s - tau_limit_s,
 
-        gives how far they must move; a joint with a yield and torque to spare moves back
+        over the rows the last contact solve solved for, with f = S f_free (its dropped
+        contacts' rows 0, its sliding contacts' tangential rows mu u times their normal
+        force: the contact as the step has it, not held stuck), gives how far they must
+        move; a joint with a yield and torque to spare moves back
         towards its reference (half its slack per iteration). The yield moves at most
         ``vmax·dt`` per step (the servo's speed: no fling), and after every change of it the
         full contact solve (geometry, friction cone, stiff branch) runs again at the new
