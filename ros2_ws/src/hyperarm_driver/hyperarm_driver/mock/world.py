@@ -349,13 +349,13 @@ class World:
             # else: inside the footprint below the top (a penetration the solver is
             # resolving) or over the hole below the top (threading): keep what it was
 
-    def penetration(self, tool_pose: np.ndarray, threaded: bool = True) -> float:
+    def penetration(self, tool_pose: np.ndarray) -> float:
         """Largest interpenetration (m) of the held block with the table and the pegs at
         this tool pose, from the geometry alone (no contact memory): the table's depth; per
         unthreaded peg overlapping the block (its top above the bottom, its disc over the
         footprint's solid part), the least of the vertical depth below its top and the
         sideways overlap; on the threaded peg, the excess over the clearance. 0 when not
-        held; ``threaded`` False leaves the threaded peg out. For invariant checks."""
+        held. For invariant checks."""
         if self.state is not BlockState.HELD:
             return 0.0
         pose = self._pose_of(tool_pose)
@@ -364,8 +364,7 @@ class World:
         for name, p in self._pegs.items():
             top = self._table_z + p.height
             if name == self.peg:
-                if threaded:
-                    worst = max(worst, self.misalignment(name, pose) - self.cfg.clearance(name))
+                worst = max(worst, self.misalignment(name, pose) - self.cfg.clearance(name))
                 continue
             if top <= bottom or math.hypot(p.xy[0] - float(pose[0, 3]), p.xy[1]
                                            - float(pose[1, 3])) >= self._corner + p.radius:
