@@ -21,7 +21,7 @@ from hyperarm_ik.solvers import make_solver
 from .errors import Cancelled, StepFailed
 from .perception import DOWN, DetectionBuffer, Estimate
 from .sequence import Task
-from .steps import STEP_TYPES, PoseSpec, Step
+from .steps import STALE_STATES, STEP_TYPES, PoseSpec, Step
 
 __all__ = ["Robot", "HybridCommand", "Feedback", "RunResult", "RunnerParams", "Runner"]
 
@@ -400,14 +400,19 @@ class Runner:
             if err <= tolerance:
                 break
             if settle_on_stop and not missing:
-                now = np.array([pos[n] for n in names])
-                if last is not None and np.max(np.abs(now - last)) < 2e-4:
-                    still_since = still_since or self.robot.now()
-                    if self.robot.now() - still_since > 0.3:
-                        break
+                if self.robot.joint_states_age() > STALE_STATES:
+                    # no new states: no evidence that the joints stopped (a stalled stream
+                    # looks still); start over once they come again
+                    last, still_since = None, None
                 else:
-                    still_since = None
-                last = now
+                    now = np.array([pos[n] for n in names])
+                    if last is not None and np.max(np.abs(now - last)) < 2e-4:
+                        still_since = still_since or self.robot.now()
+                        if self.robot.now() - still_since > 0.3:
+                            break
+                    else:
+                        still_since = None
+                    last = now
             elapsed = self.robot.now() - t0
             if elapsed > timeout:
                 why = (f"no joint_states for {', '.join(missing)}" if missing else

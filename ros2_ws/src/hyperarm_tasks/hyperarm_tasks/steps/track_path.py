@@ -40,10 +40,9 @@ from hyperarm_ik.paths import FIGURE8_WAYPOINTS, PATHS, Figure8, hold_orientatio
 
 from ..errors import StepFailed
 from ..tracking import arc_length, tracking_report, trapezoid_time_scaling
-from . import BuildContext, Step, StepType, quantity, register
+from . import STALE_STATES, BuildContext, Step, StepType, quantity, register
 
 SETTLE_TIME = 1.0        # s after the last waypoint, sampling until the tool is there
-STALE_STATES = 0.05       # s: joint_states older than this (the driver stalls) hold the path
 LATE_TICKS = 1.5         # a tick later than this many periods slows the path down instead
 WINDOW = 1.0             # s: a waypoint is judged on the path measured this close in time to
                          # when it was commanded (the figure-8 crosses itself ~9 s apart)
