@@ -65,6 +65,8 @@ CONTACT_MARGIN = 0.02      # m: a remembered peg top or side this far apart is s
 YIELD_ITERATIONS = 3       # contact solves per step at most while a servo gives way
 JUMP_FACTOR = 2.0          # a position-class joint moving more than this x its velocity
                            # limit in one step: the contact solve failed (not taken)
+OFFSET_RATE = 0.05         # rad/s: a new move's repeatability offset settles at most this
+                           # fast per joint (its backlash takes up during the move, no jump)
 GUARD_DEPTH = 0.002        # m: a step ending a link or the block deeper than this in a
                            # contact (unless the pose kept instead is deeper) is not taken
 
@@ -227,6 +229,8 @@ class JointSim:
         self._ref, self._ref_v = q0.copy(), np.zeros(self.n)
         self.position, self.velocity, self.effort = q0.copy(), np.zeros(self.n), np.zeros(self.n)
         self.offset = np.zeros(self.n)             # hidden (repeatability), arm joints only
+        self._offset_goal = np.zeros(self.n)       # the move's drawn offset (settling)
+        self._settling = False                     # offset still on its way to the goal
         self._anchor = q0.copy()
         self._saturated_for = np.zeros(self.n)
         self.errors: dict[str, str] = {}
@@ -422,19 +426,36 @@ class JointSim:
         return CommandReport(applied=tuple(names), clamped=tuple(clamped), mode=mode,
                              rejected=rejected)
 
-    def _draw_offset(self) -> None:
-        """Draw the pending new move's repeatability offset, unless a link or the held block
-        touches the work cell or the block is threaded on a peg (then at the first step free
-        of contact, off the peg)."""
-        if not self._redraw:
-            return
+    def _held_by_contact(self) -> bool:
+        """A link or the held block touches the work cell, or the block is threaded on a
+        peg: the arm's backlash cannot settle anew."""
         threaded = self.world.state is BlockState.HELD and self.world.peg is not None
-        if self.link_contacts or np.abs(self.contact_force).max() > 0.0 or threaded:
+        return bool(self.link_contacts) or _any(self.contact_force) or threaded
+
+    def _draw_offset(self) -> None:
+        """Draw the pending new move's repeatability offset, unless the arm is held by a
+        contact (then at the first step free of it, off the peg). The drawn offset is the
+        goal the true joints settle to (:meth:`_settle_offset`), not a jump."""
+        if not self._redraw or self._held_by_contact():
             return
         self._redraw = False
         arm = np.flatnonzero(self._arm)
-        self.offset[arm] = self._rng.normal(0.0, self.cfg.imperfections.repeatability,
-                                            len(arm))
+        self._offset_goal[arm] = self._rng.normal(0.0, self.cfg.imperfections.repeatability,
+                                                  len(arm))
+        self._settling = True
+
+    def _settle_offset(self, dt: float) -> None:
+        """The offset moves towards the move's drawn one at OFFSET_RATE per joint, while no
+        contact holds the arm: drawn at once, it moved the true arm by up to ~1 cm in one
+        step (a block next to a peg ended 6-8 mm in its top); settling, the contact solve
+        and the step's guard see it come as they see a commanded motion."""
+        if not self._settling or self._held_by_contact():
+            return
+        gap = self._offset_goal - self.offset
+        limit = OFFSET_RATE * dt
+        self.offset = self.offset + _clip(gap, -limit, limit)
+        if not _absmax(self._offset_goal - self.offset) > 0.0:
+            self._settling = False
 
     def _rail_problem(self, goals: dict, torques: dict) -> str:
         """Why the PMAC rail driver would refuse the rail's part of a command, or "": an
@@ -568,6 +589,7 @@ class JointSim:
             self._pending.popleft()[1]()
         if self.host is not None:
             self.host.before_step(dt)
+        self._settle_offset(dt)
         # a tool pose computed twice in the step (the guard's, the step's end) once: the
         # model's placements (host motion) are the step's from here on
         self._fk_cache, self._fk_key = not self._poles, None
