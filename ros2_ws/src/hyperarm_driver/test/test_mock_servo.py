@@ -224,6 +224,10 @@ def test_true_tool_wrench_is_the_contact_force_at_tool0(desc):
     assert f[2] > 1.0
     rot = sim.tool_pose()[:3, :3]
     assert sim.tool_wrench[:3] == pytest.approx(rot.T @ f, abs=1e-9)
-    bottom = sc.block_xyz() - [0, 0, half]
-    moment = np.cross(bottom - sim.tool_pose()[:3, 3], f)
+    # the normal force acts at the contact's point, friction at its slide point (World.contacts)
+    (top_contact,) = [c for c in sim.world.contacts(sim.tool_pose()) if c.kind.startswith("peg_top")]
+    tool = sim.tool_pose()[:3, 3]
+    slide = top_contact.point if top_contact.slide is None else top_contact.slide
+    moment = np.cross(top_contact.point - tool, [0.0, 0.0, f[2]]) \
+        + np.cross(slide - tool, [f[0], f[1], 0.0])
     assert sim.tool_wrench[3:] == pytest.approx(rot.T @ moment, abs=0.05 * np.linalg.norm(moment) + 1e-4)

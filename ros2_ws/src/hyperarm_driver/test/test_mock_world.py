@@ -87,6 +87,14 @@ def test_grasp_lift_insert_aligned_and_release(desc, cfg):
     assert sim.world.block_pose()[:3, 3] == pytest.approx(s["dst_base"], abs=1e-4)
 
 
+def pressed_height(sim) -> float:
+    """Height (m) of the point where the held block presses on a peg's top: its bottom
+    face's centre while upright, towards the disc's downhill rim as it tilts (the contact's
+    ``point``, where its depth is measured)."""
+    (top,) = [c for c in sim.world.contacts(sim.tool_pose()) if c.kind.startswith("peg_top")]
+    return float(top.point[2])
+
+
 def test_misaligned_block_stops_on_peg_top_with_expected_force_and_efforts(desc, cfg):
     """Pressing the block 5 mm into the top of the peg, misaligned: the peg pushes back
     with the contact stiffness, the servos yield by torque/stiffness, and their efforts
@@ -99,8 +107,7 @@ def test_misaligned_block_stops_on_peg_top_with_expected_force_and_efforts(desc,
     press = s["dst_above"] + off
     press[2] = s["dst_top"] + s["half"] - 0.005               # 5 mm below the peg top
     q_cmd = sc.move_tool(press, 2.0)
-    block = sc.block_xyz()
-    bottom = block[2] - s["half"]
+    bottom = pressed_height(sim)
     force = sim.contact_force
     k_env = cfg.world.contact_stiffness
     assert sim.world.peg is None and sim.world.state is BlockState.HELD
@@ -108,14 +115,20 @@ def test_misaligned_block_stops_on_peg_top_with_expected_force_and_efforts(desc,
     assert np.linalg.norm(force[:2]) <= cfg.world.friction * force[2] * (1 + 1e-9)
     assert bottom == pytest.approx(s["dst_top"] - penetration(force[2], k_env), abs=1e-5)
     assert bottom > s["dst_top"] - 0.002
+    assert sim.world.penetration(sim.tool_pose()) < 0.002     # every corner, tilt included
     # Servo springs: the joints are deflected by K^-1 J^T F from their goals...
     model, data, fid = sim.model, sim.model.createData(), sim.tool_id
     q_meas = sim.position[:9]
     pin.framesForwardKinematics(model, data, q_meas)
     j = pin.computeFrameJacobian(model, data, q_meas, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
-    r = np.array([block[0], block[1], bottom]) - data.oMf[fid].translation
-    jp = j[:3] - pin.skew(r) @ j[3:]
-    generalized = jp.T @ force
+    # (the normal force acts at the contact's point, friction at its slide point)
+    (top,) = [c for c in sim.world.contacts(sim.tool_pose()) if c.kind.startswith("peg_top")]
+    generalized = np.zeros(9)
+    slide = top.point if top.slide is None else top.slide
+    for at, f in ((top.point, [0.0, 0.0, force[2]]), (slide, [force[0], force[1], 0.0])):
+        r = at - data.oMf[fid].translation
+        jp = j[:3] - pin.skew(r) @ j[3:]
+        generalized += jp.T @ np.asarray(f)
     assert np.abs(generalized).max() > 0.05                   # N·m: a real load on the joints
     tol = 0.02 * np.abs(generalized).max()
     assert (q_meas - q_cmd) * cfg.servo.stiffness == pytest.approx(generalized, abs=tol)
@@ -164,7 +177,7 @@ def test_current_limit_bounds_the_pressing_force(desc, cfg):
         press[2] = s["dst_top"] + s["half"] - 0.03            # 3 cm into the peg
         sc.move_tool(press, 2.0, effort=limit)
         force = sc.sim.contact_force[2]
-        bottom = sc.block_xyz()[2] - s["half"]
+        bottom = pressed_height(sc.sim)
         # on top, not through it (within 0.05 mm: the contact is linearized at the goals)
         assert bottom == pytest.approx(s["dst_top"] - penetration(force, cfg.world.contact_stiffness),
                                        abs=5e-5)

@@ -713,18 +713,16 @@ class JointSim:
         if rows is None or self.world.state is not BlockState.HELD:
             self.tool_wrench = np.zeros(6)
             return
-        dirs, points, owner, f, block = rows
-        fl, dl, own = f.tolist(), dirs.tolist(), owner.tolist()
+        dirs, points, _, f, block = rows
+        fl, dl, pl = f.tolist(), dirs.tolist(), points.tolist()
         keep = [True] * len(fl) if block is None else block.tolist()
-        per: dict[int, list[float]] = {}          # contact -> its force (N), world
-        for r, fr in enumerate(fl):   # a few rows: plain floats beat numpy's overhead here
-            if keep[r]:               # (not a link on a pole)
-                d, acc = dl[r], per.setdefault(own[r], [0.0, 0.0, 0.0])
-                acc[0] += fr * d[0]; acc[1] += fr * d[1]; acc[2] += fr * d[2]
         tx, ty, tz = self._tool[:3, 3].tolist()
         fx = fy = fz = mx = my = mz = 0.0
-        for ci, (ax, ay, az) in per.items():
-            px, py, pz = points[ci].tolist()
+        for r, fr in enumerate(fl):   # a few rows: plain floats beat numpy's overhead here
+            if not keep[r]:           # a link on a pole: not on the block
+                continue
+            d, (px, py, pz) = dl[r], pl[r]
+            ax, ay, az = fr * d[0], fr * d[1], fr * d[2]
             rx, ry, rz = px - tx, py - ty, pz - tz
             fx += ax; fy += ay; fz += az
             mx += ry * az - rz * ay; my += rz * ax - rx * az; mz += rx * ay - ry * ax
@@ -958,7 +956,7 @@ class JointSim:
                     if moved is None:
                         moved = jr @ (q + dq - q_used)        # points were taken at q_used
                     t = [first[ci] + 1, first[ci] + 2]
-                    point = points[ci][:2] + moved[t]
+                    point = self._slides[ci][:2] + moved[t]
                     anchors[c.kind] = point + f[t] / self.cfg.world.contact_stiffness
             if not kinds.issuperset(anchors):
                 for kind in list(anchors):
@@ -979,7 +977,7 @@ class JointSim:
             self._pole_normals = {c.kind: c.normal for ci, c in enumerate(contacts)
                                   if c.kind.startswith("pole:")
                                   and f[self._row_first[ci]] > 0.0}
-        self._last_rows = (dirs, points, owner, f, block)
+        self._last_rows = (dirs, self._row_points, owner, f, block)
         return dq, jtf
 
     def _wall_normal(self, q_lin: np.ndarray, q: np.ndarray, kinv: np.ndarray,
@@ -1055,7 +1053,7 @@ class JointSim:
         j6 = pin.computeFrameJacobian(self.model, self.data, qt, self.tool_id,
                                       pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
         rows, p0, owner, tangential, dirs, points = [], [], [], [], [], []
-        first = []
+        first, row_points, slides = [], [], []
         for ci, c in enumerate(contacts):
             first.append(len(rows))
             if c.kind.startswith("pole:"):     # on a link: that link's frame Jacobian
@@ -1067,17 +1065,25 @@ class JointSim:
                 jp = j6[:3] - _skew(c.point - tool[:3, 3]) @ j6[3:]
             rows.append(c.normal @ jp); p0.append(c.depth); owner.append(ci)
             tangential.append(False); dirs.append(c.normal); points.append(c.point)
+            row_points.append(c.point)
             if c.frictional:
                 anchor = self._anchors.get(c.kind)
                 if anchor is None:   # touch-down: where the block actually is, not where
                     # the linearization point (e.g. the commanded joints) would put it
                     anchor = self._anchors[c.kind] = \
                         self.world.block_pose(self._tool)[:2, 3].copy()
+                slide = c.point if c.slide is None else c.slide   # friction's material point
+                if slide is not c.point:
+                    jp = j6[:3] - _skew(slide - tool[:3, 3]) @ j6[3:]
                 for axis in (0, 1):
-                    rows.append(jp[axis]); p0.append(anchor[axis] - c.point[axis])
+                    rows.append(jp[axis]); p0.append(anchor[axis] - slide[axis])
                     owner.append(ci); tangential.append(True); dirs.append(_AXES[axis])
+                    row_points.append(slide)
+            slides.append(c.point if c.slide is None else c.slide)
         self._row_dirs_array = np.array(dirs)      # (rows, 3): each row's direction
+        self._row_points = np.array(row_points)    # (rows, 3): where each row's force acts
         self._row_first = first                    # each contact's first row
+        self._slides = slides                      # each contact's friction point
         return (contacts, np.array(rows), np.array(p0), np.array(owner),
                 np.array(tangential), points)
 
@@ -1592,7 +1598,7 @@ class JointSim:
         rows = self._last_rows
         if rows is None:
             return np.zeros(6)
-        dirs, points, owner, f, _ = rows
+        dirs, points, _, f, _ = rows
         d = dirs * f[:, None]
-        p = np.asarray([points[o] for o in owner], dtype=float).reshape(-1, 3)
+        p = points
         return np.r_[d.sum(axis=0), np.cross(p, d).sum(axis=0)]

@@ -64,15 +64,21 @@ class BlockState(str, Enum):
 @dataclass(frozen=True)
 class Contact:
     """A penetrating contact on the held block: ``normal`` (unit, the direction the world
-    pushes the block), ``depth`` (m, > 0 = penetrating), ``point`` (m, on the block: the
-    centre of its bottom face for the horizontal surfaces), ``frictional`` (a horizontal
-    surface: the block sticks to it up to the friction cone)."""
+    pushes the block), ``depth`` (m, > 0 = penetrating), ``point`` (m, on the block: where
+    the depth is measured and the normal force acts; for the horizontal surfaces the
+    centre of its bottom face, moving to its lowest point as it tilts), ``frictional`` (a
+    horizontal surface: the block sticks to it up to the friction cone), ``slide`` (m,
+    frictional only: the material point friction holds, the bottom face's centre; None:
+    ``point``). A peg's top: at the centre of the block's bottom face as if upright (a
+    tilted face over the top is not modelled); the table: the tilted block's lowest
+    point."""
 
     kind: str
     normal: np.ndarray
     depth: float
     point: np.ndarray
     frictional: bool = False
+    slide: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -85,6 +91,8 @@ class WorldEvent:
 
 _UP = np.array([0.0, 0.0, 1.0])
 _UP.flags.writeable = False
+TILT_BLEND = 0.0005   # m: a tilted block's bottom this much lower at its lowest point than
+                      # at its face's centre presses there (less: a blend of the two)
 
 
 def segment_closest_points(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarray
@@ -271,6 +279,24 @@ class World:
         dy = max(abs(-s * ex + c * ey) - self._half[1], 0.0)
         return math.hypot(dx, dy) < p.radius
 
+    def _table_point(self, pose: np.ndarray) -> tuple[np.ndarray, float]:
+        """Where a tilted block presses on the table (3,) and its height (m): its bottom
+        face's centre while upright, moving continuously to its lowest corner as it tilts
+        (a corner TILT_BLEND lower than the face's centre is the point)."""
+        rot, centre = pose[:3, :3], pose[:3, 3]
+        h = self._half
+        point = centre.copy()
+        for i in range(3):
+            w = max(-1.0, min(1.0, h[i] * float(rot[2, i]) / TILT_BLEND))
+            point -= (w * h[i]) * rot[:, i]
+        return point, float(point[2])
+
+    def _lowest(self, pose: np.ndarray) -> float:
+        """Height (m) of the block's lowest corner."""
+        r = pose[2, :3].tolist()
+        h = self._half
+        return float(pose[2, 3]) - (abs(r[0]) * h[0] + abs(r[1]) * h[1] + abs(r[2]) * h[2])
+
     def _side_contact(self, peg: str, block_pose: np.ndarray) -> tuple[float, np.ndarray] | None:
         """The unthreaded block's side against peg ``peg``: when the peg's axis is outside
         the block's footprint but the peg overlaps it, the overlap (m) and the horizontal
@@ -354,18 +380,21 @@ class World:
         this tool pose, from the geometry alone (no contact memory): the table's depth; per
         unthreaded peg overlapping the block (its top above the bottom, its disc over the
         footprint's solid part), the least of the vertical depth below its top and the
-        sideways overlap; on the threaded peg, the excess over the clearance. 0 when not
-        held. For invariant checks."""
+        sideways overlap; on the threaded peg, the excess over the clearance. The table:
+        the block's lowest corner (tilt included); the pegs: the block as if upright (a
+        tilted block's face over a peg's top is not modelled). 0 when not held. For
+        invariant checks."""
         if self.state is not BlockState.HELD:
             return 0.0
         pose = self._pose_of(tool_pose)
-        bottom = float(pose[2, 3]) - self._half[2]
-        worst = max(self._table_z - bottom, 0.0)
+        low = self._lowest(pose)                      # the lowest corner (tilt included)
+        worst = max(self._table_z - low, 0.0)
         for name, p in self._pegs.items():
             top = self._table_z + p.height
             if name == self.peg:
                 worst = max(worst, self.misalignment(name, pose) - self.cfg.clearance(name))
                 continue
+            bottom = float(pose[2, 3]) - self._half[2]   # (upright: tilt not modelled here)
             if top <= bottom or math.hypot(p.xy[0] - float(pose[0, 3]), p.xy[1]
                                            - float(pose[1, 3])) >= self._corner + p.radius:
                 continue   # below the bottom, or beyond the block's corners: no overlap
@@ -436,12 +465,14 @@ class World:
         pose = self._pose_of(tool_pose)
         centre = pose[:3, 3]
         bottom = centre[2] - self._half[2]
+        low = self._lowest(pose)
         out: list[Contact] = []
         up = _UP
-        depth = self._table_z - bottom
-        if depth > -margin:
-            out.append(Contact("table", up, depth, np.array([centre[0], centre[1], bottom]),
-                               frictional=True))
+        slide = np.array([centre[0], centre[1], bottom])   # friction's material point
+        if self._table_z - low > -margin:
+            point, z = self._table_point(pose)
+            out.append(Contact("table", up, self._table_z - z, point, frictional=True,
+                               slide=slide))
         for name, p in self._pegs.items():
             top = self._table_z + p.height
             if name == self.peg:
@@ -463,9 +494,7 @@ class World:
             if memory is not None:   # the side it is on, at its last actual pose
                 kind, n = memory
                 if kind == "top" and depth > -margin and self._touches_top(name, pose):
-                    out.append(Contact(f"peg_top:{name}", up, depth,
-                                       np.array([centre[0], centre[1], bottom]),
-                                       frictional=True))
+                    out.append(Contact(f"peg_top:{name}", up, depth, slide, frictional=True))
                 elif kind == "side" and depth > -margin:
                     excess = self._side_depth(name, pose, n)
                     if excess > -margin:
@@ -487,8 +516,7 @@ class World:
                 out.append(Contact(f"peg_side:{name}", n, excess,
                                    np.array([centre[0], centre[1], z])))
             elif self._touches_top(name, pose):
-                out.append(Contact(f"peg_top:{name}", up, depth,
-                                   np.array([centre[0], centre[1], bottom]), frictional=True))
+                out.append(Contact(f"peg_top:{name}", up, depth, slide, frictional=True))
         return out
 
     def update_held(self, tool_pose: np.ndarray) -> None:
