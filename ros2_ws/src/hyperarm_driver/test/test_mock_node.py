@@ -2,6 +2,7 @@
 camera, sim time, rail variant)."""
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -76,6 +77,11 @@ class Probe:
                                          effort=list(effort)))
 
     def position(self, joint: str) -> float:
+        """The joint's position in the latest joint_states; NaN before the first one (a
+        wait on it keeps waiting: it ran into an IndexError when the probe's subscription
+        had not matched yet)."""
+        if not self.states:
+            return math.nan
         msg = self.states[-1][1]
         return msg.position[list(msg.name).index(joint)]
 
