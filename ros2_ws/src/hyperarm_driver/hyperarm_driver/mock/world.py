@@ -147,10 +147,12 @@ class World:
         self._memory: dict[str, tuple[str, np.ndarray | None]] = {}
         if cfg.block is None:                    # nothing to grasp
             self._half = np.zeros(3)
+            self._half_xyz = (0.0, 0.0, 0.0)
             self._corner = 0.0
             self.state, self.peg = BlockState.ABSENT, None
             return
         self._half = np.array(cfg.block.size) / 2.0
+        self._half_xyz = tuple(self._half.tolist())
         self._corner = math.hypot(self._half[0], self._half[1])   # m, centre to a corner
         self.state = BlockState.ON_PEG
         self.peg: str | None = cfg.block.start   # the peg the block is threaded on, if any
@@ -293,9 +295,9 @@ class World:
 
     def _lowest(self, pose: np.ndarray) -> float:
         """Height (m) of the block's lowest corner."""
-        r = pose[2, :3].tolist()
-        h = self._half
-        return float(pose[2, 3]) - (abs(r[0]) * h[0] + abs(r[1]) * h[1] + abs(r[2]) * h[2])
+        r0, r1, r2, z = pose[2].tolist()
+        hx, hy, hz = self._half_xyz
+        return z - (abs(r0) * hx + abs(r1) * hy + abs(r2) * hz)
 
     def _side_contact(self, peg: str, block_pose: np.ndarray) -> tuple[float, np.ndarray] | None:
         """The unthreaded block's side against peg ``peg``: when the peg's axis is outside
