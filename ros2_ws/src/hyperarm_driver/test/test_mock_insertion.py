@@ -340,3 +340,37 @@ def test_offset_is_drawn_once_per_move(held):
     assert max(steps) <= OFFSET_RATE * DT * (1 + 1e-12)  # never a jump
     sim.command(sc.arm, q.tolist())                      # a jump back
     assert not np.array_equal(sim._offset_goal[:9], first)
+
+@pytest.mark.parametrize("over", [0.04, 0.08])
+def test_a_hard_press_on_the_table_pivots_the_block_on_its_edge(held, over):
+    """The held block pressed straight down onto the table, ``over`` m past seating, in
+    position mode at the stall torque: the arm's compliance tilts it (5-16°); its lowest
+    corner (from the block's pose and size, not the mock's contact) stays within 2 mm of
+    the table: it pivots on its edge. Upright-modelled, a corner went 4.5-8.5 mm in (an
+    acceptance run)."""
+    sc0 = held[0]
+    sc = copy.deepcopy(sc0)
+    sim = sc.sim
+    w = sim.cfg.world
+    half = np.array(w.block.size) / 2.0
+    seat = np.array([0.30, 0.0, w.table_height + half[2]])
+    sc.move_tool(seat + [0.0, 0.0, 0.03], 2.0)
+    watch = _Watch(sim)
+    corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * half
+    worst = 0.0
+    step = sim.step
+
+    def checked(dt):
+        nonlocal worst
+        step(dt)
+        pose = sim.world.block_pose(sim.tool_pose())
+        worst = max(worst, w.table_height - float((corners @ pose[:3, :3].T + pose[:3, 3])[:, 2].min()))
+
+    sim.step = checked
+    sc.move_tool(seat - [0.0, 0.0, over], 2.0)
+    pose = sim.world.block_pose(sim.tool_pose())
+    tilt = math.degrees(math.acos(min(1.0, abs(float(pose[2, 2])))))
+    assert sim.world.state is BlockState.HELD
+    assert tilt > 3.0, tilt                        # the press does tilt it
+    assert worst <= MAX_PENETRATION, worst
+    assert watch.penetration <= MAX_PENETRATION, watch.penetration
