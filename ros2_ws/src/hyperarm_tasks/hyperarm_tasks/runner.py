@@ -388,7 +388,7 @@ class Runner:
             self.check_collisions(f"{self.step.name if self.step else 'move'} (joint goal)",
                                   self.q_measured(), np.array(chain_goal, dtype=float))
         t0 = self.robot.now()
-        last, still_since = None, None
+        last, last_t, still_for = None, t0, 0.0
         while True:
             self.robot.command(goal, efforts)
             pos = self.robot.joint_positions()
@@ -400,19 +400,17 @@ class Runner:
             if err <= tolerance:
                 break
             if settle_on_stop and not missing:
-                if self.robot.joint_states_age() > STALE_STATES:
-                    # no new states: no evidence that the joints stopped (a stalled stream
-                    # looks still); start over once they come again
-                    last, still_since = None, None
-                else:
-                    now = np.array([pos[n] for n in names])
-                    if last is not None and np.max(np.abs(now - last)) < 2e-4:
-                        still_since = still_since or self.robot.now()
-                        if self.robot.now() - still_since > 0.3:
-                            break
-                    else:
-                        still_since = None
-                    last = now
+                # stopped: 0.3 s without moving, counted only while joint_states are fresh
+                # (a stalled stream looks still: no evidence; a late one does not restart
+                # the count either)
+                now, now_t = np.array([pos[n] for n in names]), self.robot.now()
+                if last is not None and np.max(np.abs(now - last)) >= 2e-4:
+                    still_for = 0.0
+                elif last is not None and self.robot.joint_states_age() <= STALE_STATES:
+                    still_for += now_t - last_t
+                last, last_t = now, now_t
+                if still_for > 0.3:
+                    break
             elapsed = self.robot.now() - t0
             if elapsed > timeout:
                 why = (f"no joint_states for {', '.join(missing)}" if missing else
