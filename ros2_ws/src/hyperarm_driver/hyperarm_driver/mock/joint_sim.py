@@ -65,7 +65,7 @@ CONTACT_MARGIN = 0.02      # m: a remembered peg top or side this far apart is s
 YIELD_ITERATIONS = 3       # contact solves per step at most while a servo gives way
 JUMP_FACTOR = 2.0          # a position-class joint moving more than this x its velocity
                            # limit in one step: the contact solve failed (not taken)
-OFFSET_RATE = 0.05         # rad/s: a new move's repeatability offset settles at most this
+OFFSET_RATE = 0.5          # rad/s: a new move's repeatability offset settles at most this
                            # fast per joint (its backlash takes up during the move, no jump)
 GUARD_DEPTH = 0.002        # m: a step ending a link or the block deeper than this in a
                            # contact (unless the pose kept instead is deeper) is not taken

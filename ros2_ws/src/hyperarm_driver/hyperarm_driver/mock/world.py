@@ -65,13 +65,11 @@ class BlockState(str, Enum):
 class Contact:
     """A penetrating contact on the held block: ``normal`` (unit, the direction the world
     pushes the block), ``depth`` (m, > 0 = penetrating), ``point`` (m, on the block: where
-    the depth is measured and the normal force acts; for the horizontal surfaces the
-    centre of its bottom face, moving to its lowest point as it tilts), ``frictional`` (a
-    horizontal surface: the block sticks to it up to the friction cone), ``slide`` (m,
-    frictional only: the material point friction holds, the bottom face's centre; None:
-    ``point``). A peg's top: at the centre of the block's bottom face as if upright (a
-    tilted face over the top is not modelled); the table: the tilted block's lowest
-    point."""
+    the depth is measured and the normal force acts: on the table the centre of its bottom
+    face, moving to its lowest point as it tilts; on a peg's top the face's centre as if
+    upright, a tilted face over the top not modelled), ``frictional`` (a horizontal
+    surface: the block sticks to it up to the friction cone), ``slide`` (m, frictional
+    only: the material point friction holds, the bottom face's centre; None: ``point``)."""
 
     kind: str
     normal: np.ndarray
@@ -467,11 +465,11 @@ class World:
         pose = self._pose_of(tool_pose)
         centre = pose[:3, 3]
         bottom = centre[2] - self._half[2]
-        low = self._lowest(pose)
+        lowest = self._lowest(pose)                   # its lowest corner (tilt included)
         out: list[Contact] = []
         up = _UP
         slide = np.array([centre[0], centre[1], bottom])   # friction's material point
-        if self._table_z - low > -margin:
+        if self._table_z - lowest > -margin:
             point, z = self._table_point(pose)
             out.append(Contact("table", up, self._table_z - z, point, frictional=True,
                                slide=slide))

@@ -19,9 +19,10 @@ from ..units import QUANTITY_PATTERN, UnitError, to_si
 __all__ = ["Step", "StepType", "BuildContext", "PoseSpec", "Retry", "STEP_TYPES",
            "task_schema", "quantity", "pose_schema", "register"]
 
-# Failure kinds a retry rule may name (StepFailed.kind).
 STALE_STATES = 0.05   # s: joint_states older than this say nothing of the joints now (the
                       # driver stalls, a node is not scheduled): paths hold, settling waits
+
+# Failure kinds a retry rule may name (StepFailed.kind).
 FAILURE_KINDS = ("ik", "collision", "grasp", "grasp_lost", "insertion", "detection", "driver",
                  "timeout", "joint_fault", "condition", "tracking")
 
