@@ -54,8 +54,9 @@ PARAMETERS: ParamSpec = {
     "watchdog_plc": (10, "PLC program number of the safety PLC", Range(1, 31)),
     "watchdog_pvar": (8001, "first of the three P-variables of the safety PLC (heartbeat, "
                             "seen, armed)", Range(0, 8189)),
-    "watchdog_mvar": (8140, "first of the two M-variables of the safety PLC (status bits)",
-                      Range(0, 8190)),
+    "watchdog_mvar": (8140, "first of the three M-variables of the safety PLC (status bits: "
+                            "fatal following error, amplifier fault, open loop)",
+                      Range(0, 8189)),
     "log_period": (10.0, "the same problem (unreachable card, rejected setpoint reason) is "
                          "logged at most once per this period, s", Range(0.1, 3600.0)),
     "diagnostics_period": (0.5, "/diagnostics period, s", Range(0.1, 10.0)),

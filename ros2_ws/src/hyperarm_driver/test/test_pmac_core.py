@@ -344,3 +344,68 @@ def test_emulator_status_m_variables_match_the_status_word() -> None:
         emu.set_amp_fault(motor, True)                    # kills the enabled motor
         assert emu.execute("M14 M10") == b"1\r0\r\x06"   # amplifier fault, not enabled
         emu.set_amp_fault(motor, False)
+
+
+class EmulatorPort:
+    """A RailAxis port on the emulator's interpreter (no sockets), as one host connection."""
+
+    def __init__(self, emu: PmacEmulator) -> None:
+        from hyperarm_driver.pmac.emulator import _Port
+        self.emu, self.port = emu, _Port()
+
+    def command(self, command: str) -> list[str]:
+        return list(proto.parse_reply(self.emu.execute(command, self.port), command).lines)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_watchdog_never_re_enables_a_motor_killed_by_anyone(config: RailConfig,
+                                                            seed: int) -> None:
+    """The safety PLC's trip is ``#nJ/``, which closes a killed motor's loop. A motor killed
+    by the driver (``rail/set_torque false``), by another host's ``#1K`` or by the card on a
+    fault (fatal following error, amplifier fault) while the host still feeds the heartbeat
+    or after it stopped, moving or at rest, never gets its loop closed again when the
+    heartbeat stops; a motor nobody killed is stopped and held (the trip itself). Random
+    instants, every kind once per seed, 6 seeds. (Before the open-loop check, another host's kill
+    was undone by the trip: closed_loop True, one more enable.)"""
+    import random
+    import time as _time
+
+    from hyperarm_driver.pmac.watchdog import WatchdogConfig
+    rng = random.Random(seed)
+    timeout = 0.03
+    kinds = rng.sample(["driver", "other host", "fatal following error", "amplifier fault",
+                        "nobody"], 5)
+    for trial, kind in enumerate(kinds):
+        emu = PmacEmulator(start_position=2000)
+        ax = RailAxis(EmulatorPort(emu), config, watchdog=WatchdogConfig(timeout=timeout))
+        other = EmulatorPort(emu)                     # another host on the same card
+        ax.configure()
+        ax.enable()
+        emu.motor(1).homed = True
+        if rng.random() < 0.7:                        # moving at the kill
+            ax.jog_to(rng.uniform(0.05, 0.3))
+        feed_until = _time.monotonic() + rng.uniform(0.0, 0.02)
+        while _time.monotonic() < feed_until:         # the host's polls feed the heartbeat
+            ax.read()
+        if rng.random() < 0.5:                        # the heartbeat stops before the kill
+            _time.sleep(rng.uniform(0.0, 2 * timeout))
+        enables = emu.motor(1).enables
+        if kind == "driver":
+            ax.kill()
+        elif kind == "other host":
+            other.command("#1K")
+        elif kind == "fatal following error":
+            emu.set_disturbance(1, 2500)
+            emu.set_disturbance(1, 0)
+        elif kind == "amplifier fault":
+            emu.set_amp_fault(1, True)
+            emu.set_amp_fault(1, False)
+        _time.sleep(3 * timeout)                      # heartbeat gone: the timer runs out
+        m = emu.motor(1)
+        what = f"seed {seed} trial {trial}: {kind}"
+        if kind == "nobody":
+            assert m.closed_loop and emu.pvars[8003] == 0, what     # tripped: held
+        else:
+            assert not m.closed_loop, what + ": the watchdog closed the loop again"
+            assert m.enables == enables, what
+            assert emu.pvars[8003] == 0, what

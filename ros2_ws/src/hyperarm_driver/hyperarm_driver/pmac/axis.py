@@ -316,7 +316,7 @@ class RailAxis:
                          following_error=c.to_metres(f),
                          status=MotorStatus.from_hex(lines[3]),
                          armed=None if self.watchdog is None else
-                         parse_number(lines[4:5], "armed flag") == 1.0)
+                         parse_number(lines[4:5], "armed flag") != 0.0)
 
     def status(self) -> MotorStatus:
         lines = self.port.command(f"#{self.motor}?")

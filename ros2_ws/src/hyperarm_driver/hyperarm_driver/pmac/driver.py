@@ -422,10 +422,10 @@ class RailDriver:
         st = state.status
         if st.faults:
             self._latch(f"{_fault_reason(st)} on the card")
+        elif torque and not st.amp_enabled:     # (the safety PLC disarms on any kill too)
+            self._latch("motor killed (by the card or another host)")
         elif torque and state.armed is False:
             self._latch("watchdog PLC tripped (heartbeat lost): the card stopped the rail")
-        elif torque and not st.amp_enabled:
-            self._latch("motor killed by the card")
         elif not torque and st.amp_enabled:
             self._latch("motor enabled by someone else while the driver had torque off")
         if prev is not None:

@@ -10,14 +10,22 @@ coordinate-system status). So the card itself must
    every poll; the PLC re-arms a countdown timer (Isx11: "Isx11 will count down one unit per
    servo cycle", Software Reference; "multiply [ms] by 8,388,608 and divide by I10")
    whenever the heartbeat changes, and when the timer runs out while the host has torque on
-   (the "armed" P-variable is 1) it disarms and issues ``#nJ/`` (decelerate at the jog
-   acceleration and hold, servo on);
+   and the loop is closed (the "armed" P-variable is 2, see 3.) it disarms and issues
+   ``#nJ/`` (decelerate at the jog acceleration and hold, servo on);
 2. keep a motor the card killed killed: when the fatal-following-error or amplifier-fault
    status bit of the motor is set (read through M-variables on the motor status words, the
    Turbo PMAC suggested definitions ``M142->Y:$0000C0,2,1``, ``M143->Y:$0000C0,3,1`` for
    motor 1, $80 further per motor) it
    disarms and deactivates the motor (Ixx00=0), so that no jog streamed afterwards can close
-   its loop; ``set_torque true`` re-activates it (Ixx00=1) and closes the loop (``J/``).
+   its loop; ``set_torque true`` re-activates it (Ixx00=1) and closes the loop (``J/``);
+3. never re-enable a motor that anyone killed: ``J/`` closes a killed motor's loop, so the
+   watchdog may only send it to a motor whose loop is closed. The armed flag has two armed
+   values: the enable sets 1 (in the same line as its ``J/``); the PLC raises it to 2 once it
+   reads the loop closed (open-loop bit, ``M138->X:$0000B0,18,1`` for motor 1) and drops it
+   to 0 as soon as it reads the loop open again, whoever opened it (the driver's ``K``,
+   another host's ``K``, the card's own kill on a fault). The trip fires only at 2, and
+   only in the scan that has just read the loop closed; the disarm at 1 (timer out before
+   the loop was seen closed) sends nothing.
 
 The program uses only P-variables, the timer, M-variable reads, IF/ENDIF and CMD, which is
 the subset the emulator interprets (:mod:`.plc`), so a wrong program fails the tests.
@@ -40,8 +48,9 @@ class WatchdogConfig:
     plc: int = 10
     heartbeat: int = 8001        # P: incremented by the driver in every poll
     seen: int = 8002             # P: the heartbeat value the PLC saw last
-    armed: int = 8003            # P: 1 while the host has torque on; 0 = tripped / killed
-    mvar: int = 8140             # M: first of the two status-bit M-variables (+0, +1)
+    armed: int = 8003            # P: 1 enabled by the host, 2 and the loop seen closed;
+                                 # 0 = off, tripped or killed
+    mvar: int = 8140             # M: first of the three status-bit M-variables (+0..+2)
     coordinate_system: int = 1   # its Isx11 is the countdown timer
     timeout: float = 0.1
 
@@ -51,8 +60,8 @@ class WatchdogConfig:
         vars_ = (self.heartbeat, self.seen, self.armed)
         if len(set(vars_)) != 3 or not all(0 <= v <= 8191 for v in vars_):
             raise RailConfigError(f"watchdog P-variables must be distinct 0..8191: {vars_}")
-        if not 0 <= self.mvar <= 8190:
-            raise RailConfigError(f"watchdog M-variables must be 0..8190, got {self.mvar}")
+        if not 0 <= self.mvar <= 8189:
+            raise RailConfigError(f"watchdog M-variables must start at 0..8189, got {self.mvar}")
         if not 1 <= self.coordinate_system <= 16:
             raise RailConfigError("watchdog coordinate system must be 1..16")
         if not 0.005 <= self.timeout <= 10.0:
@@ -70,7 +79,7 @@ class WatchdogConfig:
 def program(cfg: WatchdogConfig, motor: int, servo_period: float) -> list[str]:
     """The PLC program lines (between OPEN PLC and CLOSE)."""
     hb, seen, armed, t = f"P{cfg.heartbeat}", f"P{cfg.seen}", f"P{cfg.armed}", cfg.timer
-    ffe, amp = f"M{cfg.mvar}", f"M{cfg.mvar + 1}"
+    ffe, amp, opened = f"M{cfg.mvar}", f"M{cfg.mvar + 1}", f"M{cfg.mvar + 2}"
     act = f"I{motor * 100}"
     return [
         f"IF ({hb} != {seen})",
@@ -83,7 +92,16 @@ def program(cfg: WatchdogConfig, motor: int, servo_period: float) -> list[str]:
         f"{act} = 0",
         "ENDIF",
         "ENDIF",
+        f"IF ({armed} = 1 AND {opened} = 0)",
+        f"{armed} = 2",
+        "ENDIF",
+        f"IF ({armed} = 2 AND {opened} = 1)",
+        f"{armed} = 0",
+        "ENDIF",
         f"IF ({t} < 1 AND {armed} = 1)",
+        f"{armed} = 0",
+        "ENDIF",
+        f"IF ({t} < 1 AND {armed} = 2)",
         f"{armed} = 0",
         f'CMD"#{motor}J/"',
         "ENDIF",
@@ -94,9 +112,11 @@ def download_lines(cfg: WatchdogConfig, motor: int, servo_period: float) -> list
     """Every command line of the download, in order: disable and disarm, M-variable
     definitions, the program, CLOSE, ENABLE."""
     status = 0x0000C0 + (motor - 1) * 0x80       # motor status word 2 (Y register)
+    word1 = 0x0000B0 + (motor - 1) * 0x80        # motor status word 1 (X register)
     return [f"DISABLE PLC {cfg.plc}",
             f"P{cfg.armed}=0 P{cfg.seen}=P{cfg.heartbeat}",
-            f"M{cfg.mvar}->Y:${status:06X},2,1 M{cfg.mvar + 1}->Y:${status:06X},3,1",
+            f"M{cfg.mvar}->Y:${status:06X},2,1 M{cfg.mvar + 1}->Y:${status:06X},3,1 "
+            f"M{cfg.mvar + 2}->X:${word1:06X},18,1",
             f"OPEN PLC {cfg.plc} CLEAR",
             *program(cfg, motor, servo_period),
             "CLOSE",
