@@ -108,10 +108,16 @@ def _reference_torque(kin, cfg: LawConfig, q, dq, p0, r0, k, s, fd, payload):
     lam2 = cfg.singular_damping ** 2
     j_pinv = vt.T @ np.diag(sig / (sig ** 2 + lam2)) @ u.T
     null = np.eye(kin.nq) - j_pinv @ j
-    lo, hi = kin.lower, kin.upper
-    push = cfg.limit_stiffness * (np.maximum(lo + cfg.limit_margin - q, 0.0)
-                                  - np.maximum(q - (hi - cfg.limit_margin), 0.0))
-    tau0 = cfg.posture_stiffness * (0.0 - q) + push
+    lo, hi, m = kin.lower, kin.upper, cfg.limit_margin
+    # the barrier k_l m (m - d) / max(d, m/4) within m of a limit, the posture spring
+    # faded by the smallest distance to a limit (docs/force.md)
+    push = np.zeros(kin.nq)
+    for i in range(kin.nq):
+        for d, sign in ((q[i] - lo[i], 1.0), (hi[i] - q[i], -1.0)):
+            if d < m:
+                push[i] += sign * cfg.limit_stiffness * m * (m - d) / max(d, m / 4)
+    fade = min(1.0, min(np.min(q - lo), np.min(hi - q)) / m)
+    tau0 = fade ** 2 * cfg.posture_stiffness * (0.0 - q) + push
     return grav + j.T @ f + null @ tau0 - cfg.joint_damping * dq
 
 

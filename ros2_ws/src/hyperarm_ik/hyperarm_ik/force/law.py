@@ -15,8 +15,8 @@ Per cycle, with e = [p0 - p; log3(R0 R^T)] and the tool twist v = J dq (goal axe
 
 with S the diagonal selection of force-controlled axes, K the goal's diagonal stiffness,
 g the gravity torque of every link plus the payload (pinocchio), N = I - J^+ J the null-space
-projector (damped J^+), tau_0 a posture spring towards ``posture`` plus a repulsion from
-the joint limits. The non-gravity part is then scaled (one factor, direction kept) into the
+projector (damped J^+), tau_0 a posture spring towards ``posture`` plus a barrier away
+from the joint limits that dominates it near them (:func:`null_space_torque`). The non-gravity part is then scaled (one factor, direction kept) into the
 per-joint limits (stall torque x ``torque_margin``), and the change per cycle is limited to
 ``torque_rate`` x dt.
 
@@ -46,7 +46,7 @@ from .errors import ForceConfigError, InvalidGoalError, StateError
 
 __all__ = ["Payload", "LawConfig", "HybridGoal", "Command", "GravityModel", "HybridLaw",
            "OUTPUTS", "make_goal", "pose_error", "scale_wrench", "scale_into_limits",
-           "rate_limit", "QUATERNION_TOLERANCE"]
+           "rate_limit", "null_space_torque", "QUATERNION_TOLERANCE"]
 
 OUTPUTS = ("torque", "position")
 QUATERNION_TOLERANCE = 1e-3    # |norm - 1| accepted for a goal's quaternion
@@ -94,8 +94,9 @@ class LawConfig:
     joint_damping: N·m·s/rad on every arm joint's velocity.
     posture: preferred arm joint angles (rad) of the null-space term (None: all 0).
     posture_stiffness: N·m/rad of the null-space posture spring.
-    limit_margin / limit_stiffness: within ``limit_margin`` rad of a limit a spring of
-      ``limit_stiffness`` N·m/rad (in the null space) pushes away from it.
+    limit_margin / limit_stiffness: within ``limit_margin`` rad of a limit a barrier
+      (scaled by ``limit_stiffness`` N·m/rad, in the null space) pushes away from it, and
+      the posture spring fades out (:func:`null_space_torque`).
     torque_margin: fraction of each servo's stall torque the controller may command.
     torque_rate: N·m/s, the largest change of a joint torque (per cycle: x dt); in the
       ``position`` output the pseudo-goal moves by at most torque_rate x dt / k_s.
@@ -261,6 +262,35 @@ def scale_into_limits(base: np.ndarray, delta: np.ndarray,
     bound = np.sign(d) * limit[over]
     s = float(np.clip(np.min((bound - b[over]) / d), 0.0, 1.0))
     return np.clip(b + s * delta, -limit, limit), s
+
+
+def null_space_torque(q: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                      posture: np.ndarray, posture_stiffness: float, margin: float,
+                      limit_stiffness: float) -> np.ndarray:
+    """The null-space term's torque tau_0 (N·m per joint) at joint angles ``q`` (rad).
+
+    Within ``margin`` (m, rad) of a limit, at a distance d, a push away from it of
+    k_l (m - d) m / max(d, m/4) (k_l = ``limit_stiffness``, N·m/rad): 0 at d = m, growing
+    like 1/d (a barrier) to 4 k_l (m - d) inside m/4, where it turns linear again (its
+    slope k_l m²/d² capped at 4 k_l: the per-cycle null-space iteration stays stable).
+    The posture spring k_p (posture - q) is faded by min(1, d_min / m)², d_min the smallest
+    distance of any joint to its limit: near a limit the push dominates, so the posture
+    spring cannot drive one joint into its limit through the null space's coupling (a
+    posture spring pulling without bound against a push capped at k_l m did: issue 24)."""
+    d_lo = q - lower
+    d_hi = upper - q
+    spring = posture_stiffness * (posture - q)
+    if margin <= 0.0:
+        return spring
+    d_min = float(min(d_lo.min(), d_hi.min()))
+    if d_min >= margin:
+        return spring
+    floor = 0.25 * margin
+    push = limit_stiffness * margin * (
+        np.maximum(margin - d_lo, 0.0) / np.maximum(d_lo, floor)
+        - np.maximum(margin - d_hi, 0.0) / np.maximum(d_hi, floor))
+    fade = max(d_min, 0.0) / margin
+    return (fade * fade) * spring + push
 
 
 def rate_limit(target: np.ndarray, previous: np.ndarray,
@@ -476,12 +506,12 @@ class HybridLaw:
                        rate_limited=limited, jacobian=j, rotation=r, jjt=jjt)
 
     def _posture_torque(self, qa: np.ndarray, scale: float) -> np.ndarray:
-        """``scale`` x the null-space term's torque tau_0 (N·m x scale): the posture spring
-        plus the push away from the limits within ``limit_margin``."""
+        """``scale`` x the null-space term's torque tau_0 (N·m x scale): see
+        :func:`null_space_torque`."""
         cfg = self.config
-        clamped = np.minimum(np.maximum(qa, self._push_lo), self._push_hi)
-        return (scale * cfg.posture_stiffness) * (self.posture - qa) + \
-            (scale * cfg.limit_stiffness) * (clamped - qa)
+        return scale * null_space_torque(qa, self.lower, self.upper, self.posture,
+                                         cfg.posture_stiffness, cfg.limit_margin,
+                                         cfg.limit_stiffness)
 
     def _goal_gains(self, goal: HybridGoal) -> tuple:
         """Per axis, for the pseudo-goal, cached per goal: the tracking stiffness k

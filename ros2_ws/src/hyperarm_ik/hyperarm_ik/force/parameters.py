@@ -50,7 +50,8 @@ PARAMETERS: ParamSpec = {
                           Range(0.0, 100.0)),
     "limit_margin": (_L.limit_margin, "rad from a limit where the null-space push starts",
                      Range(0.0, 1.0)),
-    "limit_stiffness": (_L.limit_stiffness, "N·m/rad of the push away from the limits",
+    "limit_stiffness": (_L.limit_stiffness, "N·m/rad scale of the push away from the "
+                        "limits (a barrier: k_l m (m - d) / max(d, m/4) at d from a limit)",
                         Range(0.0, 1000.0)),
     "torque_margin": (_L.torque_margin, "fraction of each servo's stall torque the node may "
                       "command", Range(0.05, 1.0)),
