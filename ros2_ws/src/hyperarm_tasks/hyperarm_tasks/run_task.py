@@ -3,9 +3,12 @@
     run_task block_transfer [--timeout 300] [--namespace /hyperarm] [--quiet]
 
 Prints a line per step (and per phase), then the result; exit code 0 on success, 1 on
-failure, cancel or rejection, 2 on bad use. Ctrl-C or SIGTERM cancels the running task (the
-arm holds, force control off) and waits for the node to confirm; a second Ctrl-C while
-cancelling only says it is already cancelling.
+failure, cancel or rejection (with the task node's reason), 2 on bad use. Ctrl-C or SIGTERM
+at any moment stops it: before the goal is sent, no task is sent (exit 1 at once); once it is
+sent, the running task is cancelled (the arm holds, force control off) and the node's
+confirmation awaited; a second Ctrl-C while cancelling only says it is already cancelling.
+The signal handler is installed before rclpy is imported (a shell starts a background job
+with SIGINT ignored until a handler is set: the first second of start-up would be deaf).
 """
 from __future__ import annotations
 
@@ -14,20 +17,21 @@ import signal
 import sys
 import time
 
-import rclpy
-from rclpy.signals import SignalHandlerOptions
-
-from hyperarm_description import contract
-
-from .task_client import TaskClient, TaskResult
+#: s the client waits, after a Ctrl-C, for the node to confirm the cancel (a cancel is
+#: answered in milliseconds; the wait only bounds a node that has gone away).
+CANCEL_WAIT = 1.5
 
 
-class _Interrupted(Exception):
-    pass
+class _Interrupted(BaseException):
+    """SIGINT/SIGTERM (a BaseException: no library's ``except Exception`` swallows it)."""
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
-    args_no_ros = rclpy.utilities.remove_ros_args(["run_task", *argv])[1:]
+    from rclpy.utilities import remove_ros_args
+
+    from hyperarm_description import contract
+
+    args_no_ros = remove_ros_args(["run_task", *argv])[1:]
     ap = argparse.ArgumentParser(prog="run_task", description=__doc__.split("\n\n")[0])
     ap.add_argument("task", help="task name, e.g. block_transfer, ready, rest")
     ap.add_argument("--timeout", type=float, default=300.0, help="overall timeout, s")
@@ -41,12 +45,14 @@ def _parse(argv: list[str]) -> argparse.Namespace:
     return ap.parse_args(args_no_ros)
 
 
-def _wait_ready(node, client: TaskClient, timeout: float, force: bool = False) -> str | None:
+def _wait_ready(node, client, timeout: float, force: bool = False) -> str | None:
     """Wait for joint_states and the action server (and, with ``force``, the force node's
     enable service); None when all are there, else what is missing."""
+    import rclpy
     from sensor_msgs.msg import JointState
     from std_srvs.srv import SetBool
 
+    from hyperarm_description import contract
     from hyperarm_description.qos import qos_for
 
     seen: set[str] = set()
@@ -71,7 +77,6 @@ def _wait_ready(node, client: TaskClient, timeout: float, force: bool = False) -
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    args = _parse(argv)
     state = {"interrupts": 0}
 
     def on_signal(signum, _frame):
@@ -80,14 +85,33 @@ def main(argv: list[str] | None = None) -> int:
             raise _Interrupted(signal.Signals(signum).name)
         print("run_task: already cancelling, please wait", file=sys.stderr, flush=True)
 
+    # First of all (rclpy's import and init take a second): from here on a signal stops us.
     # rclpy's own handler would shut the context down before the cancel could go out.
-    rclpy.init(args=["run_task", *argv], signal_handler_options=SignalHandlerOptions.NO)
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
-    node = rclpy.create_node("run_task_client", namespace=args.namespace)
-    client = TaskClient(node)
+    try:
+        return _main(argv, state)
+    except _Interrupted as exc:     # before the goal could be sent: nothing to cancel
+        print(f"run_task: {exc} received during start-up: no task sent", file=sys.stderr,
+              flush=True)
+        return 1
+
+
+def _main(argv: list[str], state: dict) -> int:
+    args = _parse(argv)
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+
+    from .task_client import TaskClient, TaskResult
+
+    if state["interrupts"]:   # a library swallowed the exception during its import
+        raise _Interrupted("signal")
+    rclpy.init(args=["run_task", *argv], signal_handler_options=SignalHandlerOptions.NO)
+    node = client = None
     code = 1
     try:
+        node = rclpy.create_node("run_task_client", namespace=args.namespace)
+        client = TaskClient(node)
         if args.wait_ready > 0.0:
             reason = _wait_ready(node, client, args.wait_ready, args.wait_force)
             if reason:
@@ -129,22 +153,33 @@ def main(argv: list[str] | None = None) -> int:
         print(f"run_task: {outcome.name.lower()}: {client.message}{extra}", flush=True)
         code = 0 if outcome is TaskResult.SUCCEEDED else 1
     except _Interrupted as exc:
+        if client is None or not client.sent():
+            print(f"run_task: {exc} received before the task was sent: no task sent",
+                  file=sys.stderr, flush=True)
+            return 1
         print(f"run_task: {exc} received, cancelling the task", file=sys.stderr, flush=True)
         try:
-            client.cancel(timeout=5.0)
-            end = time.monotonic() + 10.0
+            # a goal whose acceptance is still on its way is cancelled as soon as it is known
+            client.cancel(timeout=CANCEL_WAIT)
+            end = time.monotonic() + CANCEL_WAIT
             while not client.done() and time.monotonic() < end:
                 pass
             if client.result_message() is not None:
                 print(f"run_task: {client.result().name.lower()}: {client.message}",
                       flush=True)
+            elif client.accepted() is False:
+                print(f"run_task: {client.message}", flush=True)
+            else:
+                print(f"run_task: no confirmation of the cancel within {CANCEL_WAIT:g} s",
+                      file=sys.stderr, flush=True)
         except _Interrupted:
             pass
         code = 1
     finally:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
-        node.destroy_node()
+        if node is not None:
+            node.destroy_node()
         rclpy.try_shutdown()
     return code
 

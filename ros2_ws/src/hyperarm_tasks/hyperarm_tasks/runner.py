@@ -456,6 +456,13 @@ class Runner:
         i = 0
         while i < len(steps):
             step = steps[i]
+            if self.robot.cancel_requested():
+                # a cancel that came after the last step's last look (or before the first
+                # step): no new step starts
+                self.safe_stop()
+                result.message = f"cancelled before {step.name}"
+                result.failure_kind = "cancelled"
+                break
             self.step, self.attempt = step, retries.get(i, 0)
             self.fb.step, self.fb.index = step.name, i
             self.feedback("start", 0.0)

@@ -8,6 +8,7 @@ background; every call spins the node briefly.
     while not client.done():
         print(client.feedback())
     print(client.result())        # TaskResult.SUCCEEDED / FAILED / CANCELED / REJECTED
+    print(client.message)         # the node's message (its reason, for a refused goal)
 """
 from __future__ import annotations
 
@@ -38,6 +39,7 @@ class TaskClient:
         self._node = node
         self._client = ActionClient(node, RunTask, action_name)
         self._goal_handle = None
+        self._send_future = None
         self._result_future = None
         self._feedback: RunTask.Feedback | None = None
         self._unread: list[RunTask.Feedback] = []
@@ -51,27 +53,45 @@ class TaskClient:
         return self._client.server_is_ready()
 
     def send(self, task: str, timeout: float = 10.0) -> bool:
-        """Send a task; False if the server is not there within ``timeout`` s or rejects."""
+        """Send a task; False if the server is not there within ``timeout`` s or refuses it.
+
+        The task node refuses a goal (another task running) by accepting it and aborting it
+        at once with ``failure_kind`` "rejected" and its reason in the result (rclpy's goal
+        callback cannot give a reason with a plain rejection): :meth:`result` is then
+        ``REJECTED`` and :attr:`message` the node's reason."""
         if not self._client.wait_for_server(timeout_sec=timeout):
             self.message = f"action server {self._client._action_name!r} not available"
             self._state = TaskResult.REJECTED
             return False
-        future = self._client.send_goal_async(RunTask.Goal(task=task),
-                                              feedback_callback=self._on_feedback)
+        self._send_future = self._client.send_goal_async(RunTask.Goal(task=task),
+                                                         feedback_callback=self._on_feedback)
         deadline = time.monotonic() + timeout
-        while not future.done():
+        while not self._send_future.done():
             if time.monotonic() > deadline:
                 self.message = "no answer to the goal request"
                 self._state = TaskResult.REJECTED
                 return False
             self._spin()
-        self._goal_handle = future.result()
+        return self._take_goal_handle()
+
+    def _take_goal_handle(self) -> bool:
+        """The goal handle from the answered send request; False if it was refused."""
+        self._goal_handle = self._send_future.result()
         if not self._goal_handle.accepted:
-            self.message = "goal rejected (is another task running?)"
+            self.message = "goal rejected by the action server (no reason given)"
             self._state = TaskResult.REJECTED
             return False
         self._result_future = self._goal_handle.get_result_async()
         return True
+
+    def sent(self) -> bool:
+        """True once a goal request has gone out (it may still be unanswered)."""
+        return self._send_future is not None
+
+    def accepted(self) -> bool | None:
+        """None while the goal request is unanswered (or none was sent), else whether the
+        action server took the goal."""
+        return None if self._goal_handle is None else bool(self._goal_handle.accepted)
 
     def _on_feedback(self, msg) -> None:
         self._feedback = msg.feedback
@@ -95,10 +115,17 @@ class TaskClient:
         return self._result_future.done()
 
     def cancel(self, timeout: float = 5.0) -> None:
-        if self._goal_handle is None:
+        """Cancel the goal, waiting up to ``timeout`` s for the server's answer; a goal whose
+        request is still unanswered is first awaited (same ``timeout``), then cancelled."""
+        deadline = time.monotonic() + timeout
+        if self._goal_handle is None and self._send_future is not None:
+            while not self._send_future.done() and time.monotonic() < deadline:
+                self._spin()
+            if not self._send_future.done() or not self._take_goal_handle():
+                return
+        if self._goal_handle is None or not self._goal_handle.accepted:
             return
         future = self._goal_handle.cancel_goal_async()
-        deadline = time.monotonic() + timeout
         while not future.done() and time.monotonic() < deadline:
             self._spin()
 
@@ -107,6 +134,9 @@ class TaskClient:
             return self._state
         wrapped = self._result_future.result()
         self.message = wrapped.result.message
+        if wrapped.result.failure_kind == "rejected":
+            self._state = TaskResult.REJECTED
+            return self._state
         self._state = {GoalStatus.STATUS_SUCCEEDED: TaskResult.SUCCEEDED,
                        GoalStatus.STATUS_ABORTED: TaskResult.FAILED,
                        GoalStatus.STATUS_CANCELED: TaskResult.CANCELED}.get(

@@ -3,7 +3,9 @@
 Thin: parameters, the action server and the ROS side of the robot (:mod:`.ros_robot`); the
 sequencing is :class:`hyperarm_tasks.runner.Runner`, the task files
 :mod:`hyperarm_tasks.sequence`. One goal at a time: a goal while another runs is rejected
-(logged with the reason). Cancel: the runner stops where it is, force control off, the
+with its reason: the goal is accepted and aborted at once, its result's ``failure_kind``
+"rejected" and ``message`` the reason (rclpy's goal callback cannot give a reason with a plain
+rejection; the running task is not touched). Cancel: the runner stops where it is, force control off, the
 drivers hold, and the result says "cancelled during <step>". See docs/tasks.md.
 """
 from __future__ import annotations
@@ -87,12 +89,8 @@ class TaskNode(Node):
                                f"path collision check: {checked}")
 
     def _on_goal(self, goal: RunTask.Goal) -> GoalResponse:
-        with self._lock:
-            if self._busy is not None:
-                self.get_logger().warn(f"task {goal.task!r} rejected: task {self._busy!r} is "
-                                       "running (one goal at a time)")
-                return GoalResponse.REJECT
-            self._busy = goal.task
+        # Every goal is accepted; _execute refuses one while another runs, with the reason
+        # in its result (a GoalResponse.REJECT reaches the client without any reason).
         return GoalResponse.ACCEPT
 
     def _on_cancel(self, handle) -> CancelResponse:
@@ -106,6 +104,16 @@ class TaskNode(Node):
         return runner.step.name if runner is not None and runner.step else "no step"
 
     def _execute(self, handle) -> RunTask.Result:
+        with self._lock:
+            busy = self._busy
+            if busy is None:
+                self._busy = handle.request.task
+        if busy is not None:
+            reason = (f"task {handle.request.task!r} rejected: task {busy!r} is running "
+                      "(one goal at a time)")
+            self.get_logger().warn(reason)
+            handle.abort()
+            return RunTask.Result(success=False, message=reason, failure_kind="rejected")
         try:
             return self._run(handle)
         finally:

@@ -9,9 +9,12 @@
 # processes, waits until they are ready (joint_states, the run_task action and the force
 # node's enable service: no fixed sleeps), sends the
 # goal, prints a line per step and the result, and exits 0 on success, 1 on failure (with
-# the reason), 2 on bad use. Every process it started is stopped (SIGINT, then SIGKILL after
-# 10 s) on success, failure, Ctrl-C or SIGTERM; Ctrl-C cancels the task first (the arm
-# holds). Installed as lib/hyperarm_tasks/run_task.sh; also runnable from the repository.
+# the reason), 2 on bad use, 130 after Ctrl-C or SIGTERM. Every process it started is stopped
+# with SIGTERM (all at once; SIGKILL only for one still running 10 s later, which is reported
+# and is a bug) on success, failure, Ctrl-C or SIGTERM. A Ctrl-C at any moment works: during
+# the stack's start-up nothing is sent; once the task runs it is cancelled first (the arm
+# holds, before the next step starts); the script exits within about 2 s.
+# Installed as lib/hyperarm_tasks/run_task.sh; also runnable from the repository.
 #
 # Options:
 #   --variant V          arm (default) or rail_arm
@@ -81,16 +84,28 @@ if [ -n "$logs" ]; then mkdir -p "$logs"; else logs="$(mktemp -d -t hyperarm-run
 : > "$logs/pids"   # "name pid" of every process started (tests check they are gone)
 pids=() names=()
 stopping=0
+# Ctrl-C / SIGTERM from here on: remembered (and passed to the client, once there is one);
+# nothing more is started, the stack is stopped and the exit code is 130.
+client=""
+interrupted=0
+# The client gets SIGTERM for either: it starts (a background job) with SIGINT ignored until
+# its handler is set, while SIGTERM ends it at once before that (nothing sent yet).
+forward() { interrupted=1; [ -z "$client" ] || kill -TERM "$client" 2>/dev/null; }
+trap 'forward INT' INT
+trap 'forward TERM' TERM
+stop_if_interrupted() { [ "$interrupted" = 0 ] || exit 130; }
 cleanup() {
   [ "$stopping" = 1 ] && return
   stopping=1
   trap '' INT TERM          # a second Ctrl-C while stopping changes nothing
   local i pid
-  for pid in "${pids[@]}"; do kill -INT "$pid" 2>/dev/null; done
+  # SIGTERM: a node stops on it as on SIGINT (its shutdown policy runs), and one still in
+  # Python's start-up (before any handler; nothing opened yet) ends at once, quietly.
+  for pid in "${pids[@]}"; do kill -TERM "$pid" 2>/dev/null; done
   for i in "${!pids[@]}"; do
     pid="${pids[$i]}"
-    if ! timeout 10 tail --pid="$pid" -f /dev/null 2>/dev/null; then
-      echo "run_task.sh: ${names[$i]} (pid $pid) did not stop on SIGINT; killing it" >&2
+    if ! timeout 10 tail -s 0.02 --pid="$pid" -f /dev/null 2>/dev/null; then
+      echo "run_task.sh: ${names[$i]} (pid $pid) did not stop on SIGTERM; killing it" >&2
       kill -KILL "$pid" 2>/dev/null
     fi
     wait "$pid" 2>/dev/null
@@ -100,7 +115,11 @@ trap cleanup EXIT
 
 start() {  # start NAME EXECUTABLE ARGS...: its own session, so a terminal Ctrl-C reaches
   local name="$1"; shift       # only this script and run_task, which cancels first
-  setsid "$@" >"$logs/$name.log" 2>&1 < /dev/null &
+  stop_if_interrupted
+  # `trap - INT` in the job's subshell: SIGINT at its default again (a background job
+  # ignores it), so a node answers anyone's SIGINT as documented, from its first moment
+  # (setsid execs in place: the pid is the node's).
+  ( trap - INT; exec setsid "$@" >"$logs/$name.log" 2>&1 < /dev/null ) &
   pids+=($!); names+=("$name")
   echo "$name $!" >> "$logs/pids"
 }
@@ -118,7 +137,7 @@ else
   if [ -n "$seed" ]; then
     src="$workcell"
     workcell="$logs/workcell-seed$seed.yaml"
-    python3 - "$src" "$workcell" "$seed" <<'PY' || exit 2
+    python3 - "$src" "$workcell" "$seed" <<'PY'
 import sys, yaml
 src, dst, seed = sys.argv[1], sys.argv[2], int(sys.argv[3])
 cell = yaml.safe_load(open(src))
@@ -126,6 +145,7 @@ cell.setdefault("imperfections", {})["seed"] = seed
 cell.setdefault("camera", {})["seed"] = seed + 1000
 yaml.safe_dump(cell, open(dst, "w"), sort_keys=False)
 PY
+  [ -f "$workcell" ] || { stop_if_interrupted; exit 2; }
   fi
   [ -z "$workcell" ] || mock+=(-p "workcell_file:=$workcell")
   start mock_driver "$(exe hyperarm_driver mock_driver)" --ros-args "${mock[@]}"
@@ -145,12 +165,8 @@ where="the mock"
 [ -z "$hardware" ] || where="the hardware (drivers with $hardware)"
 echo "run_task.sh: ${tasks[*]} on $where ($variant), logs in $logs"
 # run_task in the background so that SIGTERM/SIGINT to this script are handled at once:
-# they are forwarded to run_task, which cancels the task before everything is stopped.
-client=""
-interrupted=0
-forward() { interrupted=1; [ -z "$client" ] || kill -"$1" "$client" 2>/dev/null; }
-trap 'forward INT' INT
-trap 'forward TERM' TERM
+# they are forwarded to run_task, which cancels the task before everything is stopped
+# (and sends none if it has not sent it yet).
 rc=0
 n=0
 for task in "${tasks[@]}"; do
@@ -158,8 +174,12 @@ for task in "${tasks[@]}"; do
   [ "${#tasks[@]}" -eq 1 ] || echo "== task $n/${#tasks[@]}: $task"
   wait_force=()
   [ "$force_node" = 0 ] || wait_force=(--wait-force)
-  "$(exe hyperarm_tasks run_task)" "$task" --timeout "$timeout" --wait-ready 60 "${wait_force[@]}" &
+  runner="$(exe hyperarm_tasks run_task)"
+  stop_if_interrupted
+  "$runner" "$task" --timeout "$timeout" --wait-ready 60 "${wait_force[@]}" &
   client=$!
+  # a signal between the start and `client=$!` was not forwarded: forward it now
+  [ "$interrupted" = 0 ] || kill -TERM "$client" 2>/dev/null
   while :; do
     wait "$client"; rc=$?
     kill -0 "$client" 2>/dev/null || break   # wait returns early when a trap ran
@@ -167,7 +187,7 @@ for task in "${tasks[@]}"; do
   client=""
   [ "$rc" -eq 0 ] && [ "$interrupted" = 0 ] || break
 done
-[ "$interrupted" = 0 ] || [ "$rc" -ne 0 ] || rc=130
+[ "$interrupted" = 0 ] || rc=130
 for i in "${!pids[@]}"; do
   if ! kill -0 "${pids[$i]}" 2>/dev/null; then
     echo "run_task.sh: ${names[$i]} exited early; its log ($logs/${names[$i]}.log) ends:" >&2

@@ -85,6 +85,43 @@ def test_cancel_mid_insertion_holds(desc, kin):
     assert len(robot.commands) == n and t_cancel >= 24.0   # nothing commanded after
 
 
+@pytest.mark.parametrize("last", ["ready", "above_source", "open"])
+def test_a_cancel_as_a_step_ends_starts_no_next_step(desc, kin, monkeypatch, last):
+    """Issue 24, 2: a cancel that arrives after a step's last look at it (here: the moment
+    the step returns) must not let the next step start (it did: 'cancelled during' the next
+    one, after its log line and its first commands)."""
+    from hyperarm_tasks import steps as steps_mod
+
+    task = load_task("block_transfer", desc)
+    names = [s.name for s in task.steps]
+    after = names[names.index(last) + 1]
+    sim = JointSim(desc, cell(13))
+    robot = SimRobot(sim)
+    ran = {}
+
+    def wrap(kind):
+        inner = steps_mod.STEP_TYPES[kind]
+
+        class Wrapped:
+            @staticmethod
+            def run(step, ctx):
+                inner.run(step, ctx)
+                if step.name == last:        # the cancel comes just as it ends
+                    robot.cancel_at = sim.time
+                    ran["t"], ran["n"] = sim.time, len(robot.commands)
+        return Wrapped
+
+    for kind in list(steps_mod.STEP_TYPES):
+        monkeypatch.setitem(steps_mod.STEP_TYPES, kind, wrap(kind))
+    result = Runner(robot, kin, task).run()
+    assert not result.success and result.failure_kind == "cancelled"
+    assert result.message == f"cancelled before {after}"
+    assert not [m for _lvl, m in robot.logs if f" {after} (" in m], robot.logs
+    assert len(robot.commands) == ran["n"]        # nothing commanded after the cancel
+    assert robot.held == 1                        # and the arm holds
+    assert result.step_names[-1] == last
+
+
 def test_ready_and_rest(desc, kin):
     result, sim, _ = run(desc, kin, cell(1), task="rest")
     assert result.success, result.message
