@@ -66,7 +66,8 @@ ROSDEP_OF = {"numpy": "python3-numpy", "yaml": "python3-yaml", "pinocchio": "pin
              "serial": "python3-serial", "pytest": "python3-pytest",
              "hypothesis": "python3-hypothesis", "launch": "launch",
              "launch_ros": "launch_ros", "jsonschema": "python3-jsonschema",
-             "matplotlib": "python3-matplotlib", "PIL": "python3-pil"}
+             "matplotlib": "python3-matplotlib", "PIL": "python3-pil",
+             "lark": "python3-lark-parser"}
 PIP_OF = {"dls_pmaclib": "dls-pmaclib", "mcap": "mcap", "mcap_ros2": "mcap-ros2-support",
           "viser": "viser", "selenium": "selenium"}
 BENCH_ONLY = {"ikpy", "pytracik"}  # requirements-bench.txt, never at run time

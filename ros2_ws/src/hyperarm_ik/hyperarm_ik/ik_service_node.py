@@ -28,7 +28,7 @@ from hyperarm_description.model import VARIANTS, DescriptionError, load_descript
 from hyperarm_description.params import OneOf, ParamSpec, Range, declare_parameters
 from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import run_node
-from hyperarm_description.world import load_world
+from hyperarm_description.world import WorldSpec, load_world
 from hyperarm_interfaces.srv import SolveIK
 
 from .errors import IKError
@@ -68,6 +68,16 @@ PARAMETERS: ParamSpec = {
 }
 
 
+def world_summary(world_file: str, world: WorldSpec | None) -> str:
+    """What the IK's collision checks know of the surroundings, for the first log line."""
+    if world is None:
+        return ("self-collisions only, no work cell (world_file ''): targets in or under "
+                "the table are not refused")
+    pegs = ", ".join(p.name for p in world.pegs) or "no pegs"
+    return (f"the work cell {world_file} (table top at z = {world.table_height:.3f} m, "
+            f"pegs: {pegs}, {len(world.poles)} poles) and self-collisions")
+
+
 class IkServiceNode(Node):
     """Answers SolveIK requests; never raises out of the callback."""
 
@@ -102,11 +112,13 @@ class IkServiceNode(Node):
         self._diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
                                            qos_for(contract.DIAGNOSTICS))
         self.create_timer(1.0, self._publish_diagnostics)
+        # the first line says which world is avoided: a stack without the work cell answers
+        # targets in or under the table (the launch files pass config/workcell.yaml)
         self.get_logger().info(
-            f"ik_service: {desc.variant} variant, targets in {self._pool.frame}, solvers "
-            f"{', '.join(self._pool.cores[0].solvers)} (default {defaults.solver}), "
-            f"{self._pool.size} requests at a time, collisions: {defaults.collisions} "
-            f"({'work cell ' + get('world_file') if world else 'self-collision only'})")
+            f"ik_service: collisions: {defaults.collisions} with "
+            f"{world_summary(get('world_file'), world)}; {desc.variant} variant, targets in "
+            f"{self._pool.frame}, solvers {', '.join(self._pool.cores[0].solvers)} (default "
+            f"{defaults.solver}), {self._pool.size} requests at a time")
 
     def _on_joint_states(self, msg: JointState) -> None:
         try:
