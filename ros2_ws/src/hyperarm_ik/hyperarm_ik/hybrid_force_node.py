@@ -19,6 +19,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
 
+from hyperarm_description.freshness import stamp_seconds
 from hyperarm_description.log_throttle import ReasonThrottle
 from hyperarm_description import contract
 from hyperarm_description.params import Range
@@ -139,6 +140,11 @@ class HybridForceNode(Node):
 
     # -- inputs -----------------------------------------------------------------------------
     def _on_joint_states(self, msg: JointState) -> None:
+        dropped = self._ctl.check_state(stamp_seconds(msg.header.stamp), self._now(), msg.name,
+                                        msg.position, msg.velocity, msg.effort)
+        if dropped is not None:
+            self._warn_dropped(*dropped)
+            return
         if not self._input.merge(msg):
             return
         if any(n in self._ctl.arm_names for n in msg.name):
@@ -175,7 +181,16 @@ class HybridForceNode(Node):
         self._handle(event)
         self._publish_wrench(out, self._stamp)
 
+    def _warn_dropped(self, reason: str, text: str) -> None:
+        """A dropped input, logged throttled per reason (stream and kind)."""
+        if (line := self._log_throttle.message(text, reason)):
+            self.get_logger().warn(line)
+
     def _on_goal(self, msg: HybridGoal) -> None:
+        dropped = self._ctl.check_goal(stamp_seconds(msg.header.stamp), self._now())
+        if dropped is not None:
+            self._warn_dropped(*dropped)
+            return
         p, o, w = msg.pose.position, msg.pose.orientation, msg.wrench
         goal, event = self._ctl.on_goal(
             msg.header.frame_id, [p.x, p.y, p.z], [o.x, o.y, o.z, o.w], list(msg.stiffness),
@@ -276,7 +291,8 @@ class HybridForceNode(Node):
                   "wrench_limited": s.wrench_limited, "joint_limited": s.joint_limited,
                   "rate_limited": s.rate_limited, "last_event": s.last_event,
                   "payload_kg": ctl.law.payload.mass,
-                  "last_state_s": f"{self._state_time or 0.0:.6f}"}
+                  "last_state_s": f"{self._state_time or 0.0:.6f}",
+                  **ctl.input_counts()}
         cov = ctl.covariance_tool()
         if cov is not None:    # 1-sigma of the estimate from the effort noise (tool0 axes)
             sd = np.sqrt(np.maximum(np.diag(cov), 0.0))

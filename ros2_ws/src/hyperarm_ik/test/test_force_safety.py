@@ -4,6 +4,8 @@ every position command, torque saturation keeping the wrench's direction, late a
 out-of-order joint states and goals."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -99,3 +101,69 @@ def test_limit_push_dominates_the_posture_spring_near_a_limit(kin):
         assert away > 0.0
         assert away + spring[i] >= 2.0 * kl * (m - d) - 1e-12
         assert 2.0 * kl * (m - d) > spring.max()
+
+
+# -- late, out-of-order and malformed inputs (issue 24 item 3) ------------------------------
+
+def _controller(kin, **cfg):
+    from hyperarm_ik.force.controller import ControllerConfig, ForceController
+    return ForceController(HybridLaw(kin), config=ControllerConfig(**cfg))
+
+
+def test_joint_states_late_out_of_order_or_malformed_are_dropped_each_with_its_reason(kin):
+    """check_state: a state stamped 2 s ago (stale), one older than the newest used from
+    the same driver (out of order), an unstamped one, one from 1 s ahead, and malformed
+    ones (NaN, inf, a wrong length, a duplicate name) are dropped, each kind with its own
+    throttle reason and count, the text naming the field and the joint; fresh in-order
+    states of two drivers (their own joint names) pass."""
+    ctl = _controller(kin)
+    arm = list(ctl.names)
+    q, z = [0.1] * 9, [0.0] * 9
+    now = 100.0
+    assert ctl.check_state(now - 0.01, now, arm, q, z, z) is None
+    assert ctl.check_state(now - 0.005, now, ["gripper"], [0.01], [], []) is None
+    got = {}
+    cases = {
+        "stale": (now - 2.0, arm, q, z, z),
+        "out_of_order": (now - 0.02, arm, q, z, z),
+        "unstamped": (0.0, arm, q, z, z),
+        "future": (now + 1.0, arm, q, z, z),
+        "nan": (now, arm, q[:2] + [math.nan] + q[3:], z, z),
+        "inf": (now, arm, q, z[:3] + [math.inf] + z[4:], z),
+        "length": (now, arm, q, z, z[:8]),
+        "duplicate": (now, arm[:8] + ["joint1"], q, z, z),
+    }
+    for kind, (stamp, names, pos, vel, eff) in cases.items():
+        got[kind] = ctl.check_state(stamp, now, names, pos, vel, eff)
+        assert got[kind] is not None, kind
+    reasons = [r for r, _ in got.values()]
+    assert len(set(reasons)) == len(reasons), reasons          # one throttle reason each
+    assert "position of joint3 is NaN" in got["nan"][1]
+    assert "velocity of joint4 is inf" in got["inf"][1]
+    assert "effort has 8 values for 9 names" in got["length"][1]
+    assert "joint1" in got["duplicate"][1]
+    assert "2.000 s ago" in got["stale"][1]
+    counts = ctl.input_counts()
+    for kind in cases:
+        assert counts[f"joint_states_{kind}"] == 1, (kind, counts)
+    # the newest used is still the fresh one: a state just after it passes
+    assert ctl.check_state(now - 0.009, now, arm, q, z, z) is None
+
+
+def test_goals_late_or_out_of_order_are_ignored_while_active(kin):
+    """check_goal: judged only while ACTIVE; a goal stamped 2 s ago (older than
+    goal_max_age) or before the newest goal used is refused with its reason and
+    counted; a newer one passes."""
+    ctl = _controller(kin)
+    q = np.array([0.0, 0.5, 0.0, 0.6, 0.0, 0.5, 0.0, -1.0, 0.0])
+    assert ctl.check_goal(50.0, 100.0) is None                    # disabled: not judged
+    ctl.control(100.0, q, np.zeros(9), [0.0] * 9, 100.0)
+    ctl.enable(True, 100.0)
+    assert ctl.check_goal(99.9, 100.0) is None
+    stale = ctl.check_goal(98.0, 100.0)
+    assert stale is not None and stale[0] == "hybrid_goal stale"
+    late = ctl.check_goal(99.8, 100.0)
+    assert late is not None and late[0] == "hybrid_goal out_of_order"
+    assert ctl.check_goal(99.95, 100.0) is None
+    counts = ctl.input_counts()
+    assert counts["hybrid_goal_stale"] == 1 and counts["hybrid_goal_out_of_order"] == 1

@@ -153,6 +153,7 @@ class _LatencyProbe:
         self.ex = make_executor("events", self.ctx)
         self.names = list(contract.ARM_JOINTS)
         self.want, self.arrived = -1, threading.Event()
+        self._stamp = 0                   # ns, the newest stamp sent
         self.t_arrival = 0.0
         self.node.create_subscription(JointState, contract.JOINT_COMMAND, self._on_command,
                                       qos_for(contract.JOINT_COMMAND))
@@ -177,39 +178,42 @@ class _LatencyProbe:
             self.t_arrival = t
             self.arrived.set()
 
-    def send(self, stamp_ns: int, q) -> None:
+    def _next_stamp(self) -> int:
+        """ns: now on the probe's clock, after every stamp sent before (hybrid_force drops
+        a state older than the newest one used, or than its state_max_age)."""
+        self._stamp = max(self.node.get_clock().now().nanoseconds, self._stamp + 1)
+        return self._stamp
+
+    def send(self, q, stamp_ns: int | None = None) -> None:
+        stamp_ns = self._next_stamp() if stamp_ns is None else stamp_ns
         self.msg.header.stamp.sec, self.msg.header.stamp.nanosec = divmod(stamp_ns,
                                                                            1_000_000_000)
         self.msg.position = [float(v) for v in q]
         self.pub.publish(self.msg)
 
-    def round_trip(self, stamp_ns: int, q, timeout: float = 1.0) -> float | None:
-        """Publish a state stamped ``stamp_ns``; seconds until the command carrying that
-        stamp arrived (None: none within ``timeout``)."""
-        self.want = stamp_ns
+    def round_trip(self, q, timeout: float = 1.0) -> float | None:
+        """Publish a state stamped now; seconds until the command carrying that stamp
+        arrived (None: none within ``timeout``)."""
+        self.want = self._next_stamp()
         self.arrived.clear()
         t0 = time.perf_counter()
-        self.send(stamp_ns, q)
+        self.send(q, self.want)
         return self.t_arrival - t0 if self.arrived.wait(timeout) else None
 
-    def enable(self, q, first_stamp: int) -> int:
-        """Feed states at 100 Hz until hybrid_force is enabled; returns the next stamp."""
+    def enable(self, q) -> None:
+        """Feed states at 100 Hz until hybrid_force is enabled."""
         _wait(self.enable_cli.service_is_ready, 20.0, "hybrid_force's enable service")
         _wait(lambda: self.pub.get_subscription_count() > 0, 20.0, "hybrid_force's "
               "joint_states subscription")
-        k = first_stamp
         for _ in range(20):
-            self.send(k, q)
-            k += 1
+            self.send(q)
             time.sleep(0.01)
         fut = self.enable_cli.call_async(self._setbool.Request(data=True))
         while not fut.done():
-            self.send(k, q)
-            k += 1
+            self.send(q)
             time.sleep(0.01)
         if not fut.result().success:
             raise RuntimeError(f"hybrid_force not enabled: {fut.result().message}")
-        return k
 
     def close(self) -> None:
         import rclpy
@@ -251,19 +255,16 @@ def bench_latency(samples: int, domain: int, tmp: Path) -> dict:
             proc = _launch("hybrid_force", domain, {**params, "stale_timeout": 1.0}, log)
         probe = _LatencyProbe(domain)
         try:
-            k = 1_000
             if what == "hybrid_force":
-                k = probe.enable(q, k)
+                probe.enable(q)
             else:
                 _wait(lambda: probe.pub.get_subscription_count() > 0, 20.0, "echo node")
             for _ in range(20):                      # warm-up (discovery, first messages)
-                k += 1
-                probe.round_trip(k, q)
+                probe.round_trip(q)
                 time.sleep(0.01)
             lat = []
             for _ in range(samples):
-                k += 1
-                dt = probe.round_trip(k, q)
+                dt = probe.round_trip(q)
                 if dt is None:
                     raise RuntimeError(f"{label}: no command within 1 s (passive?); see {log}")
                 lat.append(dt)

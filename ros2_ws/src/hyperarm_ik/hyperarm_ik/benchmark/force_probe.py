@@ -154,9 +154,14 @@ class ForceProbe:
         return self.call(self.tare_cli, self._trigger.Request())
 
     def send_goal(self, position, rotation, stiffness, force_axes=(False,) * 6,
-                  wrench=(0.0,) * 6, frame: str = "base_link", quat=None) -> None:
+                  wrench=(0.0,) * 6, frame: str = "base_link", quat=None,
+                  age: float = 0.0) -> None:
+        """Publish a hybrid goal stamped now - ``age`` (s) on the probe's clock."""
+        from rclpy.duration import Duration
         g = self._goal_type()
         g.header.frame_id = frame
+        g.header.stamp = (self.node.get_clock().now()
+                          - Duration(nanoseconds=int(age * 1e9))).to_msg()
         g.pose.position.x, g.pose.position.y, g.pose.position.z = (float(v) for v in position)
         if quat is None:
             qq = pin.Quaternion(np.asarray(rotation, dtype=float))
@@ -169,9 +174,12 @@ class ForceProbe:
         f.x, f.y, f.z, t.x, t.y, t.z = (float(v) for v in wrench)
         self.goal_pub.publish(g)
 
-    def publish_state(self, q, dq=None, effort=None, names=None) -> None:
+    def publish_state(self, q, dq=None, effort=None, names=None, age: float = 0.0) -> None:
+        """Publish a joint state stamped now - ``age`` (s) on the probe's clock."""
+        from rclpy.duration import Duration
         msg = self._js()
-        msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.header.stamp = (self.node.get_clock().now()
+                            - Duration(nanoseconds=int(age * 1e9))).to_msg()
         msg.name = list(names or self.names)
         msg.position = [float(v) for v in q]
         msg.velocity = [float(v) for v in (dq if dq is not None else np.zeros(len(q)))]

@@ -23,13 +23,43 @@ from typing import Sequence
 import numpy as np
 import pinocchio as pin
 
+from hyperarm_description.freshness import StampGate, StampRejection
+
 from ..own_gap import OwnGap
 from .calibration import TorqueCalibration
 from .errors import ForceConfigError, InvalidGoalError, StateError
 from .law import OUTPUTS, Command, HybridGoal, HybridLaw, Payload, make_goal
 from .wrench import WrenchEstimate, WrenchEstimator, to_tool
 
-__all__ = ["Mode", "Event", "Output", "ControllerConfig", "ForceController"]
+__all__ = ["Mode", "Event", "Output", "ControllerConfig", "ForceController",
+           "joint_state_problem", "MALFORMED_KINDS"]
+
+#: kinds of malformed joint_states, each its own log-throttle reason and diagnostics count
+MALFORMED_KINDS = ("length", "nan", "inf", "duplicate")
+
+
+def joint_state_problem(names: Sequence[str], position: Sequence[float],
+                        velocity: Sequence[float],
+                        effort: Sequence[float]) -> tuple[str, str] | None:
+    """What is wrong with one joint_states message, judged whole, or None: (kind, text),
+    kind one of :data:`MALFORMED_KINDS`, the text naming the field and the joint (rad,
+    rad/s, N·m are not checked against ranges here: the law's guards do that)."""
+    n = len(names)
+    if len(set(names)) != n:
+        dup = sorted({x for x in names if list(names).count(x) > 1})
+        return "duplicate", f"joint_states ignored: joint name(s) {dup} appear twice"
+    for label, arr in (("position", position), ("velocity", velocity), ("effort", effort)):
+        if len(arr) not in (0, n):
+            return "length", (f"joint_states ignored: {label} has {len(arr)} values for {n} "
+                              "names")
+    for label, arr in (("position", position), ("velocity", velocity), ("effort", effort)):
+        for name, v in zip(names, arr):
+            v = float(v)
+            if math.isnan(v):
+                return "nan", f"joint_states ignored: {label} of {name} is NaN"
+            if math.isinf(v):
+                return "inf", f"joint_states ignored: {label} of {name} is {v}"
+    return None
 
 
 class Mode(str, Enum):
@@ -69,19 +99,23 @@ class ControllerConfig:
     """output: 'torque' or 'position'; stale_timeout: s without joint states before going
     passive; limit_guard: rad from a joint limit at which it goes passive;
     default_stiffness: K of the hold goal at enable and of position axes a goal leaves at 0
-    [N/m x3, N·m/rad x3]."""
+    [N/m x3, N·m/rad x3]; state_max_age / goal_max_age: s, a joint state / goal stamped
+    longer ago is not used (nor one older than the newest used: :class:`StampGate`)."""
 
     output: str = "position"
     stale_timeout: float = 0.1
     limit_guard: float = 0.02
     default_stiffness: tuple[float, ...] = (800.0, 800.0, 800.0, 20.0, 20.0, 20.0)
     max_dt: float = 0.05
+    state_max_age: float = 0.2
+    goal_max_age: float = 1.0
 
     def __post_init__(self) -> None:
         if self.output not in OUTPUTS:
             raise ForceConfigError(f"output {self.output!r}: one of {', '.join(OUTPUTS)}")
         for name, lo, hi in (("stale_timeout", 0.01, 10.0), ("limit_guard", 0.0, 0.5),
-                             ("max_dt", 1e-3, 1.0)):
+                             ("max_dt", 1e-3, 1.0), ("state_max_age", 0.01, 10.0),
+                             ("goal_max_age", 0.01, 60.0)):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and lo <= v <= hi):
                 raise ForceConfigError(f"{name}: {v!r} not within {lo:g}..{hi:g}")
@@ -125,6 +159,9 @@ class ForceController:
         self._last_rotation = np.eye(3)
         self._default_k = np.asarray(self.config.default_stiffness, dtype=float)
         self._base_id = self.kin.model.getFrameId(self.kin.desc.base_frame)
+        self.state_gate = StampGate("joint_states", self.config.state_max_age)
+        self.goal_gate = StampGate("hybrid_goal", self.config.goal_max_age)
+        self.malformed = {k: 0 for k in MALFORMED_KINDS}   # joint_states dropped, per kind
 
     # -- modes ----------------------------------------------------------------------------
     def enable(self, on: bool, now: float) -> Event:
@@ -164,6 +201,35 @@ class ForceController:
         return e
 
     # -- inputs ---------------------------------------------------------------------------
+    def check_state(self, stamp: float, now: float, names: Sequence[str], position,
+                    velocity, effort) -> tuple[str, str] | None:
+        """Whether one joint_states message (stamped ``stamp`` s, received at ``now`` s) may
+        be used: None, or (throttle reason, text) when it is dropped whole: malformed (its
+        own reason per kind, the text names the field and joint) or late / out of order /
+        unstamped / from the future (:class:`StampGate`, per driver: the message's joint
+        names are its source). Counted for the diagnostics."""
+        problem = joint_state_problem(names, position, velocity, effort)
+        if problem is not None:
+            self.malformed[problem[0]] += 1
+            return f"joint_states {problem[0]}", problem[1]
+        return _gate_reason(self.state_gate, self.state_gate.check(stamp, now, tuple(names)))
+
+    def check_goal(self, stamp: float, now: float) -> tuple[str, str] | None:
+        """Whether a hybrid goal stamped ``stamp`` (s) may be used at ``now`` (s): None, or
+        (throttle reason, text) when it is late, out of order, unstamped or from the
+        future (the goal is ignored, the previous one stays). Judged only while ACTIVE (a
+        goal is ignored otherwise anyway)."""
+        if self.mode is not Mode.ACTIVE:
+            return None
+        return _gate_reason(self.goal_gate, self.goal_gate.check(stamp, now))
+
+    def input_counts(self) -> dict[str, int]:
+        """Dropped inputs per stream and reason, for the diagnostics."""
+        out = {f"joint_states_{k}": v for k, v in self.malformed.items()}
+        for gate in (self.state_gate, self.goal_gate):
+            out.update({f"{gate.stream}_{k}": v for k, v in gate.counts.items()})
+        return out
+
     def set_payload(self, mass: float, com: Sequence[float]) -> None:
         self.law.payload = Payload(float(mass), tuple(float(c) for c in com))  # type: ignore
 
@@ -307,3 +373,10 @@ class ForceController:
         s.joint_limited += cmd.joint_scale < 1.0
         s.rate_limited += bool(cmd.rate_limited)
 
+
+def _gate_reason(gate: StampGate,
+                 rejection: StampRejection | None) -> tuple[str, str] | None:
+    """(throttle reason, text) of a gate's rejection: one reason per stream and kind."""
+    if rejection is None:
+        return None
+    return f"{gate.stream} {rejection.reason}", rejection.text

@@ -35,6 +35,10 @@ PARAMETERS: ParamSpec = {
     "rate": (100.0, "Hz, control rate with trigger 'timer'", Range(1.0, 1000.0)),
     "stale_timeout": (_C.stale_timeout, "s without joint_states before going passive",
                       Range(0.01, 10.0)),
+    "state_max_age": (_C.state_max_age, "s, a joint state stamped longer ago (or before the "
+                      "newest one used from its driver) is dropped", Range(0.01, 10.0)),
+    "goal_max_age": (_C.goal_max_age, "s, a hybrid goal stamped longer ago (or before the "
+                     "newest one used) is ignored", Range(0.01, 60.0)),
     "limit_guard": (_C.limit_guard, "rad from a joint limit at which the node goes passive",
                     Range(0.0, 0.5)),
     "default_stiffness": (list(_C.default_stiffness), "K [N/m x3, N·m/rad x3] of the hold "
