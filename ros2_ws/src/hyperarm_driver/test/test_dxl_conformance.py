@@ -262,6 +262,59 @@ def test_reboot_resets_ram_and_clear_resets_multi_turn(bus, sid):
     assert ph.write1ByteTxRx(bus.port, sid, 11, 3) == (COMM_SUCCESS, 0)
 
 
+# -- Control Table Backup 0x20 ([P2] Control Table Backup: X430/540 from firmware v45) -------
+def test_control_table_backup_store_restore_and_ram_restore(own):
+    """Issue 24 item 9: the emulated XM430-W350 reports firmware 46, and the instruction is
+    there from v45: store (P1 0x01 + "CTRL", torque off only, else Result Fail) sets Backup
+    Ready (147); restore (0x02) puts the EEPROM back and reboots; the backed-up gains come
+    back at start-up with Startup Configuration (60) bit 1. MX(2.0) and X firmware < 45:
+    Instruction Error. (The emulator before answered Instruction Error to all of it.)"""
+    b = own("--servos", "5:XM430-W350,6:MX-64")
+
+    def backup(sid: int, params: bytes) -> int:
+        rx, result = b.raw(p2.build_packet(sid, p2.INST_CONTROL_TABLE_BACKUP, params))
+        assert result == COMM_SUCCESS and rx[4] == sid
+        return rx[8] & 0x7F
+
+    def after_reboot(sid: int) -> None:
+        deadline = time.monotonic() + 2.0
+        time.sleep(0.06)                                                 # silent 50 ms
+        while ph.ping(b.port, sid)[1] != COMM_SUCCESS:
+            assert time.monotonic() < deadline, "no answer after the restore's reboot"
+
+    assert ph.read1ByteTxRx(b.port, 5, 147) == (0, COMM_SUCCESS, 0)       # no backup yet
+    assert backup(5, b"\x02CTRL") == 1                                    # nothing to restore
+    assert ph.write1ByteTxRx(b.port, 5, 64, 1) == (COMM_SUCCESS, 0)       # torque on
+    assert backup(5, b"\x01CTRL") == 1                                    # Result Fail
+    assert ph.write1ByteTxRx(b.port, 5, 64, 0) == (COMM_SUCCESS, 0)
+    assert backup(5, b"\x01CTRX") == 4 and backup(5, b"\x03CTRL") == 4     # Data Range
+    assert backup(5, b"\x01CTR") == 5                                     # Data Length
+    # the configuration to keep: EEPROM (Max Position Limit 48) and a RAM gain (84)
+    assert ph.write4ByteTxRx(b.port, 5, 48, 3000) == (COMM_SUCCESS, 0)
+    assert ph.write2ByteTxRx(b.port, 5, 84, 900) == (COMM_SUCCESS, 0)
+    assert backup(5, b"\x01CTRL") == 0
+    assert ph.read1ByteTxRx(b.port, 5, 147) == (1, COMM_SUCCESS, 0)       # Backup Ready
+    assert ph.write4ByteTxRx(b.port, 5, 48, 2000) == (COMM_SUCCESS, 0)
+    assert ph.write2ByteTxRx(b.port, 5, 84, 700) == (COMM_SUCCESS, 0)
+    assert backup(5, b"\x02CTRL") == 0                                    # restore EEPROM
+    after_reboot(5)
+    assert ph.read4ByteTxRx(b.port, 5, 48)[0] == 3000                     # EEPROM back
+    assert ph.read2ByteTxRx(b.port, 5, 84)[0] == 800                      # RAM: default
+    # with Startup Configuration bit 1 (RAM Restore) the backed-up gain comes back too
+    assert ph.write1ByteTxRx(b.port, 5, 60, 2) == (COMM_SUCCESS, 0)
+    assert ph.write2ByteTxRx(b.port, 5, 84, 900) == (COMM_SUCCESS, 0)
+    assert backup(5, b"\x01CTRL") == 0
+    assert ph.write2ByteTxRx(b.port, 5, 84, 700) == (COMM_SUCCESS, 0)
+    assert ph.reboot(b.port, 5) == (COMM_SUCCESS, 0)
+    after_reboot(5)
+    assert ph.read2ByteTxRx(b.port, 5, 84)[0] == 900
+    assert ph.read1ByteTxRx(b.port, 5, 147) == (1, COMM_SUCCESS, 0)       # kept over reboot
+    # not on MX(2.0), nor on X firmware before v45
+    assert backup(6, b"\x01CTRL") == 2
+    b.emu.ctl("register", id=5, name="firmware_version", value=44)
+    assert backup(5, b"\x01CTRL") == 2
+
+
 # -- FACTORY RESET 0x06, ID and baud changes, factory state ------------------------------------
 @pytest.mark.parametrize("model", ["XM430-W350", "MX-64"])
 def test_factory_reset_id_and_baud_changes(own, model):
@@ -340,7 +393,34 @@ def test_a_corrupt_length_field_is_dropped_after_a_timeout(bus):
     bad = bytearray(p2.build_packet(X, p2.INST_WRITE, bytes([65, 0, 1])))
     bad[5:7] = (4080).to_bytes(2, "little")
     bus.port.writePort(list(bad))
-    time.sleep(3 * p2.FRAME_TIMEOUT)
+    time.sleep(0.01)                  # > the 1.5 ms a servo waits for a packet's next byte
     model, result, _ = ph.ping(bus.port, X)
     assert result == COMM_SUCCESS and model == MODEL[X]
     assert bus.emu.ctl("stats")["frame_timeouts"] >= 1 and reg(bus, X, "led") == 0
+
+
+@pytest.mark.parametrize("gap", [0.005, 0.02, 0.05])
+def test_a_packet_whose_bytes_pause_is_dropped(bus, gap):
+    """Issue 24 item 9: a servo drops a packet whose bytes come more than 1.5 ms apart
+    (e-Manual, Protocol 2.0). A ping split 7 + 3 bytes with a pause of 5-50 ms gets no
+    answer (the old emulator waited 50 ms for the rest: it answered 5 and 20 ms); the next
+    whole ping is answered. The pause starts once the emulator has taken the first 7 bytes
+    (an emulator process not scheduled during the pause would see all 10 bytes at once and,
+    not knowing when they came, take the packet)."""
+    ping = p2.build_packet(X, p2.INST_PING)
+    stats = bus.emu.ctl("stats")
+    before, taken = stats["frame_timeouts"], stats["bytes_in"]
+    bus.port.clearPort()
+    bus.port.writePort(list(ping[:7]))
+    deadline = time.monotonic() + 5.0
+    while bus.emu.ctl("stats")["bytes_in"] < taken + 7:
+        assert time.monotonic() < deadline, "the emulator did not take the first bytes"
+        time.sleep(0.001)
+    time.sleep(gap)
+    bus.port.writePort(list(ping[7:]))
+    bus.port.setPacketTimeoutMillis(50)
+    _, result = ph.rxPacket(bus.port, False)
+    assert result != COMM_SUCCESS
+    assert bus.emu.ctl("stats")["frame_timeouts"] == before + 1
+    model, result, _ = ph.ping(bus.port, X)
+    assert result == COMM_SUCCESS and model == MODEL[X]

@@ -53,23 +53,57 @@ def test_reader_flags_bad_crc_and_resynchronises():
     assert r.crc_errors == 1 and r.packets == 1
 
 
-def test_reader_drops_an_incomplete_packet_after_the_frame_timeout():
+def test_reader_drops_an_incomplete_packet_after_a_byte_gap():
     """issue 16: a corrupt length field (4080) must not deafen the bus until 4 KB came in
-    and then replay what was buffered; a servo drops the incomplete packet after a timeout."""
+    and then replay what was buffered; issue 24 item 9: a servo drops a packet whose bytes
+    come more than 1.5 ms apart (e-Manual, Protocol 2.0), so the next bytes are read afresh."""
     ping = p2.build_packet(1, p2.INST_PING)
     corrupt = bytearray(p2.build_packet(1, p2.INST_WRITE, bytes([65, 0, 1])))
     corrupt[5:7] = (4080).to_bytes(2, "little")
     r = p2.PacketReader()
     assert r.feed(bytes(corrupt), now=0.0) == []
-    assert r.feed(ping, now=0.01) == []          # within the timeout: part of that packet
-    assert r.feed(ping, now=0.01 + p2.FRAME_TIMEOUT + 0.001) == [p2.Packet(1, p2.INST_PING, b"")]
+    assert r.feed(ping, now=0.001) == []         # within the gap: part of that packet
+    assert r.feed(ping, now=0.001 + p2.BYTE_GAP_TIMEOUT + 0.0001) == [
+        p2.Packet(1, p2.INST_PING, b"")]
     assert r.timeouts == 1
-    # steady traffic does not keep an incomplete packet alive: the timeout runs from its start
+    # the issue's example: a ping split 7 + 3 bytes, 20 ms apart, is not answered
     r = p2.PacketReader()
-    r.feed(bytes(corrupt), now=0.0)
-    for k in range(1, 10):
-        got = r.feed(ping, now=k * 0.02)
-    assert got == [p2.Packet(1, p2.INST_PING, b"")] and r.timeouts == 1
+    assert r.feed(ping[:7], now=0.0) == [] and r.feed(ping[7:], now=0.02) == []
+    assert r.timeouts == 1 and r.feed(ping, now=0.021) == [p2.Packet(1, p2.INST_PING, b"")]
+    # the gap runs from when the earlier bytes were taken to the earliest the later ones can
+    # have come (arrived_after): a reader that was not scheduled does not drop a packet
+    r = p2.PacketReader()
+    r.feed(ping[:7], now=0.0)
+    assert r.feed(ping[7:], now=0.05, arrived_after=0.001) == [p2.Packet(1, p2.INST_PING, b"")]
+    r.feed(ping[:7], now=0.1)
+    assert r.feed(ping[7:], now=0.2, arrived_after=0.102) == [] and r.timeouts == 1
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_reader_byte_gap_rule_on_random_splits(seed: int):
+    """Random packets (stuffed, up to 300 parameter bytes) cut into 2-5 pieces at random
+    places, fed with random gaps: a packet is decoded iff every gap between its pieces is
+    at most 1.5 ms; a dropped one leaves the reader ready for the next packet."""
+    import random
+    rng = random.Random(seed)
+    r, t = p2.PacketReader(), 0.0
+    for _ in range(60):
+        params = bytes(rng.choice((0xFF, 0xFD, rng.randrange(256)))
+                       for _ in range(rng.randrange(0, 300)))
+        pkt = p2.build_packet(rng.randrange(0, 253), p2.INST_WRITE, params)
+        cuts = sorted(rng.sample(range(1, len(pkt)), rng.randrange(1, 5)))
+        pieces = [pkt[a:b] for a, b in zip([0, *cuts], [*cuts, len(pkt)])]
+        gaps = [rng.choice((0.0, 0.0005, 0.0014, 0.0016, 0.003, 0.02)) for _ in pieces[1:]]
+        got = r.feed(pieces[0], now=t)
+        for piece, gap in zip(pieces[1:], gaps):
+            t += gap
+            got += r.feed(piece, now=t)
+        want = [p2.Packet(pkt[4], p2.INST_WRITE, params)] if max(gaps) <= \
+            p2.BYTE_GAP_TIMEOUT else []
+        assert got == want, (gaps, len(pkt))
+        t += 0.01                                  # a quiet bus between packets
+        assert r.feed(p2.build_packet(1, p2.INST_PING), now=t) == [
+            p2.Packet(1, p2.INST_PING, b"")]
 
 
 def test_model_table_and_error_decoding():

@@ -50,6 +50,16 @@ _GOAL_REGS = ("goal_position", "goal_current")
 _TERMIOS_BAUDS = {getattr(termios, f"B{b}"): b for b in BAUD_RATES.values()
                   if hasattr(termios, f"B{b}")}
 _CLEAR_MULTI_TURN = bytes([0x01, 0x44, 0x58, 0x4C, 0x22])   # Clear (0x10): multi-turn reset
+# Control Table Backup (0x20), e-Manual Protocol 2.0: P1 0x01 store / 0x02 restore, P2-P5
+# "CTRL"; X430/540 from firmware v45; torque on -> Result Fail. Backed up: all of EEPROM,
+# the gains, Profile Acceleration/Velocity and the Indirect Addresses; restore puts EEPROM
+# back and reboots; the RAM part comes back at start-up with Startup Configuration bit 1.
+_BACKUP_KEY = b"CTRL"
+BACKUP_FIRMWARE = 45
+_BACKUP_RAM = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "position_i_gain",
+               "position_p_gain", "feedforward_2nd_gain", "feedforward_1st_gain",
+               "profile_acceleration", "profile_velocity")
+STARTUP_RAM_RESTORE = 0x02    # Startup Configuration (60) bit 1
 _READS = frozenset((p2.INST_READ, p2.INST_SYNC_READ, p2.INST_FAST_SYNC_READ, p2.INST_BULK_READ,
                     p2.INST_FAST_BULK_READ))
 _COMMON = frozenset((p2.INST_PING, p2.INST_READ, p2.INST_WRITE, p2.INST_REG_WRITE,
@@ -57,8 +67,9 @@ _COMMON = frozenset((p2.INST_PING, p2.INST_READ, p2.INST_WRITE, p2.INST_REG_WRIT
                      p2.INST_SYNC_READ, p2.INST_SYNC_WRITE, p2.INST_BULK_READ,
                      p2.INST_BULK_WRITE))
 # instruction set per series (e-Manual "Instruction" tables: X series firmware v45+ adds Fast
-# Sync Read and Fast Bulk Read; MX(2.0) has neither)
-_INSTRUCTIONS = {"X": _COMMON | {p2.INST_FAST_SYNC_READ, p2.INST_FAST_BULK_READ},
+# Sync Read, Fast Bulk Read and Control Table Backup; MX(2.0) has none of them)
+_INSTRUCTIONS = {"X": _COMMON | {p2.INST_FAST_SYNC_READ, p2.INST_FAST_BULK_READ,
+                                 p2.INST_CONTROL_TABLE_BACKUP},
                  "MX": _COMMON}
 
 
@@ -113,6 +124,8 @@ class EmulatedServo:
         self.voltage = 120      # 0.1 V
         self.overshoot = -float("inf")   # largest excursion past Min/Max Position Limit, ticks
         self.registered: tuple[int, bytes] | None = None   # REG_WRITE waiting for ACTION
+        # Control Table Backup area (non-volatile): (EEPROM bytes, RAM address -> bytes)
+        self.backup: tuple[bytes, dict[int, bytes]] | None = None
         self._set_eeprom_defaults(dxl_id, baud_index)
         self._set_ram_defaults()
 
@@ -183,8 +196,13 @@ class EmulatedServo:
         return INDIRECT_ADDRESS_29 + 2 * (n - INDIRECT_COUNT), INDIRECT_DATA_29 + n - INDIRECT_COUNT
 
     def reboot(self, now: float) -> None:
-        """Reset the RAM area (torque off, error cleared); EEPROM kept."""
+        """Reset the RAM area (torque off, error cleared); EEPROM kept. With Startup
+        Configuration bit 1 (RAM Restore, X series) the backed-up RAM items come back."""
         self._set_ram_defaults()
+        if self.backup is not None and self.model.series == "X" \
+                and self.get("startup_configuration") & STARTUP_RAM_RESTORE:
+            for addr, data in self.backup[1].items():
+                self.table[addr:addr + len(data)] = data
         self.vel = 0.0
         self.current = 0.0
         self.silent_until = now + REBOOT_TIME
@@ -196,6 +214,30 @@ class EmulatedServo:
         baud = self.get("baud_rate") if option == 0x02 else 1
         self._set_eeprom_defaults(dxl_id, baud)
         self.reboot(now)
+
+    def control_table_backup(self, params: bytes, now: float) -> int:
+        """Control Table Backup (0x20): ``params`` = P1 (0x01 store, 0x02 restore) + "CTRL".
+        Returns the status error code (the caller sends it; a restore then reboots)."""
+        if len(params) != 5:
+            return p2.ERR_DATA_LENGTH
+        if params[0] not in (0x01, 0x02) or bytes(params[1:]) != _BACKUP_KEY:
+            return p2.ERR_DATA_RANGE
+        if self.get("torque_enable"):
+            return p2.ERR_RESULT_FAIL
+        if params[0] == 0x01:
+            ram = {}
+            for name in _BACKUP_RAM:
+                r = self._item(name)
+                ram[r.address] = bytes(self.table[r.address:r.address + r.size])
+            for n in range(2 * INDIRECT_COUNT):
+                a, _ = self._indirect(n)
+                ram[a] = bytes(self.table[a:a + 2])
+            self.backup = (bytes(self.table[:EEPROM_END]), ram)
+            return 0
+        if self.backup is None:
+            return p2.ERR_RESULT_FAIL
+        self.table[:EEPROM_END] = self.backup[0]
+        return 0
 
     def _resolve(self, addr: int) -> int:
         if INDIRECT_DATA_1 <= addr < INDIRECT_DATA_1 + INDIRECT_COUNT:
@@ -214,6 +256,8 @@ class EmulatedServo:
         self._set("present_temperature", self.temperature)
         self._set("moving", 1 if abs(self.vel) > 1.0 else 0)
         self._set("registered_instruction", 1 if self.registered else 0)
+        if self.model.series == "X":
+            self._set("backup_ready", 1 if self.backup is not None else 0)
         self._set("realtime_tick", int(time.monotonic() * 1000) % 32768)
 
     def read(self, addr: int, length: int) -> tuple[int, bytes]:
@@ -515,11 +559,14 @@ class EmulatedBus:
             packet = packet[:-1] + bytes([packet[-1] ^ 0x5A])
         out.append(packet)
 
-    def feed(self, data: bytes, now: float | None = None) -> list[bytes]:
-        """Bytes from the host -> reply packets, in order."""
+    def feed(self, data: bytes, now: float | None = None,
+             arrived_after: float | None = None) -> list[bytes]:
+        """Bytes from the host -> reply packets, in order. ``now``: when they were taken;
+        ``arrived_after``: the last time the port was seen empty before them (the
+        inter-byte gap rule, :class:`~.protocol2.PacketReader`)."""
         now = time.monotonic() if now is None else now
         out: list[bytes] = []
-        for pkt in self.reader.feed(data, now):
+        for pkt in self.reader.feed(data, now, arrived_after):
             self.advance(now)
             for s in self.units:   # every instruction packet feeds Bus Watchdog
                 if self._hears(s, now):
@@ -644,6 +691,23 @@ class EmulatedBus:
             if option in (0x01, 0x02, 0xFF):
                 for s in targets:
                     s.factory_reset(option, now)
+                    s.id = s.get("id")
+        elif inst == p2.INST_CONTROL_TABLE_BACKUP:
+            results: dict[int, int] = {}
+
+            def answer(s: EmulatedServo) -> bytes:
+                if s.get("firmware_version") < BACKUP_FIRMWARE:
+                    return p2.build_status(s.id, s.status_error(p2.ERR_INSTRUCTION))
+                results[id(s)] = code = s.control_table_backup(prm, now)
+                return p2.build_status(s.id, s.status_error(code))
+            if broadcast:
+                for s in supported:
+                    answer(s)
+            else:
+                self._unicast(pkt, now, out, answer)
+            for s in supported:        # a restore reboots once its status has been sent
+                if results.get(id(s)) == 0 and prm[:1] == b"\x02":
+                    s.reboot(now)
                     s.id = s.get("id")
         elif inst == p2.INST_CLEAR and not broadcast:
             def answer(s: EmulatedServo) -> bytes:
@@ -785,7 +849,7 @@ class EmulatedBus:
             elif op == "stats":
                 return {"ok": True, "packets": self.reader.packets, "frozen_s": self.frozen,
                         "crc_errors": self.reader.crc_errors,
-                        "frame_timeouts": self.reader.timeouts,
+                        "frame_timeouts": self.reader.timeouts, "bytes_in": self.reader.bytes,
                         "instructions": {hex(k): v for k, v in self.instructions.items()}}
             elif op != "ping":
                 return {"ok": False, "error": f"unknown op {op!r}"}
@@ -823,6 +887,7 @@ class PtyEmulator:
         self._clients: dict[int, tuple[socket.socket, bytearray]] = {}
         self._stop = False
         self._last_turn: float | None = None
+        self._last_read = 0.0       # when host bytes were last read (monotonic s)
 
     def open(self) -> str:
         """Create the pty (and the link); returns the device path."""
@@ -915,6 +980,11 @@ class PtyEmulator:
             timeout = max(0.0, min(timeout, self._pending[0][0] - now))
         if self._back_at is not None:
             timeout = max(0.0, min(timeout, self._back_at - now))
+        # when the host's bytes came: after the last moment the port was seen empty (the
+        # Protocol 2.0 inter-byte gap is judged on that, see PacketReader)
+        empty_at = time.monotonic()
+        if self.master is not None and select.select([self.master], [], [], 0)[0]:
+            empty_at = self._last_read         # already waiting: came after the last read
         readable, _, _ = select.select(fds, [], [], timeout)
         before, now = now, time.monotonic()
         if now - before > timeout + STARVED:    # runnable, but not scheduled, in select
@@ -930,7 +1000,8 @@ class PtyEmulator:
                 if data:
                     self.bus.host_baud = self._host_baud()
                     delay = self.bus.faults.reply_delay
-                    for reply in self.bus.feed(data, now):
+                    self._last_read = t_read = time.monotonic()   # the bytes came before
+                    for reply in self.bus.feed(data, t_read, empty_at):
                         if delay > 0:
                             self._pending.append((now + delay, reply))
                         else:

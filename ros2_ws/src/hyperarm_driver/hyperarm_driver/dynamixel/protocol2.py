@@ -18,7 +18,7 @@ __all__ = [
     "INST_PING", "INST_READ", "INST_WRITE", "INST_REG_WRITE", "INST_ACTION",
     "INST_FACTORY_RESET", "INST_REBOOT", "INST_CLEAR", "INST_STATUS", "INST_SYNC_READ",
     "INST_SYNC_WRITE", "INST_FAST_SYNC_READ", "INST_BULK_READ", "INST_BULK_WRITE",
-    "INST_FAST_BULK_READ", "FRAME_TIMEOUT",
+    "INST_FAST_BULK_READ", "INST_CONTROL_TABLE_BACKUP", "BYTE_GAP_TIMEOUT",
     "ERR_RESULT_FAIL", "ERR_INSTRUCTION", "ERR_CRC", "ERR_DATA_RANGE", "ERR_DATA_LENGTH",
     "ERR_DATA_LIMIT", "ERR_ACCESS", "ERRBIT_ALERT",
     "crc16", "stuff", "unstuff", "Packet", "build_packet", "build_status",
@@ -37,6 +37,7 @@ INST_ACTION = 0x05
 INST_FACTORY_RESET = 0x06
 INST_REBOOT = 0x08
 INST_CLEAR = 0x10
+INST_CONTROL_TABLE_BACKUP = 0x20
 INST_STATUS = 0x55
 INST_SYNC_READ = 0x82
 INST_SYNC_WRITE = 0x83
@@ -161,7 +162,8 @@ def build_fast_sync_status(items: list[tuple[int, int, bytes]]) -> bytes:
     return bytes(out)
 
 
-FRAME_TIMEOUT = 0.05   # s an incomplete packet may wait for its remaining bytes
+BYTE_GAP_TIMEOUT = 0.0015   # s: a servo drops a packet whose bytes come further apart
+                            # (e-Manual, Protocol 2.0: 1.5 ms between the bytes of a packet)
 
 
 class PacketReader:
@@ -169,30 +171,39 @@ class PacketReader:
 
     ``feed(data, now)`` returns the packets completed by ``data``. Garbage before a header
     is skipped. A packet with a bad CRC is returned with ``crc_ok=False`` (the servo answers
-    a CRC Error) and counted in ``crc_errors``. An incomplete packet (e.g. a corrupt length
-    field announcing 4000 bytes) is dropped once it has waited ``FRAME_TIMEOUT`` since its
-    first bytes (counted in ``timeouts``), so the bytes that come after that are read
-    afresh (without ``now``, nothing times out).
+    a CRC Error) and counted in ``crc_errors``. An incomplete packet (a packet split by the
+    host with a pause, or a corrupt length field announcing 4000 bytes) is dropped when the
+    next bytes come more than ``BYTE_GAP_TIMEOUT`` after the previous ones (counted in
+    ``timeouts``), and those bytes are read afresh, as by a servo (without ``now``, nothing
+    times out).
+
+    ``now`` (s) is when ``data`` was taken, the latest it can have arrived; ``arrived_after``
+    (default ``now``) the earliest: a reader polling a port knows only that the bytes came
+    after it last saw the port empty. The gap is measured from the previous ``now`` to this
+    ``arrived_after``: a lower bound of the true gap, so a process that was not scheduled
+    for a while never drops a packet a servo would have taken.
     """
 
     MAX_LENGTH = 4096
 
     def __init__(self) -> None:
         self._buf = bytearray()
-        self._since = 0.0      # arrival of the first bytes of the buffered, incomplete packet
+        self._last = 0.0       # when the buffered bytes were taken (latest arrival)
         self.crc_errors = 0
         self.timeouts = 0
         self.packets = 0
+        self.bytes = 0         # bytes fed
 
-    def feed(self, data: bytes, now: float | None = None) -> list[Packet]:
-        if now is not None and self._buf and now - self._since > FRAME_TIMEOUT:
-            self._buf.clear()
-            self.timeouts += 1
-        fresh = not self._buf
-        out = self._parse(data)
-        if now is not None and self._buf and (fresh or out):
-            self._since = now        # a new incomplete packet starts waiting
-        return out
+    def feed(self, data: bytes, now: float | None = None,
+             arrived_after: float | None = None) -> list[Packet]:
+        if now is not None:
+            start = now if arrived_after is None else min(arrived_after, now)
+            if self._buf and start - self._last > BYTE_GAP_TIMEOUT:
+                self._buf.clear()
+                self.timeouts += 1
+            self._last = now
+        self.bytes += len(data)
+        return self._parse(data)
 
     def _parse(self, data: bytes) -> list[Packet]:
         self._buf += data
