@@ -409,3 +409,32 @@ def test_watchdog_never_re_enables_a_motor_killed_by_anyone(config: RailConfig,
             assert not m.closed_loop, what + ": the watchdog closed the loop again"
             assert m.enables == enables, what
             assert emu.pvars[8003] == 0, what
+
+
+def test_emulator_status_queries_have_the_cards_lengths() -> None:
+    """Issue 24 item 9: ``??`` is the addressed coordinate system's status (three 24-bit
+    words, 18 hex digits) and ``???`` the global status (two words, 12 digits), one line
+    each (Turbo PMAC Software Reference); the emulator answered two and three copies of the
+    motor's 12-digit status. ``#n?`` stays the motor's status, also beside the others."""
+    import re
+    emu = PmacEmulator(motors=2)
+    hex_line = re.compile(rb"[0-9A-F]+")
+
+    def lines(cmd: str) -> list[bytes]:
+        reply = emu.execute(cmd)
+        assert reply.endswith(b"\x06"), (cmd, reply)
+        return reply[:-1].split(b"\r")[:-1]
+
+    for cmd, widths in (("??", [18]), ("???", [12]), ("#1?", [12]), ("&1??", [18]),
+                        ("&16??", [18]), ("#2??", [18]), ("#1?#2?", [12, 12]),
+                        ("???#1?", [12, 12]), ("#1P??", [None, 18]),
+                        ("?? #2?", [18, 12])):
+        got = lines(cmd)
+        assert len(got) == len(widths), (cmd, got)
+        for x, w in zip(got, widths):
+            assert w is None or (len(x) == w and hex_line.fullmatch(x)), (cmd, got)
+    emu.execute("#1J/")                                 # motor 1 enabled: its word changes,
+    motor = lines("#1?")[0]                             # not the CS or global status
+    assert MotorStatus.from_hex(motor.decode()).amp_enabled
+    assert lines("??") == [b"0" * 18] and lines("???") == [b"0" * 12]
+    assert emu.execute("&17??").endswith(b"ERR003\r")

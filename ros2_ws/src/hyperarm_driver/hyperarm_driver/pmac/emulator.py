@@ -20,6 +20,7 @@ Communications Program"; the full list, and what is *not* implemented, is in doc
   ``&n`` (coordinate system), ``%``/``%n`` (feed-rate override, stored per coordinate
   system), ``OPEN PLC n [CLEAR]`` ... ``CLOSE``, ``ENABLE PLC n``, ``DISABLE PLC n``,
   ``LIST PLC n``; PLC programs in the subset of :mod:`.plc`, scanned every millisecond;
+- ``??`` (coordinate-system status, 18 hex digits) and ``???`` (global status, 12);
 - replies framed by I3 (0..3) and I6 (0..3) as the card does; ``ERR003`` for anything
   else, ``ERR004`` for non-ASCII bytes; FLUSH answered with one byte (``<CTRL-X>`` with
   I63=1, else ``@``); ``<STX>message<CR>`` lines for unsolicited messages while I64=1;
@@ -344,8 +345,10 @@ class PmacEmulator:
         self.refuse = False    # close new connections at once
         self.busy = 0          # answer the next n command lines with NUL (busy, not run)
         self.requests = 0
-        # the last command lines received from a port, in order (for tests and debugging)
+        # the last command lines received from a port, in order (for tests and debugging),
+        # and when each was taken (time.monotonic(), for the heartbeat benchmark)
         self.log: collections.deque[str] = collections.deque(maxlen=10000)
+        self.log_times: collections.deque[float] = collections.deque(maxlen=10000)
 
     # -- life cycle -----------------------------------------------------------------------
     @property
@@ -644,9 +647,31 @@ class PmacEmulator:
                 if m is None or not 0 <= int(m.group(0)) <= 31:
                     raise _CmdError(3)
                 return self._plc_command_word(word, int(m.group(0)), s, m.end(), out, port)
+        if s.startswith("???", i):
+            out.append(self._global_status())
+            return i + 3
+        if s.startswith("??", i):
+            out.append(self._cs_status(port.cs))
+            return i + 2
         if c in "PQMI" and i + 1 < len(s) and s[i + 1].isdigit():
             return self._variable(s, i, out, port)
         return self._motor_command(s, i, out, port)
+
+    def _cs_status(self, cs: int) -> str:
+        """``??``: the addressed coordinate system's three 24-bit status words, 18 hex
+        digits (Turbo PMAC Software Reference, ``??``). The emulator runs no motion program
+        and has no axis definitions, so no motor belongs to a coordinate system: no program
+        running, LINEAR move mode, none of the per-motor fault or in-position summaries
+        (word 2 bits 20, 19, 18, 17 describe motors *in* the coordinate system): all 0."""
+        if not 1 <= cs <= 16:
+            raise _CmdError(3)
+        return "0" * 18
+
+    def _global_status(self) -> str:
+        """``???``: the two 24-bit global status words (X:$000006, Y:$000006), 12 hex
+        digits (Turbo PMAC Software Reference, ``???``): no servo error, no real-time
+        interrupt re-entry, no configuration or phase-clock error, no data gathering: 0."""
+        return "0" * 12
 
     def _plc_command_word(self, word: str, k: int, s: str, i: int, out: list[str],
                           port: _Port) -> int:
@@ -809,6 +834,7 @@ class PmacEmulator:
             return self._frame([], 4)
         with self._lock:
             self.log.append(text)
+            self.log_times.append(time.monotonic())
         return self.execute(text, port)
 
     # -- network --------------------------------------------------------------------------
