@@ -19,11 +19,12 @@ setup(
     zip_safe=False,
     maintainer="hyperarm developers",
     maintainer_email="dev@hyperarm.invalid",
-    description="hyperarm robot description (YAML, URDF, pinocchio models)",
+    description="hyperarm robot description (YAML, URDF, MJCF, pinocchio models)",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
             "generate_urdf = hyperarm_description.urdf:main",
+            "generate_mjcf = hyperarm_description.mjcf:main",
             "show_description = hyperarm_description.show:main",
         ],
     },

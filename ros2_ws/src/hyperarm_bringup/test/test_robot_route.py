@@ -69,7 +69,7 @@ ROSDEP_OF = {"numpy": "python3-numpy", "yaml": "python3-yaml", "pinocchio": "pin
              "matplotlib": "python3-matplotlib", "PIL": "python3-pil",
              "lark": "python3-lark-parser"}
 PIP_OF = {"dls_pmaclib": "dls-pmaclib", "mcap": "mcap", "mcap_ros2": "mcap-ros2-support",
-          "viser": "viser", "selenium": "selenium"}
+          "viser": "viser", "selenium": "selenium", "mujoco": "mujoco"}
 BENCH_ONLY = {"ikpy", "pytracik"}  # requirements-bench.txt, never at run time
 
 

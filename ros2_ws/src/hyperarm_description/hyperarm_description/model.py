@@ -135,7 +135,8 @@ class DHRow:
 
 @dataclass(frozen=True)
 class ServoSpec:
-    """A Dynamixel servo: bus ID, model name, direction sign and zero offset (rad)."""
+    """A Dynamixel servo: bus ID, model name, direction sign and zero offset (rad); its
+    model's gear ratio (output/motor, 1) and motor rotor inertia (kg·m², 0 = not given)."""
 
     id: int
     model: str
@@ -143,6 +144,14 @@ class ServoSpec:
     direction: int = 1
     zero_offset: float = 0.0
     operating_mode: str = "position"
+    gear_ratio: float = 1.0
+    rotor_inertia: float = 0.0
+
+    @property
+    def armature(self) -> float:
+        """The rotor's inertia reflected through the gears to the joint, kg·m²
+        (rotor_inertia · gear_ratio²)."""
+        return self.rotor_inertia * self.gear_ratio ** 2
 
 
 @dataclass(frozen=True)
@@ -203,11 +212,13 @@ class RailSpec:
 
 @dataclass(frozen=True)
 class CameraSpec:
-    """Fixed camera frame in the root frame (base_link, or world for rail_arm). m, rad."""
+    """Fixed camera frame in the root frame (base_link, or world for rail_arm). m, rad.
+    ``fovy``: the image's vertical field of view, rad."""
 
     frame: str
     xyz: tuple[float, float, float]
     rpy: tuple[float, float, float]
+    fovy: float = math.radians(45.0)
 
 
 def _rpy_matrix(rpy: Sequence[float]) -> np.ndarray:
@@ -371,11 +382,16 @@ def _servo(raw: Any, where: str, models: Mapping[str, Any], default_mode: str) -
     mode = raw.get("operating_mode", default_mode)
     if mode not in ("position", "current_based_position", "current", "extended_position"):
         raise DescriptionError(f"{where}.operating_mode: unknown mode {mode!r}")
+    spec = models[model]
     return ServoSpec(
-        id=sid, model=model, model_number=int(models[model]["model_number"]),
+        id=sid, model=model, model_number=int(spec["model_number"]),
         direction=int(direction),
         zero_offset=parse_angle(raw.get("zero_offset", 0.0), f"{where}.zero_offset"),
-        operating_mode=mode)
+        operating_mode=mode,
+        gear_ratio=_num(spec.get("gear_ratio", 1.0), f"servo_models.{model}.gear_ratio",
+                        positive=True),
+        rotor_inertia=_num(spec.get("rotor_inertia", 0.0),
+                           f"servo_models.{model}.rotor_inertia", nonneg=True))
 
 
 def _limits(lower: float, upper: float, where: str) -> None:
@@ -538,9 +554,13 @@ def parse_description(data: Any, variant: str = "arm", source: str = "<data>") -
         frame=str(_req(rc, "frame", "camera")),
         xyz=_vec3(_req(rc, "xyz", "camera"), "camera.xyz"),
         rpy=tuple(parse_angle(v, f"camera.rpy[{i}]")  # type: ignore[arg-type]
-                  for i, v in enumerate(_req(rc, "rpy", "camera"))))
+                  for i, v in enumerate(_req(rc, "rpy", "camera"))),
+        fovy=parse_angle(rc.get("fovy", "45 deg"), "camera.fovy"))
     if len(camera.rpy) != 3:
         raise DescriptionError(f"camera.rpy: expected 3 angles, got {len(camera.rpy)}")
+    if not 0.0 < camera.fovy < math.pi:
+        raise DescriptionError(f"camera.fovy: must be between 0 and 180 deg, got "
+                               f"{math.degrees(camera.fovy):g} deg")
     tool_frame = str(arm.get("tool_frame", "tool0"))
     base_frame = str(arm.get("base_frame", "base_link"))
     rcol = _req(data, "collision", "")

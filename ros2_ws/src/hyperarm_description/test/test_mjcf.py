@@ -1,0 +1,400 @@
+"""The generated MuJoCo model (hyperarm_description.mjcf) against the description and
+pinocchio: forward kinematics within 1e-9 at random q, masses, inertias, limits, capsules,
+servo dynamics, the block's hole as convex pieces (and a short drop simulation), the camera,
+run-time servo modes and the command-line tool."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from hyperarm_description.mjcf import (CAMERA_FROM_LINK, PhysicsOptions, block_pieces,
+                                       build_model, camera_link_pose, generate_mjcf, main,
+                                       options_from_workcell, set_servo_mode)
+from hyperarm_description.model import DescriptionError, load_description
+from hyperarm_description.world import load_world, parse_world
+
+pytestmark = pytest.mark.core
+
+ROOT = Path(__file__).resolve().parents[4]
+CELLS = ROOT / "ros2_ws" / "src" / "hyperarm_driver" / "config"
+TOL = 1e-9
+
+
+def _cell(name: str = "workcell.yaml"):
+    return load_world(CELLS / name)
+
+
+def _random_q(desc, rng, gripper: bool) -> np.ndarray:
+    lo, hi = desc.lower_limits(), desc.upper_limits()
+    q = rng.uniform(lo, hi)
+    if gripper:
+        q = np.append(q, rng.uniform(desc.gripper.lower, desc.gripper.upper))
+    return q
+
+
+def _set_q(model, data, desc, q) -> None:
+    for name, value in zip(desc.all_joint_names, q):
+        data.qpos[model.joint(name).qposadr[0]] = value
+
+
+@pytest.mark.parametrize("variant,cell", [("arm", "workcell.yaml"),
+                                          ("rail_arm", "workcell_rail.yaml")])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_forward_kinematics_equals_pinocchio_at_random_q(variant, cell, seed):
+    """Every link, tool0, the finger and the camera: MuJoCo's pose (mj_kinematics) equals
+    pinocchio's (from the URDF) within 1e-9 at 200 random q within the limits, for the
+    model loaded from the written MJCF text."""
+    pin = pytest.importorskip("pinocchio")
+    from hyperarm_description.pinocchio_model import build_model as build_pin
+
+    desc = load_description(variant=variant)
+    pmodel = build_pin(desc, include_gripper=True)
+    pdata = pmodel.createData()
+    model = mujoco.MjModel.from_xml_string(generate_mjcf(desc, _cell(cell)))
+    data = mujoco.MjData(model)
+    bodies = [desc.base_frame, *(f"link{i}" for i in range(1, 10)), desc.tool_frame,
+              "gripper_finger"] + (["rail_carriage"] if desc.rail else [])
+    cam = model.camera(desc.camera.frame).id
+    rng = np.random.default_rng(seed)
+    worst = 0.0
+    for _ in range(200):
+        q = _random_q(desc, rng, gripper=True)
+        _set_q(model, data, desc, q)
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_camlight(model, data)
+        pin.framesForwardKinematics(pmodel, pdata, q)
+        for name in bodies:
+            ref = pdata.oMf[pmodel.getFrameId(name)]
+            b = data.body(name)
+            worst = max(worst, np.abs(b.xpos - ref.translation).max(),
+                        np.abs(b.xmat.reshape(3, 3) - ref.rotation).max())
+        ref = pdata.oMf[pmodel.getFrameId(desc.camera.frame)]
+        worst = max(worst, np.abs(data.cam_xpos[cam] - ref.translation).max(),
+                    np.abs(data.cam_xmat[cam].reshape(3, 3)
+                           - ref.rotation @ CAMERA_FROM_LINK).max())
+    assert worst < TOL, f"largest pose difference {worst:.3g} (m or rotation entry)"
+
+
+def test_the_written_text_keeps_full_precision():
+    """MuJoCo's own writer keeps 6 digits (1e-7 m off); the generated text round-trips the
+    DH offsets and joint limits exactly."""
+    desc = load_description()
+    model = build_model(desc)
+    for i, j in enumerate(desc.joints, start=1):
+        assert model.jnt_range[model.joint(j.name).id].tolist() == [j.lower, j.upper]
+        if i > 1:
+            prev = desc.joints[i - 2].dh
+            assert np.linalg.norm(model.body(f"link{i}").pos) == pytest.approx(
+                math.hypot(prev.a, prev.d), abs=1e-15)
+
+
+@pytest.mark.parametrize("variant", ["arm", "rail_arm"])
+def test_masses_inertias_limits_and_servo_dynamics_equal_the_description(variant):
+    pin = pytest.importorskip("pinocchio")
+    from hyperarm_description.pinocchio_model import build_model as build_pin
+
+    desc = load_description(variant=variant)
+    opts = PhysicsOptions(joint_damping=0.07, joint_frictionloss=0.02)
+    model = build_model(desc, options=opts)
+    pmodel = build_pin(desc, include_gripper=True)
+    for name in [*desc.arm_joint_names, desc.gripper.name]:
+        jid = pmodel.getJointId(name)
+        ref = pmodel.inertias[jid]
+        body = model.body(model.joint(name).bodyid[0])
+        rot = np.zeros(9)
+        mujoco.mju_quat2Mat(rot, body.iquat)
+        rot = rot.reshape(3, 3)
+        inertia = rot @ np.diag(body.inertia) @ rot.T
+        assert body.mass[0] == pytest.approx(ref.mass, abs=1e-12)
+        assert np.abs(body.ipos - ref.lever).max() < 1e-12
+        assert np.abs(inertia - ref.inertia).max() < 1e-12, name
+    total = sum(j.link.mass for j in desc.joints) + 0.02 + (desc.rail.carriage_mass
+                                                            if desc.rail else 0.0)
+    assert model.body_subtreemass[0] == pytest.approx(total, abs=1e-12)
+    for name, (lo, hi) in desc.limits_by_name().items():
+        jid = model.joint(name).id
+        assert model.jnt_range[jid].tolist() == [lo, hi] and model.jnt_limited[jid] == 1
+    for j in [*desc.joints, desc.gripper]:
+        dof = model.joint(j.name).dofadr[0]
+        assert model.dof_armature[dof] == pytest.approx(
+            j.servo.rotor_inertia * j.servo.gear_ratio ** 2, rel=1e-12)
+        assert model.dof_armature[dof] > 0.0
+        assert model.dof_damping[dof] == 0.07 and model.dof_frictionloss[dof] == 0.02
+    for j in desc.joints:  # the position actuators' force limits are the stall torques
+        aid = model.actuator(j.name).id
+        assert model.actuator_forcerange[aid].tolist() == [-j.effort, j.effort]
+        assert model.actuator_ctrlrange[aid].tolist() == [j.lower, j.upper]
+
+
+@pytest.mark.parametrize("seed", [3, 4, 5])
+def test_capsules_equal_the_description_at_random_q(seed):
+    """Each capsule geom has the description's radius and, at random arm angles, the
+    description's segment ends (DH frame_poses) within 1e-9."""
+    desc = load_description()
+    model = build_model(desc)
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(seed)
+    for _ in range(50):
+        q = _random_q(desc, rng, gripper=False)
+        _set_q(model, data, desc, q)
+        mujoco.mj_kinematics(model, data)
+        for cap, a, b in desc.capsule_segments(q):
+            g = model.geom(f"capsule_{cap.name}")
+            assert g.type[0] == mujoco.mjtGeom.mjGEOM_CAPSULE
+            assert g.size[0] == pytest.approx(cap.radius, abs=1e-15)
+            assert g.size[1] == pytest.approx(0.5 * cap.length, abs=1e-12)
+            centre = data.geom(g.id).xpos
+            axis = data.geom(g.id).xmat.reshape(3, 3)[:, 2]
+            ends = sorted([centre - g.size[1] * axis, centre + g.size[1] * axis],
+                          key=lambda p: np.linalg.norm(p - a))
+            assert np.abs(ends[0] - a).max() < TOL and np.abs(ends[1] - b).max() < TOL
+
+
+def test_capsules_sharing_a_joint_at_ready_are_excluded_like_the_ik_checker():
+    """At q = 0 no robot pair is in contact (link7/link9 around the zero-length link8 and
+    base/link1 are excluded), while a real self-collision still is one."""
+    desc = load_description()
+    model = build_model(desc)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    assert data.ncon == 0
+    excluded = {tuple(sorted((model.body(model.exclude_signature[k] >> 16).name,
+                              model.body(model.exclude_signature[k] & 0xFFFF).name)))
+                for k in range(model.nexclude)}
+    assert ("link7", "link9") in excluded
+    # fold the arm back onto itself: joint2 and joint4 at their limits brings link5.. down
+    q = np.zeros(9)
+    q[1], q[3], q[5] = 2.5, 2.5, 2.5
+    _set_q(model, data, desc, np.append(q, 0.0))
+    mujoco.mj_forward(model, data)
+    assert data.ncon > 0
+
+
+def test_block_pieces_are_convex_and_fill_the_box_around_the_hole():
+    size, r = (0.04, 0.04, 0.03), 0.010
+    for n in (6, 12, 17):
+        pieces = block_pieces(size, r, n)
+        assert len(pieces) == n
+        area = 0.0
+        for verts in pieces:
+            ring = verts[: len(verts) // 2, :2]
+            assert np.allclose(verts[len(verts) // 2:, :2], ring)
+            edges = np.roll(ring, -1, axis=0) - ring
+            cross = edges[:, 0] * np.roll(edges, -1, axis=0)[:, 1] \
+                - edges[:, 1] * np.roll(edges, -1, axis=0)[:, 0]
+            assert np.all(cross > -1e-15) or np.all(cross < 1e-15)  # convex polygon
+            area += 0.5 * abs(np.dot(ring[:, 0], np.roll(ring[:, 1], -1))
+                              - np.dot(ring[:, 1], np.roll(ring[:, 0], -1)))
+            # no material inside the hole's circle
+            assert np.hypot(*ring.T).min() >= r - 1e-15
+        ngon = n * r * r * math.tan(math.pi / n)  # circumscribed n-gon
+        assert area == pytest.approx(size[0] * size[1] - ngon, rel=1e-12)
+    with pytest.raises(ValueError, match="does not fit"):
+        block_pieces(size, 0.0199, 12)
+
+
+def test_the_block_in_the_model_is_convex_pieces_with_its_mass():
+    world = _cell()
+    model = build_model(load_description(), world, PhysicsOptions(hole_pieces=12))
+    block = model.body("block").id
+    geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] == block]
+    assert len(geoms) == 12
+    assert all(model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH for g in geoms)
+    assert all(model.geom_condim[g] == 4 for g in geoms)  # torsional friction
+    assert model.body_mass[block] == pytest.approx(world.block.mass, rel=1e-12)
+    # the inertia of a solid box minus the circumscribed 12-gon prism (its polar moment
+    # n r^4 tan(pi/n) (1 + tan²(pi/n)/3) / 2 per unit area density), about the centre
+    (sx, sy, sz), r, n = world.block.size, world.block.hole_radius, 12
+    t = math.tan(math.pi / n)
+    a_box, a_hole = sx * sy, n * r * r * t
+    rho = world.block.mass / (a_box - a_hole)
+    j_hole = n * r ** 4 * t * (1 + t * t / 3) / 2  # polar; x and y: half each (symmetric)
+    izz = rho * (a_box * (sx * sx + sy * sy) / 12 - j_hole)
+    ixx = rho * (a_box * sy * sy / 12 - j_hole / 2 + (a_box - a_hole) * sz * sz / 12)
+    rot = np.zeros(9)
+    mujoco.mju_quat2Mat(rot, model.body_iquat[block])
+    inertia = rot.reshape(3, 3) @ np.diag(model.body_inertia[block]) @ rot.reshape(3, 3).T
+    assert np.abs(inertia - np.diag([ixx, ixx, izz])).max() < 1e-15
+    assert np.abs(model.body_ipos[block]).max() < 1e-15
+    assert model.opt.cone == mujoco.mjtCone.mjCONE_ELLIPTIC
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    start = world.peg(world.block.start)
+    assert data.body("block").xpos.tolist() == pytest.approx(
+        [*start.xy, world.table_height + 0.5 * world.block.size[2]], abs=1e-12)
+
+
+def _drop(model, world, offset_xy, steps=600) -> tuple[float, float, float]:
+    """Drop the block upright from 3 mm above the destination peg's top, its hole offset by
+    ``offset_xy`` (m) from the peg's axis, for ``steps`` ms: (bottom z - table, m; its
+    horizontal distance to the peg's axis, m; tilt, rad)."""
+    data = mujoco.MjData(model)
+    peg = world.peg("destination")
+    hz = 0.5 * world.block.size[2]
+    adr = model.joint("block").qposadr[0]
+    data.qpos[adr:adr + 3] = [peg.xy[0] + offset_xy[0], peg.xy[1] + offset_xy[1],
+                              world.peg_top_z("destination") + hz + 0.003]
+    robot = {model.body(n).id for n in ("base_link", "link1", "link5", "link9", "tool0")}
+    for _ in range(steps):
+        mujoco.mj_step(model, data)
+        for c in data.contact[: data.ncon]:  # only the block, the pegs and the table touch
+            assert not {model.geom_bodyid[g] for g in c.geom} & robot
+    pos = data.body("block").xpos
+    tilt = math.acos(min(1.0, data.body("block").xmat[8]))
+    return pos[2] - hz - world.table_height, math.hypot(pos[0] - peg.xy[0],
+                                                        pos[1] - peg.xy[1]), tilt
+
+
+def _held_arm_model(world):
+    desc = load_description()
+    model = build_model(desc, world)
+    for j in desc.joints:  # hold the stretched arm (q = 0) stiffly, out of the block's way
+        set_servo_mode(model, j.name, "position", kp=1000.0, kv=5.0, force_limit=100.0)
+    return model
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_block_dropped_aligned_threads_and_one_far_off_does_not(seed):
+    """Default cell (2 mm radial clearance): dropped with its hole within 0.75 x the
+    clearance of the peg's axis the block threads down to the table, upright; dropped 3-5 x
+    the clearance off it rests on the peg's top (tilted, jammed, or leaning on the peg) or
+    tips off beside the peg, never reaching the table around it. (Between 1 and 3 x the block lands on the peg's rim
+    with its centre of mass over the hole and tips: it may jam or thread, docs/mujoco.md.)"""
+    world = _cell()
+    model = _held_arm_model(world)
+    clearance = world.clearance("destination")
+    rng = np.random.default_rng(seed)
+    for scale in (0.0, rng.uniform(0.3, 0.75)):
+        ang = rng.uniform(0, 2 * math.pi)
+        bottom, dist, tilt = _drop(model, world, scale * clearance * np.array(
+            [math.cos(ang), math.sin(ang)]))
+        assert abs(bottom) < 1e-3 and dist <= clearance + 1e-4 and tilt < math.radians(1), \
+            (scale, bottom, dist, tilt)
+    for scale in (3.0, rng.uniform(3.0, 5.0)):
+        ang = rng.uniform(0, 2 * math.pi)
+        bottom, dist, tilt = _drop(model, world, scale * clearance * np.array(
+            [math.cos(ang), math.sin(ang)]))
+        threaded = bottom < 0.005 and dist < world.block.hole_radius  # peg through the hole
+        assert not threaded, (scale, bottom, dist, tilt)
+
+
+def test_camera_has_the_description_pose_and_field_of_view():
+    desc = load_description()
+    model = build_model(desc)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    cam = model.camera(desc.camera.frame)
+    assert model.cam_fovy[cam.id] == pytest.approx(math.degrees(desc.camera.fovy), abs=1e-12)
+    pose = camera_link_pose(desc)
+    assert np.abs(data.cam_xpos[cam.id] - pose[:3, 3]).max() < TOL
+    r = data.cam_xmat[cam.id].reshape(3, 3)
+    # MuJoCo looks along its -z, up +y: camera_link's +x and +z (straight down, pitch pi/2)
+    assert np.abs(-r[:, 2] - pose[:3, 0]).max() < TOL
+    assert np.abs(r[:, 1] - pose[:3, 2]).max() < TOL
+    assert np.abs(-r[:, 2] - [0.0, 0.0, -1.0]).max() < TOL
+
+
+def test_a_bad_field_of_view_is_a_clear_error(tmp_path):
+    import yaml
+    from hyperarm_description.model import default_description_path
+    data = yaml.safe_load(default_description_path().read_text())
+    data["camera"]["fovy"] = "190 deg"
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(DescriptionError, match="camera.fovy"):
+        load_description(path)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_servo_modes_change_at_run_time_without_rebuilding(seed):
+    """position: the PD holds its goal against gravity within the current limit;
+    current: a motor (the actuator force is the command); off: no force at all."""
+    desc = load_description()
+    model = build_model(desc)
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(seed)
+    aid = model.actuator("joint2").id
+    goal = rng.uniform(-0.5, 0.5)
+    set_servo_mode(model, "joint2", "current_based_position", kp=40.0, kv=1.0,
+                   force_limit=3.0)
+    data.ctrl[aid] = goal
+    data.qpos[model.joint("joint2").qposadr[0]] = goal
+    for _ in range(300):
+        mujoco.mj_step(model, data)
+        assert abs(data.actuator_force[aid]) <= 3.0 + 1e-12
+    tau = rng.uniform(-2.0, 2.0)
+    set_servo_mode(model, "joint2", "current", force_limit=2.5)
+    data.ctrl[aid] = tau
+    mujoco.mj_step(model, data)
+    assert data.actuator_force[aid] == pytest.approx(tau, abs=1e-12)
+    data.ctrl[aid] = 10.0  # clamped to the current limit
+    mujoco.mj_step(model, data)
+    assert data.actuator_force[aid] == pytest.approx(2.5, abs=1e-12)
+    set_servo_mode(model, "joint2", "off")
+    for _ in range(5):
+        mujoco.mj_step(model, data)
+        assert data.actuator_force[aid] == 0.0
+    with pytest.raises(ValueError, match="unknown servo mode"):
+        set_servo_mode(model, "joint2", "velocity")
+    with pytest.raises(ValueError, match="no actuator"):
+        set_servo_mode(model, "joint99", "off")
+    with pytest.raises(ValueError, match="kp"):
+        set_servo_mode(model, "joint2", "position", kp=float("nan"))
+
+
+def test_options_from_the_work_cell_and_bad_values():
+    opts = options_from_workcell({"world": {"friction": 0.8}, "servo": {"damping": 0.1},
+                                  "current": {"friction": 0.04}})
+    assert (opts.friction, opts.joint_damping, opts.joint_frictionloss) == (0.8, 0.1, 0.04)
+    assert opts.arm_kp == PhysicsOptions().arm_kp
+    with pytest.raises(DescriptionError, match="servo.damping"):
+        options_from_workcell({"servo": {"damping": float("nan")}})
+    with pytest.raises(DescriptionError, match="options.timestep"):
+        PhysicsOptions(timestep=0.0)
+    with pytest.raises(DescriptionError, match="hole_pieces"):
+        PhysicsOptions(hole_pieces=4)
+
+
+def test_cells_with_poles_a_post_and_no_block_compile():
+    desc = load_description()
+    for cell in ("workcell_pole.yaml", "workcell_post.yaml", "workcell_no_block.yaml"):
+        world = _cell(cell)
+        model = build_model(desc, world)
+        for p in world.poles:
+            g = model.geom(f"pole_{p.name}")
+            assert g.size[0] == p.radius and g.size[1] == pytest.approx(0.5 * p.height)
+        assert (world.block is None) == (mujoco.mj_name2id(
+            model, mujoco.mjtObj.mjOBJ_BODY, "block") < 0)
+
+
+def test_command_line_writes_a_model_that_loads(tmp_path, capsys):
+    out = tmp_path / "cell.xml"
+    assert main(["--variant", "rail_arm", "--workcell", str(CELLS / "workcell_rail.yaml"),
+                 "-o", str(out)]) == 0
+    model = mujoco.MjModel.from_xml_path(str(out))
+    assert model.joint("rail").type == mujoco.mjtJoint.mjJNT_SLIDE
+    assert "wrote" in capsys.readouterr().out
+    assert main(["--workcell", str(tmp_path / "missing.yaml"), "-o", str(out)]) == 2
+    assert "cannot read" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        main(["--help"])
+    assert exc.value.code == 0 and "mujoco.viewer" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("key,value", [("gear_ratio", 0.0), ("gear_ratio", "x"),
+                                       ("rotor_inertia", -1e-7),
+                                       ("rotor_inertia", float("inf"))])
+def test_a_bad_servo_gear_ratio_or_rotor_inertia_is_a_clear_error(tmp_path, key, value):
+    import yaml
+    from hyperarm_description.model import default_description_path
+    data = yaml.safe_load(default_description_path().read_text())
+    data["servo_models"]["MX-64"][key] = value
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(DescriptionError, match=f"servo_models.MX-64.{key}"):
+        load_description(path)
