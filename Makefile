@@ -9,7 +9,7 @@ help:
 	@echo "make test   - set up (idempotent) and run the whole test suite"
 	@echo "make setup  - only the set-up (venv or /opt/ros/jazzy, colcon build)"
 	@echo "make test-core - only the ROS-free core tests"
-	@echo "make check-robot-route - robot pip plan vs apt numpy 1.26, core tests under it"
+	@echo "make check-robot-route - robot pip plan vs apt numpy 1.26, installed scripts' interpreter, core tests under it"
 	@echo "make clean  - remove build products (keeps .venv)"
 
 setup:
@@ -27,10 +27,12 @@ test: setup
 test-core: setup
 	@bash scripts/test.sh -m core $(ARGS)
 
-# The robot route's pip plan against Ubuntu 24.04's numpy 1.26, and the core tests under it
-# (docs/robot-install.md).
-check-robot-route:
+# The robot route's pip plan against Ubuntu 24.04's numpy 1.26, every installed executable's
+# interpreter (the venv's) and imports, and the core tests under numpy 1.26
+# (docs/robot-install.md). Sets up first: it also runs on a fresh clone.
+check-robot-route: setup
 	@python3 scripts/robot_route/check_plan.py --venv .stamps/apt-venv
+	@bash -c 'source scripts/env.sh > /dev/null && python scripts/robot_route/check_executables.py'
 	@bash scripts/robot_route/core_tests.sh
 
 # Regenerate requirements.lock from a fresh venv (maintainers only).

@@ -129,6 +129,7 @@ build_inputs() {
      -o -name CMakeLists.txt -o -name '*.msg' -o -name '*.srv' -o -name '*.action' \
      -o -name '*.yaml' -o -name '*.urdf' -o -name '*.sh' \) ! -path '*/__pycache__/*' \
      | LC_ALL=C sort | xargs sha256sum)
+  (cd "$ROOT" && sha256sum scripts/colcon_build.sh)   # how it builds (the scripts' interpreter)
 }
 want="$(build_inputs | sha256sum | cut -d' ' -f1)"
 if ! stamp_ok build "$want" || [ ! -f "$WS/install/local_setup.bash" ]; then
@@ -137,10 +138,9 @@ if ! stamp_ok build "$want" || [ ! -f "$WS/install/local_setup.bash" ]; then
   # colcon cannot switch an existing build/ between symlink and copy installs; a failed
   # earlier build can leave it half-made. Start clean when the stamp is missing.
   if [ ! -f "$STAMPS/build" ]; then rm -rf build install log; fi
-  if ! colcon --log-base log build --symlink-install \
-        --event-handlers console_cohesion- status- \
-        --cmake-args -DBUILD_TESTING=OFF -DPython3_EXECUTABLE="$VENV/bin/python" \
-        > "$STAMPS/colcon.log" 2>&1; then
+  # colcon runs under the venv's python, so every installed script's shebang is the venv's
+  # (apt's colcon would write /usr/bin/python3, which cannot import requirements-robot.txt)
+  if ! bash "$ROOT/scripts/colcon_build.sh" "$VENV" "$WS" > "$STAMPS/colcon.log" 2>&1; then
     cat "$STAMPS/colcon.log"
     rm -f "$STAMPS/build"
     echo "[setup] colcon build failed (log above)" >&2

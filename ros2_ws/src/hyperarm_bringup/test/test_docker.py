@@ -32,10 +32,35 @@ def instructions() -> list[tuple[str, str]]:
 
 
 def ignored(rel: str) -> bool:
-    patterns = [p.strip() for p in (ROOT / ".dockerignore").read_text().splitlines()
+    """Whether .dockerignore keeps ``rel`` out of the build context: a pattern matches the
+    path or one of its parent directories (``**/`` also matches at the top)."""
+    patterns = [p.strip().rstrip("/") for p in (ROOT / ".dockerignore").read_text().splitlines()
                 if p.strip() and not p.startswith("#")]
-    return any(fnmatch.fnmatch(rel, p) or rel.startswith(p.rstrip("/") + "/")
-               for p in patterns)
+    patterns += [p[3:] for p in patterns if p.startswith("**/")]
+    parts = rel.strip("/").split("/")
+    paths = ["/".join(parts[:i]) for i in range(1, len(parts) + 1)]
+    return any(fnmatch.fnmatch(path, p) for path in paths for p in patterns)
+
+
+def test_history_builds_and_outputs_stay_out_of_the_build_context():
+    """.git and every path .gitignore names (builds, venvs, demo_output, caches) are not sent
+    to Docker; the sources are."""
+    assert ignored(".git/HEAD") and ignored("demo_output/task.mcap")
+    for line in (ROOT / ".gitignore").read_text().splitlines():
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        name = line.strip("/")
+        if name.startswith("*."):
+            samples = [f"x{name[1:]}/f", f"ros2_ws/src/pkg/x{name[1:]}"]
+        elif "/" in name or line.startswith("/"):
+            samples = [f"{name}/f"]
+        else:  # a bare name matches at any depth
+            samples = [f"{name}/f", f"ros2_ws/src/pkg/{name}/f"]
+        for sample in samples:
+            assert ignored(sample), f".dockerignore lets {sample} in (.gitignore: {line})"
+    for kept in ("ros2_ws/src/hyperarm_ik/setup.py", "scripts/setup.sh", "Makefile"):
+        assert not ignored(kept), kept
 
 
 def test_base_image_and_entrypoint():
@@ -83,10 +108,27 @@ def test_every_repository_command_it_runs_exists():
     assert "requirements-robot.txt" in setup and "--system-site-packages" in setup
 
 
+def installed_executables(pkg: str) -> set[str]:
+    """What colcon installs into lib/<pkg>/ (what `ros2 run pkg` finds), read from the
+    package's setup.py, so this core test needs no build: its console_scripts and the
+    scripts/*.sh it lists as data files."""
+    setup = (SRC / pkg / "setup.py").read_text()
+    names = set(re.findall(r'"\s*([\w.-]+)\s*=\s*[\w.]+:\w+\s*"', setup))
+    if 'glob("scripts/*.sh")' in setup:
+        names |= {p.name for p in (SRC / pkg / "scripts").glob("*.sh")}
+    return names
+
+
+def test_installed_executables_are_read_from_setup_py():
+    assert {"task_node", "run_task.sh", "task_recorder"} <= installed_executables("hyperarm_tasks")
+    assert {"mock_driver", "dynamixel_driver"} <= installed_executables("hyperarm_driver")
+    assert "mock_driver" not in installed_executables("hyperarm_ik")
+
+
 def _exists_in_workspace(cmd: list[str]) -> None:
     if cmd[:2] == ["ros2", "run"]:
         pkg, exe = cmd[2], cmd[3]
-        assert (ROOT / "ros2_ws" / "install" / pkg / "lib" / pkg / exe).exists(), cmd
+        assert exe in installed_executables(pkg), cmd
     elif cmd[:2] == ["ros2", "launch"]:
         assert (SRC / cmd[2] / "launch" / cmd[3]).exists(), cmd
     else:

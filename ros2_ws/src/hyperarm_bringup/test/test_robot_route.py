@@ -1,12 +1,16 @@
 """The robot route (Ubuntu 24.04 + ROS 2 Jazzy from apt) installs without breaking ROS:
 pip's plan never replaces apt's numpy 1.26 nor adds a second pinocchio, every third-party
-import has an apt (rosdep) key or a line in requirements-robot.txt, and the ROS-free core
-tests pass under numpy 1.26 (docs/robot-install.md)."""
+import has an apt (rosdep) key or a line in requirements-robot.txt, the installed
+executables start with the venv's interpreter (colcon is run by it, whatever `colcon` is on
+PATH), `make check-robot-route` sets up first, and the ROS-free core tests pass under
+numpy 1.26 (docs/robot-install.md)."""
 from __future__ import annotations
 
 import ast
 import importlib.util
+import os
 import re
+import shutil
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -19,10 +23,11 @@ pytestmark = pytest.mark.core
 ROOT = Path(__file__).resolve().parents[4]
 SRC = ROOT / "ros2_ws" / "src"
 CHECK = ROOT / "scripts" / "robot_route" / "check_plan.py"
+CHECK_EXES = ROOT / "scripts" / "robot_route" / "check_executables.py"
 
 
-def _check_module():
-    spec = importlib.util.spec_from_file_location("check_plan", CHECK)
+def _check_module(path: Path = CHECK):
+    spec = importlib.util.spec_from_file_location(path.stem, path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -69,7 +74,8 @@ ROSDEP_OF = {"numpy": "python3-numpy", "yaml": "python3-yaml", "pinocchio": "pin
              "matplotlib": "python3-matplotlib", "PIL": "python3-pil",
              "lark": "python3-lark-parser"}
 PIP_OF = {"dls_pmaclib": "dls-pmaclib", "mcap": "mcap", "mcap_ros2": "mcap-ros2-support",
-          "viser": "viser", "selenium": "selenium", "mujoco": "mujoco"}
+          "viser": "viser", "selenium": "selenium", "mujoco": "mujoco",
+          "cv2": "opencv-python-headless"}
 BENCH_ONLY = {"ikpy", "pytracik"}  # requirements-bench.txt, never at run time
 
 
@@ -130,3 +136,128 @@ def test_core_tests_pass_under_numpy_1_26():
     assert "[np126] numpy 1.26.4" in proc.stdout
     passed = int(re.search(r"(\d+) passed", proc.stdout).group(1))
     assert passed >= 100, tail
+
+
+# --- the installed executables' interpreter (issue 25.2) and the make target (25.3) --------
+
+def _exe(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    path.chmod(0o755)
+
+
+def test_check_executables_names_each_foreign_shebang_failing_import_and_bad_script(tmp_path):
+    """A fake install tree: what apt's colcon wrote (#!/usr/bin/python3), an entry point that
+    does not import, a shell script with a syntax error; the good ones pass."""
+    ce = _check_module(CHECK_EXES)
+    lib = tmp_path / "install" / "pkg_a" / "lib" / "pkg_a"
+    py = sys.executable
+    _exe(lib / "good", f"#!{py}\nimport sys\nfrom json import dumps\nsys.exit(0)\n")
+    _exe(lib / "easy", f"#!{py}\n# EASY-INSTALL-ENTRY-SCRIPT: 'pytest','console_scripts',"
+                       "'pytest'\nimport re\n")
+    _exe(lib / "apt_colcon", "#!/usr/bin/python3\nfrom json import dumps\n")
+    _exe(lib / "no_module", f"#!{py}\nfrom no_such_module_xyz import main\n")
+    _exe(lib / "no_entry", f"#!{py}\n# EASY-INSTALL-ENTRY-SCRIPT: 'pytest','console_scripts',"
+                           "'no_such_entry'\n")
+    _exe(lib / "ok.sh", "#!/usr/bin/env bash\necho ok\n")
+    _exe(lib / "bad.sh", "#!/usr/bin/env bash\nif then fi (\n")
+    (lib / "not_executable").write_text("#!/usr/bin/python3\n")
+    problems, counts = ce.check(tmp_path / "install", py)
+    text = "\n".join(problems)
+    assert len(problems) == 4, text
+    assert "pkg_a/apt_colcon: shebang '#!/usr/bin/python3'" in text
+    assert "pkg_a/no_module: does not import" in text and "no_such_module_xyz" in text
+    assert "pkg_a/no_entry: does not import" in text and "no_such_entry" in text
+    assert "pkg_a/bad.sh: bash -n" in text
+    assert counts == {"python": 5, "shell": 2}
+    assert ce.check(tmp_path / "nothing_built", py)[0]  # an empty install is no pass
+    (tmp_path / "nothing_built").mkdir()
+    assert "no executables" in ce.check(tmp_path / "nothing_built", py)[0][0]
+
+
+def test_setup_builds_through_colcon_build_sh_only():
+    """setup.sh runs colcon only through scripts/colcon_build.sh (the venv's interpreter),
+    never the `colcon` on PATH, which is apt's /usr/bin/python3 one on the robot."""
+    setup = (ROOT / "scripts" / "setup.sh").read_text()
+    commands = [line.split("#")[0] for line in setup.splitlines()]
+    assert any('scripts/colcon_build.sh" "$VENV" "$WS"' in c for c in commands)
+    bare = re.compile(r"(^\s*|[;&|]\s*|\bif\s+!?\s*|\$\(\s*|\bexec\s+)colcon\s")
+    assert not [c for c in commands if bare.search(c)], "setup.sh calls a bare colcon"
+    assert bare.search("  if ! colcon --log-base log build") and bare.search("x && colcon b")
+    build = (ROOT / "scripts" / "colcon_build.sh").read_text()
+    assert '"$VENV/bin/python" -c' in build and "colcon_core.command import main" in build
+
+
+def test_check_robot_route_sets_up_first_and_checks_the_executables():
+    out = subprocess.run(["make", "-n", "-C", str(ROOT), "check-robot-route"],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    order = [next(i for i, line in enumerate(lines) if key in line)
+             for key in ("scripts/setup.sh", "check_plan.py", "check_executables.py",
+                         "core_tests.sh")]
+    assert order == sorted(order), out.stdout
+
+
+@pytest.mark.e2e
+def test_installed_executables_run_with_the_venv_interpreter():
+    """The built workspace: every installed Python executable starts with the venv's
+    python and its entry point imports under it (what `make check-robot-route` runs)."""
+    venv = Path(os.environ.get("HYPERARM_VENV") or ROOT / ".venv")
+    proc = subprocess.run([sys.executable, str(CHECK_EXES), "--python",
+                           str(venv / "bin" / "python")],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert re.search(r"ok: (\d+) Python executables", proc.stdout)
+    assert int(re.search(r"ok: (\d+)", proc.stdout).group(1)) >= 20, proc.stdout
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+def test_colcon_build_writes_the_venv_interpreter_whatever_colcon_is_on_path(tmp_path):
+    """As on the robot, the `colcon` first on PATH runs under another interpreter (there:
+    apt's, under /usr/bin/python3; here: the same colcon under the base interpreter of the
+    venv). scripts/colcon_build.sh still writes the venv's python into every script.
+    (setup.sh before this fix ran that PATH colcon: its scripts began with the other
+    interpreter, which check_executables.py reports.)"""
+    venv = Path(os.environ.get("HYPERARM_VENV") or ROOT / ".venv")
+    base = Path(sys.base_prefix) / "bin" / "python3"
+    site = subprocess.run([str(venv / "bin" / "python"), "-c",
+                           "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                          capture_output=True, text=True, check=True).stdout.strip()
+    _exe(tmp_path / "bin" / "colcon",
+         f"#!/bin/sh\nPYTHONPATH={site} exec {base} -c 'import sys; from colcon_core.command "
+         "import main; sys.exit(main())' \"$@\"\n")
+    ws = tmp_path / "ws"
+    shutil.copytree(SRC / "hyperarm_description", ws / "src" / "hyperarm_description",
+                    ignore=shutil.ignore_patterns("test", "__pycache__", "*.egg-info"))
+    env = dict(os.environ, PATH=f"{tmp_path / 'bin'}:{os.environ['PATH']}")
+    proc = subprocess.run(["bash", str(ROOT / "scripts" / "colcon_build.sh"), str(venv),
+                           str(ws)], capture_output=True, text=True, timeout=300, env=env)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    ce = _check_module(CHECK_EXES)
+    problems, counts = ce.check(ws / "install", str(venv / "bin" / "python"))
+    assert not problems and counts["python"] >= 2, problems
+    assert ce.check(ws / "install", str(base))[0]  # and the check does look at the shebang
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(os.environ.get("HYPERARM_FRESH_CLONE") != "1",
+                    reason="minutes (a full set-up from PyPI): HYPERARM_FRESH_CLONE=1 runs it")
+@pytest.mark.timeout(1800)
+def test_check_robot_route_passes_on_a_fresh_clone(tmp_path):
+    """`git clone` of this repository's HEAD, then `make check-robot-route` in it: sets up
+    the venv and the build, checks the plan, the executables and the core tests."""
+    clone = tmp_path / "hyperarm"
+    subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True, timeout=300)
+    env = {k: v for k, v in os.environ.items()
+           if not k.startswith(("HYPERARM_", "AMENT_", "COLCON_", "CMAKE_PREFIX", "PYTHONPATH",
+                                "VIRTUAL_ENV", "ROS_"))}
+    env["PATH"] = ":".join(p for p in env["PATH"].split(":")
+                           if not p.startswith(str(ROOT)))
+    proc = subprocess.run(["make", "check-robot-route"], cwd=clone, capture_output=True,
+                          text=True, timeout=1750, env=env)
+    tail = proc.stdout[-4000:] + proc.stderr[-3000:]
+    assert proc.returncode == 0, tail
+    assert "ok: " in proc.stdout and "Python executables start with" in proc.stdout, tail
+    assert "[np126] numpy 1.26.4" in proc.stdout, tail
