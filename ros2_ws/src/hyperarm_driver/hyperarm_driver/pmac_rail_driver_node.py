@@ -48,7 +48,7 @@ PARAMETERS: ParamSpec = {
                              "speed/acceleration (Ixx22, Ixx19, Ixx20, Ixx21) and soft limits "
                              "(Ixx13, Ixx14) and download the safety PLC; false: only check "
                              "I3/I6/I64", None),
-    "watchdog_timeout": (0.1, "on-card watchdog: the safety PLC stops the rail when the "
+    "watchdog_timeout": (0.5, "on-card watchdog: the safety PLC stops the rail when the "
                               "driver's heartbeat stops for this long, s; 0 = no safety PLC "
                               "(needs configure_card)", Range(0.0, 10.0)),
     "watchdog_plc": (10, "PLC program number of the safety PLC", Range(1, 31)),
@@ -105,6 +105,7 @@ class PmacRailDriver(Node):
             raise SystemExit(f"{NODE_NAME}: {exc}") from exc
         self._rejections = ReasonThrottle(float(p["log_period"]))
         self._last_stamp = 0.0
+        self._reported: tuple[int, tuple[str, ...]] = (0, ())   # in the last /diagnostics
         self._js_pub = self.create_publisher(JointState, contract.JOINT_STATES,
                                              qos_for(contract.JOINT_STATES))
         self._diag_pub = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
@@ -153,6 +154,11 @@ class PmacRailDriver(Node):
 
     def _publish_state(self) -> None:
         snap = self._driver.snapshot()
+        # a refused setpoint or a new latched fault (a watchdog trip) goes out on
+        # /diagnostics at once, not at the next diagnostics_period: the commanding client
+        # learns why its setpoints are not followed (docs/pmac.md, "Refusals")
+        if (snap.rejected_setpoints, snap.latched) != self._reported:
+            self._publish_diagnostics()
         if not snap.link_up or snap.state is None or snap.stamp == self._last_stamp:
             return
         self._last_stamp = snap.stamp
@@ -165,6 +171,7 @@ class PmacRailDriver(Node):
 
     def _publish_diagnostics(self) -> None:
         snap = self._driver.snapshot()
+        self._reported = (snap.rejected_setpoints, snap.latched)
         level, message, kv = snap.diagnostic()
         status = diagnostic_status(f"{NODE_NAME}: {self._joint}",
                                    f"pmac@{snap.endpoint}#{snap.motor}", level, message, kv)

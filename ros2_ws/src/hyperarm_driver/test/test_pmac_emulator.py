@@ -548,3 +548,30 @@ def test_watchdog_stops_the_rail_when_the_link_is_cut_mid_move(wd_driver, wd_emu
     wait_for(lambda: wd_driver.snapshot().link_up and wd_driver.snapshot().reconnects, 3.0,
                what="reconnected")
     assert not wd_emu.motor(1).closed_loop         # torque off after a reconnect
+
+
+def test_a_watchdog_trip_is_counted_latched_and_named_in_refusals(wd_driver, wd_emu,
+                                                                   wait_for) -> None:
+    """Issue 25 item 5: a trip while the link stays up (the host's heartbeat was late by
+    more than the timeout: here the card's timer is run out directly) is latched, counted in
+    ``watchdog_trips`` and named in every refused setpoint (``last_rejection``); enabling
+    again clears the latch, the count stays."""
+    wd_driver.set_target(0.05)
+    wait_for(lambda: wd_emu.motor(1).vel != 0, 2.0, what="moving")
+    assert wd_driver.snapshot().watchdog_trips == 0
+    with wd_emu._lock:
+        wd_emu.set("I", 5111, 0)                 # the timer ran out: the PLC trips
+    wait_for(lambda: wd_driver.snapshot().latched, 2.0, what="trip latched")
+    snap = wd_driver.snapshot()
+    assert snap.watchdog_trips == 1 and snap.latched[0].startswith("watchdog PLC tripped")
+    level, message, kv = snap.diagnostic()
+    assert level == ERROR and "watchdog PLC tripped" in message
+    assert dict(kv)["watchdog_trips"] == "1" and dict(kv)["last_rejection"] == "none"
+    with pytest.raises(RailCommandError, match="watchdog PLC tripped"):
+        wd_driver.set_target(0.06)
+    kv = dict(wd_driver.snapshot().diagnostic()[2])
+    assert "watchdog PLC tripped" in kv["last_rejection"] and kv["rejected_setpoints"] == "1"
+    wait_for(lambda: not wd_emu.motor(1).closed_loop, 2.0,
+             what="killed by the driver on the latch")
+    assert wd_driver.request("enable").startswith("torque on")
+    assert wd_driver.snapshot().latched == () and wd_driver.snapshot().watchdog_trips == 1

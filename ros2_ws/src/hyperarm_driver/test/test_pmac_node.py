@@ -254,10 +254,12 @@ def _free_port() -> int:
 @pytest.mark.e2e
 def test_installed_driver_safety_on_the_emulator(launch, rclpy_context, executor,
                                                  wait_for) -> None:
-    """Through the installed pmac_rail_driver (default watchdog, 100 ms): an unreachable
+    """Through the installed pmac_rail_driver (default watchdog, 0.5 s): an unreachable
     card is logged with its reason and retry period (throttled); a killed motor stays killed
     whatever is streamed, latched on /diagnostics after the cause clears; cutting the link
-    mid-move, the card stops the rail within 100 ms plus its deceleration."""
+    mid-move, the card stops the rail within the watchdog timeout plus its deceleration."""
+    from hyperarm_driver.pmac_rail_driver_node import PARAMETERS
+    wd_timeout = PARAMETERS["watchdog_timeout"][0]
     port = _free_port()                        # nothing listens there yet
     drv = launch("hyperarm_driver", "pmac_rail_driver",
                  params={"port": port, "reconnect_period": 0.2, "require_homing": False,
@@ -291,8 +293,8 @@ def test_installed_driver_safety_on_the_emulator(launch, rclpy_context, executor
                 time.sleep(0.005)
 
         def tripped_since(mark: int) -> bool:
-            # the watchdog stops the rail when the host is 100 ms late: on an overloaded test
-            # host that can happen before the event under test; the step is then run again
+            # the watchdog stops the rail when the host is wd_timeout late: on an overloaded
+            # test host that can happen before the event under test; the step is run again
             return "watchdog PLC tripped" in drv.output()[mark:]
 
         # 1. stream at 200 Hz; a momentary fatal following error kills the motor
@@ -345,9 +347,53 @@ def test_installed_driver_safety_on_the_emulator(launch, rclpy_context, executor
         wait_for(lambda: emu.motor(1).vel == 0 and emu.motor(1).mode == "idle", 3.0,
                  what="stopped by the card")
         m = emu.motor(1)
-        assert m.motion_ended_at - t_cut <= 0.1 + v / (m.ivars[19] * 1e6) + 0.01
+        assert m.motion_ended_at - t_cut <= wd_timeout + v / (m.ivars[19] * 1e6) + 0.01
         assert m.closed_loop and abs(m.actual - m.ref - target * CPM) > 1000   # short of it
         wait_for(lambda: "PMAC link lost" in drv.output(), 2.0, what="link loss logged")
         emu.mute = False
         wait_for(lambda: "reconnected to PMAC" in drv.output(), 5.0, what="reconnected")
         wait_for(lambda: not emu.motor(1).closed_loop, 2.0, what="torque off after reconnect")
+
+
+@pytest.mark.e2e
+def test_installed_driver_reports_a_watchdog_trip_at_once(launch, rclpy_context, executor,
+                                                          wait_for) -> None:
+    """Issue 25 item 5, through the installed pmac_rail_driver with the installed
+    rail_arm.yaml: its watchdog period is the one chosen from the heartbeat benchmark; a
+    trip (the card's timer run out: the host's heartbeat late by more than the timeout) is
+    on /diagnostics at once (ERROR, latched, ``watchdog_trips`` 1), not at the next
+    ``diagnostics_period`` (10 s here), and a setpoint streamed after it is refused with
+    the reason in ``last_rejection``, also at once. The old driver published neither key,
+    and only every diagnostics_period."""
+    from ament_index_python.packages import get_package_share_directory
+
+    from hyperarm_driver.pmac_rail_driver_node import PARAMETERS
+    yaml = f"{get_package_share_directory('hyperarm_bringup')}/config/rail_arm.yaml"
+    with PmacEmulator(start_position=2000, limits=(-CPM, CPM)) as emu:
+        drv = launch("hyperarm_driver", "pmac_rail_driver", "--ros-args", "--params-file",
+                     yaml, params={"host": "127.0.0.1", "port": emu.port,
+                                   "require_homing": False, "diagnostics_period": 10.0})
+        probe = Probe(rclpy_context, executor)
+        line = f"watchdog {PARAMETERS['watchdog_timeout'][0] * 1e3:g} ms"   # its start line
+        wait_for(lambda: line in drv.output() and "connected to PMAC" in drv.output(), 15.0,
+                 what=f"connected, {line}")
+        assert probe.call("torque", wait_for, data=True).success
+        probe.command(["rail"], [0.02])
+        wait_for(lambda: emu.motor(1).vel != 0, 5.0, what="moving")
+        with emu._lock:
+            emu.set("I", 5111, 0)                  # the card's watchdog timer runs out
+        t0 = time.monotonic()
+        wait_for(lambda: (d := probe.diag()) and d["watchdog_trips"] == "1", 5.0,
+                 what="the trip on /diagnostics")
+        assert time.monotonic() - t0 < 5.0         # well before the 10 s period
+        d = probe.diag()
+        assert d["level"] == 2 and "watchdog PLC tripped" in d["latched_faults"]
+        assert "watchdog PLC tripped" in d["message"]
+        n = int(d["rejected_setpoints"])
+        t0 = time.monotonic()
+        probe.command(["rail"], [0.03])
+        wait_for(lambda: int(probe.diag()["rejected_setpoints"]) == n + 1, 5.0,
+                 what="the refusal on /diagnostics")
+        assert time.monotonic() - t0 < 5.0
+        assert "watchdog PLC tripped" in probe.diag()["last_rejection"]
+        wait_for(lambda: "rail setpoint rejected" in drv.output(), 5.0, what="logged")

@@ -40,6 +40,7 @@ __all__ = ["RailDriver", "DriverSnapshot", "REQUESTS", "OK", "WARN", "ERROR", "c
 
 OK, WARN, ERROR = 0, 1, 2          # diagnostic levels (diagnostic_msgs/DiagnosticStatus)
 REQUESTS = ("home", "hold", "enable", "kill")
+WATCHDOG_TRIP = "watchdog PLC tripped"   # the start of a watchdog trip's latched reason
 Logger = Callable[[str, str], None]   # (level: "info" | "warn" | "error", message)
 
 
@@ -91,6 +92,8 @@ class DriverSnapshot:
     torque: bool = False         # the driver has torque on (enabled on this connection)
     latched: tuple[str, ...] = ()
     watchdog: bool = False       # the safety PLC is downloaded and fed
+    watchdog_trips: int = 0      # times the safety PLC stopped the rail (heartbeat lost)
+    last_rejection: str = ""     # why the last setpoint was refused ("" = none yet)
 
     @property
     def homed(self) -> bool:
@@ -102,7 +105,8 @@ class DriverSnapshot:
         kv = [("link", "up" if self.link_up else "down"), ("endpoint", self.endpoint),
               ("motor", str(self.motor)), ("torque", "on" if self.torque else "off"),
               ("latched_faults", ", ".join(self.latched) or "none"),
-              ("watchdog", "on" if self.watchdog else "off")]
+              ("watchdog", "on" if self.watchdog else "off"),
+              ("watchdog_trips", str(self.watchdog_trips))]
         if s is not None:
             st = s.status
             kv += [("position_m", f"{s.position:.6f}"), ("velocity_mps", f"{s.velocity:.6f}"),
@@ -117,6 +121,7 @@ class DriverSnapshot:
         kv += [("round_trip_ms", f"{self.round_trip * 1e3:.3f}"),
                ("reconnects", str(self.reconnects)),
                ("rejected_setpoints", str(self.rejected_setpoints)),
+               ("last_rejection", self.last_rejection or "none"),
                ("last_error", self.last_error)]
         if not self.link_up:
             return ERROR, f"PMAC link down: {self.last_error}", kv
@@ -282,7 +287,8 @@ class RailDriver:
     def reject(self, reason: str) -> NoReturn:
         """Count a refused setpoint (shown in diagnostics) and raise RailCommandError."""
         with self._lock:
-            self._snap = replace(self._snap, rejected_setpoints=self._snap.rejected_setpoints + 1)
+            self._snap = replace(self._snap, rejected_setpoints=self._snap.rejected_setpoints + 1,
+                                 last_rejection=reason)
         raise RailCommandError(reason)
 
     def request(self, kind: str, timeout: float = 2.0) -> str:
@@ -404,7 +410,9 @@ class RailDriver:
         with self._lock:
             new = reason not in self._snap.latched
             self._snap = replace(self._snap, torque=False,
-                                 latched=_unique(self._snap.latched + (reason,)))
+                                 latched=_unique(self._snap.latched + (reason,)),
+                                 watchdog_trips=self._snap.watchdog_trips + (
+                                     reason.startswith(WATCHDOG_TRIP)))
             self._target, self._sent_counts = None, None
         self.axis.kill()
         if new:
@@ -425,7 +433,7 @@ class RailDriver:
         elif torque and not st.amp_enabled:     # (the safety PLC disarms on any kill too)
             self._latch("motor killed (by the card or another host)")
         elif torque and state.armed is False:
-            self._latch("watchdog PLC tripped (heartbeat lost): the card stopped the rail")
+            self._latch(f"{WATCHDOG_TRIP} (heartbeat lost): the card stopped the rail")
         elif not torque and st.amp_enabled:
             self._latch("motor enabled by someone else while the driver had torque off")
         if prev is not None:
