@@ -261,3 +261,15 @@ def test_check_robot_route_passes_on_a_fresh_clone(tmp_path):
     assert proc.returncode == 0, tail
     assert "ok: " in proc.stdout and "Python executables start with" in proc.stdout, tail
     assert "[np126] numpy 1.26.4" in proc.stdout, tail
+
+
+def test_robot_install_doc_suggests_no_pip_install_the_plan_check_refuses():
+    """docs/robot-install.md and check_plan.py agree: no `pip install` of a distribution the
+    plan check forbids (the old fallback `pip install dynamixel-sdk` was one)."""
+    cp = _check_module()
+    doc = (ROOT / "docs" / "robot-install.md").read_text()
+    named = [canonical for m in re.finditer(r"pip install ((?:[-\w.=<>\[\]]+ ?)+)", doc)
+             for word in m.group(1).split() if not word.startswith("-")
+             for canonical in [cp.canonical(re.split(r"[=<>\[]", word)[0])]]
+    bad = [n for n in named if n in cp.FORBIDDEN or n.startswith(cp.FORBIDDEN_PREFIXES)]
+    assert not bad, f"docs/robot-install.md suggests pip install {bad}: check_plan.py forbids it"
