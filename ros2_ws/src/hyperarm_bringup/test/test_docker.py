@@ -148,6 +148,10 @@ def test_compose_files(name):
         build = svc["build"]
         assert (ROOT / "docker" / build["context"] / build["dockerfile"]).resolve() == DOCKERFILE
         _exists_in_workspace(svc["command"])
+    if name == "compose.mock.yaml":  # issue 24.8: the IK avoids the cell the mock simulates
+        ik = data["services"]["ik_service"]["command"]
+        assert "world_file:=/opt/hyperarm/ros2_ws/install/hyperarm_driver/share/" \
+               "hyperarm_driver/config/workcell.yaml" in ik, ik
     if name == "compose.hardware.yaml":
         svc = data["services"]["hyperarm"]
         assert "/dev:/dev" in svc["volumes"]
