@@ -397,3 +397,62 @@ def test_installed_driver_reports_a_watchdog_trip_at_once(launch, rclpy_context,
         assert time.monotonic() - t0 < 5.0
         assert "watchdog PLC tripped" in probe.diag()["last_rejection"]
         wait_for(lambda: "rail setpoint rejected" in drv.output(), 5.0, what="logged")
+
+
+@pytest.mark.e2e
+def test_installed_watchdog_never_re_enables_a_motor_another_host_killed(
+        launch, rclpy_context, executor, wait_for) -> None:
+    """Issue 24 item 9, through the installed pmac_emulator and pmac_rail_driver (default
+    watchdog): the driver's host hangs (SIGSTOP: the heartbeat stops, the link stays open).
+    Nobody else acts: the card stops the rail and holds it (the trip). Another host kills
+    the motor (``#1K`` on its own connection) just after the hang: the motor stays killed,
+    although the trip is ``#1J/``, which closes a killed motor's loop (the old safety PLC
+    did close it). Also the card's status queries ``??`` / ``???`` as a Turbo PMAC answers
+    them (18 and 12 hex digits, one line)."""
+    import os
+    import signal
+
+    from hyperarm_driver.pmac.axis import MotorStatus
+    from hyperarm_driver.pmac.client import PmacClient
+    from hyperarm_driver.pmac_rail_driver_node import PARAMETERS
+    wd = PARAMETERS["watchdog_timeout"][0]
+    emu = launch("hyperarm_driver", "pmac_emulator", "--port", "0", "--start-position", "2000")
+    port = int(wait_for(lambda: re.search(r"127\.0\.0\.1:(\d+)", emu.output()), 10.0,
+                        what="emulator port").group(1))
+    other = PmacClient("127.0.0.1", port, timeout=1.0)        # another host on the card
+    try:
+        assert [len(x) for x in other.command("??")] == [18]
+        assert [len(x) for x in other.command("???")] == [12]
+        assert [len(x) for x in other.command("#1?")] == [12]
+        drv = launch("hyperarm_driver", "pmac_rail_driver",
+                     params={"port": port, "require_homing": False,
+                             "diagnostics_period": 0.1})
+        probe = Probe(rclpy_context, executor)
+        wait_for(lambda: (d := probe.diag()) and d["link"] == "up", 20.0, what="link up")
+
+        def status() -> MotorStatus:
+            return MotorStatus.from_hex(other.command("#1?")[0])
+
+        for k, phase in enumerate(("nobody", "another host")):
+            assert probe.call("torque", wait_for, data=True).success
+            probe.command(["rail"], [0.4 if k == 0 else -0.4])
+            wait_for(lambda: not status().desired_velocity_zero, 5.0, what="moving")
+            os.kill(drv.proc.pid, signal.SIGSTOP)          # the driver's host hangs
+            try:
+                if phase == "another host":
+                    other.command("#1K")
+                time.sleep(wd + 1.0)                       # the timer runs out; deceleration
+                st, armed = status(), float(other.command("P8003")[0])
+            finally:
+                os.kill(drv.proc.pid, signal.SIGCONT)
+            if phase == "nobody":                          # the trip: stopped and held
+                assert st.amp_enabled and st.desired_velocity_zero and armed == 0, st
+            else:
+                assert not st.amp_enabled, f"the watchdog closed the killed motor's loop: {st}"
+                assert armed == 0
+            wait_for(lambda: (d := probe.diag()) and d["latched_faults"] != "none", 5.0,
+                     what=f"{phase}: latched by the driver")
+        assert "motor killed" in probe.diag()["latched_faults"]
+        assert not status().amp_enabled
+    finally:
+        other.close()
