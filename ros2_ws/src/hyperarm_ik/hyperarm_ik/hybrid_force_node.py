@@ -289,7 +289,8 @@ class HybridForceNode(Node):
                   "compliance": ctl.compliance, "cycles": s.cycles,
                   "compute_ms": f"{self._compute_time * 1e3:.3f}",
                   "wrench_limited": s.wrench_limited, "joint_limited": s.joint_limited,
-                  "rate_limited": s.rate_limited, "last_event": s.last_event,
+                  "rate_limited": s.rate_limited, "step_limited": s.step_limited,
+                  "last_event": s.last_event,
                   "payload_kg": ctl.law.payload.mass,
                   "last_state_s": f"{self._state_time or 0.0:.6f}",
                   **ctl.input_counts()}

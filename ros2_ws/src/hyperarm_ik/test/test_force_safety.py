@@ -11,7 +11,7 @@ import pinocchio as pin
 import pytest
 
 from hyperarm_description.model import load_description
-from hyperarm_ik.force import HybridLaw, LawConfig
+from hyperarm_ik.force import HybridLaw, LawConfig, make_goal
 from hyperarm_ik.force.law import null_space_torque
 from hyperarm_ik.kinematics import Kinematics
 from hyperarm_ik.solvers import DEFAULT_SOLVER, make_solver
@@ -167,3 +167,49 @@ def test_goals_late_or_out_of_order_are_ignored_while_active(kin):
     assert ctl.check_goal(99.95, 100.0) is None
     counts = ctl.input_counts()
     assert counts["hybrid_goal_stale"] == 1 and counts["hybrid_goal_out_of_order"] == 1
+
+
+# -- the step limit of every position command (issue 24 item 1's invariant) ---------------
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_no_position_command_steps_a_joint_further_than_its_velocity_limit(kin, seed):
+    """The 'position' output over random postures, random goals (up to 30 cm away, any
+    orientation, random force axes, K up to the maxima), random periods (2-50 ms),
+    servos with and without integral action and joints that follow their commands
+    partly (a random lag), or not at all: every command is within v_max x dt of the one
+    before (of the measured position at the first) and inside the limits. Fails on the
+    old law: its pseudo-goal moved up to torque_rate x dt / k_s = 5 rad/s x dt, and g/k_s
+    (no integral action) jumped with the posture."""
+    rng = np.random.default_rng(seed)
+    v_max = np.array([j.velocity for j in kin.desc.joints])
+    worst = 0.0
+    for trial in range(6):
+        cfg = LawConfig(servo_holds_gravity=bool(trial % 2), servo_stiffness=float(
+            rng.choice([2.0, 20.0])), torque_rate=1e4)
+        law = HybridLaw(kin, cfg)
+        q = kin.random_configuration(rng) * 0.8
+        law.reset(q)
+        prev = q.copy()
+        lag = rng.uniform(0.0, 1.0)
+        for _ in range(60):
+            t = kin.forward(q)
+            offset = rng.uniform(-0.3, 0.3, 3)
+            while kin.reach_excess(t[:3, 3] + offset) > cfg.workspace_margin:
+                offset *= 0.5                       # a goal the arm may be sent to
+            quat = pin.Quaternion(pin.exp3(rng.normal(0.0, 1.0, 3)) @ t[:3, :3])
+            k = np.r_[rng.uniform(0, 5000, 3), rng.uniform(0, 100, 3)]
+            goal = make_goal(kin, cfg, kin.root_frame, t[:3, 3] + offset,
+                             [quat.x, quat.y, quat.z, quat.w], k, rng.random(6) < 0.3,
+                             np.zeros(6))
+            for _ in range(int(rng.integers(1, 6))):
+                dt = float(rng.uniform(0.002, 0.05))
+                cmd = law.step(q, rng.normal(0.0, 0.3, 9), goal, dt, output="position")
+                step = np.abs(cmd.q_cmd - prev) / (v_max * dt)
+                worst = max(worst, float(step.max()))
+                assert np.all(cmd.q_cmd >= kin.lower - 1e-12)
+                assert np.all(cmd.q_cmd <= kin.upper + 1e-12)
+                prev = cmd.q_cmd.copy()
+                q = np.clip(q + lag * (cmd.q_cmd - q) + rng.normal(0.0, 0.002, 9),
+                            kin.lower, kin.upper)
+    print(f"largest step / (v_max dt): {worst:.6f}")
+    assert worst <= 1.0 + 1e-9

@@ -131,6 +131,7 @@ class _Stats:
     wrench_limited: int = 0
     joint_limited: int = 0
     rate_limited: int = 0
+    step_limited: int = 0
 
 
 class ForceController:
@@ -372,6 +373,7 @@ class ForceController:
         s.wrench_limited += cmd.wrench_scale < 1.0
         s.joint_limited += cmd.joint_scale < 1.0
         s.rate_limited += bool(cmd.rate_limited)
+        s.step_limited += bool(cmd.step_limited)
 
 
 def _gate_reason(gate: StampGate,

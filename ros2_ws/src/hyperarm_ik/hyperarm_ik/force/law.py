@@ -39,6 +39,7 @@ from typing import Sequence
 import numpy as np
 import pinocchio as pin
 
+from hyperarm_description.limits import limit_step
 from hyperarm_description.model import RobotDescription
 
 from ..kinematics import Kinematics
@@ -362,6 +363,7 @@ class Command:
     wrench_scale: float = 1.0       # < 1: the Cartesian wrench limit acted
     joint_scale: float = 1.0        # < 1: the joint torque limits acted
     rate_limited: bool = False
+    step_limited: bool = False      # the position command's step limit acted
     jacobian: np.ndarray | None = None   # (6, na) arm Jacobian at q (LWA)
     rotation: np.ndarray | None = None   # tool0's rotation at q
     jjt: np.ndarray | None = None        # (6, 6) J J^T (undamped), for the estimate
@@ -390,6 +392,7 @@ class HybridLaw:
         self.arm = slice(int(idx[0]), int(idx[-1]) + 1) if contiguous else mask
         self.na = int(mask.sum())
         self.limit = np.array([j.effort for j in desc.joints]) * self.config.torque_margin
+        self.v_max = np.array([j.velocity for j in desc.joints])     # rad/s
         self.lower = self.kin.lower[self.arm]
         self.upper = self.kin.upper[self.arm]
         if self.config.posture is None:
@@ -407,6 +410,7 @@ class HybridLaw:
         self._ref_at: HybridGoal | None = None     # the reference has reached this goal
         self._tau_prev = np.zeros(self.na)
         self._q_cmd = np.zeros(self.na)
+        self._q_out: np.ndarray | None = None        # the last position command sent
         self._compliance_posture = self.posture.copy()
         cfg = self.config
         self._d = np.asarray(cfg.damping)
@@ -450,6 +454,7 @@ class HybridLaw:
         q, _ = self._state(q, np.zeros_like(np.asarray(q, dtype=float)))
         self._tau_prev = self.gravity.torques(q, self.payload)[self.arm].copy()
         self._q_cmd = q[self.arm].copy()
+        self._q_out = None
         self._compliance_posture = q[self.arm].copy()
         self._ref_p = self._ref_r = None
         self._ref_at = None
@@ -571,6 +576,15 @@ class HybridLaw:
         q_cmd = self._q_cmd + step
         np.maximum(q_cmd, self.lower, out=q_cmd)
         np.minimum(q_cmd, self.upper, out=q_cmd)
+        if cfg.servo_holds_gravity:
+            q_out = q_cmd.copy()
+        else:
+            q_out = np.minimum(np.maximum(q_cmd + g / ks, self.lower), self.upper)
+        # last, after every other term: no joint steps further than its velocity limit x dt
+        # from the last command (from the measured position at the first), inside the limits
+        q_out, step_limited = self._limit_step(q_out, qa, dt)
+        if step_limited:             # the pseudo-goal follows what the servos were told
+            q_cmd = q_out.copy() if cfg.servo_holds_gravity else q_out - g / ks
         self._q_cmd = q_cmd
         # the current limit covers gravity and the pressing torque without letting one
         # cancel the other: if a contact vanishes the joint still holds its own weight
@@ -580,16 +594,24 @@ class HybridLaw:
         effort += cfg.effort_headroom
         np.maximum(effort, 0.05, out=effort)
         np.minimum(effort, limit, out=effort)
-        if cfg.servo_holds_gravity:
-            q_out = q_cmd.copy()
-        else:
-            q_out = np.minimum(np.maximum(q_cmd + g / ks, self.lower), self.upper)
         tau = g + push                                  # what the servos exert
         np.maximum(tau, -limit, out=tau)
         np.minimum(tau, limit, out=tau)
         self._tau_prev = tau
         return Command(tau=tau, gravity=g, q_cmd=q_out, effort_limit=effort, wrench=f,
-                       error=err, wrench_scale=wscale, jacobian=j, rotation=r, jjt=jjt)
+                       error=err, wrench_scale=wscale, jacobian=j, rotation=r, jjt=jjt,
+                       step_limited=step_limited)
+
+    def _limit_step(self, q_out: np.ndarray, qa: np.ndarray,
+                    dt: float) -> tuple[np.ndarray, bool]:
+        """``q_out`` (rad) through hyperarm_description.limits.limit_step from the last
+        position command (the measured ``qa`` at the first after :meth:`reset`); and
+        whether it changed anything."""
+        prev = qa if self._q_out is None else self._q_out
+        limited = limit_step(q_out, prev, self.v_max, dt, self.lower, self.upper)
+        changed = bool(np.any(limited != q_out))
+        self._q_out = limited
+        return limited, changed
 
     def _reference(self, goal: HybridGoal, p: np.ndarray, r: np.ndarray,
                    dt: float) -> tuple[np.ndarray, np.ndarray]:
