@@ -111,6 +111,33 @@ else
           "the viewer's browser test will skip"
     fi
   fi
+  # MuJoCo's offscreen pictures (generate_mjcf --render with MUJOCO_GL=egl, docs/mujoco.md)
+  # need EGL and Mesa's software renderer (Debian packages): installed only when missing,
+  # as chromium above.
+  if command -v apt-get >/dev/null 2>&1 && command -v dpkg-query >/dev/null 2>&1; then
+    egl_missing=""
+    for pkg in libegl1 libegl-mesa0 libopengl0 libgl1-mesa-dri; do
+      dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "ok installed" \
+        || egl_missing="$egl_missing $pkg"
+    done
+    if [ -n "$egl_missing" ]; then
+      if [ "$(id -u)" = 0 ]; then
+        log "installing$egl_missing (apt) for MuJoCo's offscreen rendering"
+        export DEBIAN_FRONTEND=noninteractive
+        # shellcheck disable=SC2086
+        if ! apt-get install -y -q --no-install-recommends $egl_missing \
+              > "$STAMPS/apt-egl.log" 2>&1; then
+          apt-get update -q > /dev/null
+          # shellcheck disable=SC2086
+          apt-get install -y -q --no-install-recommends $egl_missing \
+            > "$STAMPS/apt-egl.log" 2>&1 || { cat "$STAMPS/apt-egl.log"; exit 1; }
+        fi
+      else
+        log "missing$egl_missing (sudo apt-get install$egl_missing): MuJoCo's offscreen" \
+            "rendering (MUJOCO_GL=egl) will not work"
+      fi
+    fi
+  fi
   export CMAKE_PREFIX_PATH="$VENV${CMAKE_PREFIX_PATH:+:$CMAKE_PREFIX_PATH}"
   export AMENT_PREFIX_PATH="$VENV${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
 fi

@@ -3,7 +3,8 @@
 Written from ``hyperarm.yaml`` (a :class:`~hyperarm_description.model.RobotDescription`)
 and, optionally, a work cell (a :class:`~hyperarm_description.world.WorldSpec`) with Python's
 ``xml.etree.ElementTree``, every number at full precision (MuJoCo's own writer,
-``MjSpec.to_xml``, keeps 6 significant digits), and compiled by MuJoCo
+``MjSpec.to_xml``, keeps 6 significant digits: joint limits 4e-6 rad off, and any angle
+that is not a multiple of 90 degrees ~1e-7 off), and compiled by MuJoCo
 (``mujoco.MjModel.from_xml_string``; ``mujoco.MjSpec.from_string`` edits it further).
 Nothing is hand-kept: edit the YAML files and regenerate (``generate_mjcf``, docs/mujoco.md).
 
@@ -58,7 +59,7 @@ from .world import MOCK_WORLD_KEYS, WorldSpec, parse_world
 
 __all__ = ["PhysicsOptions", "CAMERA_FROM_LINK", "SERVO_MODES", "build_model",
            "generate_mjcf", "block_pieces", "prism_inertia", "options_from_workcell", "set_servo_mode",
-           "camera_link_pose", "main"]
+           "camera_link_pose", "render_png", "main"]
 
 #: Rotation of a MuJoCo camera's frame in ``camera_link`` (columns: the MuJoCo camera's x, y,
 #: z axes): MuJoCo looks along -z with +y up, camera_link along +x with +z up.
@@ -127,7 +128,7 @@ def _f(x: float) -> str:
 
 def _el(parent: ET.Element, tag: str, **attrs: Any) -> ET.Element:
     """A child element; numbers and sequences of numbers written at full precision (MuJoCo's
-    own writer, ``MjSpec.to_xml``, keeps 6 significant digits: 1e-7 m of kinematic error)."""
+    own writer, ``MjSpec.to_xml``, keeps 6 significant digits)."""
     out = {}
     for key, value in attrs.items():
         if value is None:
@@ -316,17 +317,21 @@ def prism_inertia(pieces: Sequence[np.ndarray], height: float, mass: float
 def _world(asset: ET.Element, worldbody: ET.Element, world: WorldSpec,
            opts: PhysicsOptions) -> None:
     t = world.table
-    grey, wood = [0.55, 0.55, 0.58, 1.0], [0.72, 0.6, 0.45, 1.0]
+    grey = [0.55, 0.55, 0.58, 1.0]
+    _el(asset, "texture", name="table", type="2d", builtin="checker", rgb1=[0.78, 0.66, 0.5],
+        rgb2=[0.7, 0.58, 0.43], width=256, height=256)
+    _el(asset, "material", name="table", texture="table", texrepeat=[8, 8],
+        texuniform="true")
     if all(math.isfinite(v) for v in (*t.x_range, *t.y_range)):
         thick = 0.05
         _el(worldbody, "geom", name="table", type="box",
             size=[0.5 * (t.x_range[1] - t.x_range[0]), 0.5 * (t.y_range[1] - t.y_range[0]),
                   0.5 * thick],
             pos=[0.5 * sum(t.x_range), 0.5 * sum(t.y_range), t.height - 0.5 * thick],
-            group=_WORLD_GROUP, rgba=wood)
+            group=_WORLD_GROUP, material="table")
     else:
         _el(worldbody, "geom", name="table", type="plane", size=[0.0, 0.0, 0.05],
-            pos=[0.0, 0.0, t.height], group=_WORLD_GROUP, rgba=wood)
+            pos=[0.0, 0.0, t.height], group=_WORLD_GROUP, material="table")
     for p in world.pegs:
         _el(worldbody, "geom", name=f"peg_{p.name}", type="cylinder",
             size=[p.radius, 0.5 * p.height], pos=[*p.xy, t.height + 0.5 * p.height],
@@ -454,6 +459,32 @@ def set_servo_mode(model: mujoco.MjModel, joint: str, mode: str, *, kp: float = 
         model.actuator_forcerange[aid] = [0.0, 0.0]
 
 
+def render_png(model: mujoco.MjModel, path: str | Path, *, width: int = 960,
+               height: int = 640, lookat: Sequence[float] = (0.3, 0.0, -0.08),
+               distance: float = 1.1, azimuth: float = -135.0, elevation: float = -25.0
+               ) -> Path:
+    """Render ``model`` at its initial state (qpos0) from a free camera looking at
+    ``lookat`` (m, root frame) from ``distance`` (m), ``azimuth`` and ``elevation`` (deg,
+    MuJoCo's convention) offscreen into a PNG at ``path``. Needs an OpenGL backend: set
+    ``MUJOCO_GL=egl`` (or ``osmesa``) before importing mujoco on a machine without a
+    display."""
+    from PIL import Image
+
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    cam = mujoco.MjvCamera()
+    cam.type = mujoco.mjtCamera.mjCAMERA_FREE
+    cam.lookat[:] = lookat
+    cam.distance, cam.azimuth, cam.elevation = distance, azimuth, elevation
+    with mujoco.Renderer(model, height, width) as renderer:
+        renderer.update_scene(data, camera=cam)
+        pixels = renderer.render()
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(pixels).save(out)
+    return out
+
+
 def options_from_workcell(data: Mapping[str, Any], where: str = "") -> PhysicsOptions:
     """:class:`PhysicsOptions` from a parsed work-cell file (its ``world.friction``,
     ``servo.damping``/``stiffness``/``gripper_stiffness``/``rail_stiffness`` and
@@ -489,6 +520,8 @@ def main(argv: list[str] | None = None) -> int:
                     "servo settings; default: the robot alone")
     ap.add_argument("--timestep", type=float, help="physics step, s (default 0.001)")
     ap.add_argument("-o", "--out", help="output file (default: hyperarm_<variant>.xml)")
+    ap.add_argument("--render", metavar="PNG", help="also render the model offscreen into this "
+                    "picture (needs MUJOCO_GL=egl or osmesa without a display)")
     args = ap.parse_args(argv)
     try:
         desc = load_description(args.description, args.variant)
@@ -509,6 +542,14 @@ def main(argv: list[str] | None = None) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text, encoding="utf-8")
     print(f"wrote {out}")
+    if args.render:
+        try:
+            png = render_png(mujoco.MjModel.from_xml_string(text), args.render)
+        except Exception as exc:  # no OpenGL backend: mujoco raises several kinds
+            print(f"generate_mjcf: cannot render ({type(exc).__name__}: {exc}); set "
+                  "MUJOCO_GL=egl or osmesa", file=sys.stderr)
+            return 3
+        print(f"wrote {png}")
     return 0
 
 

@@ -398,3 +398,23 @@ def test_a_bad_servo_gear_ratio_or_rotor_inertia_is_a_clear_error(tmp_path, key,
     path.write_text(yaml.safe_dump(data))
     with pytest.raises(DescriptionError, match=f"servo_models.MX-64.{key}"):
         load_description(path)
+
+
+@pytest.mark.slow
+def test_the_command_line_renders_the_default_cell_offscreen(tmp_path):
+    """generate_mjcf --render with MUJOCO_GL=egl (setup installs EGL and Mesa): a picture of
+    the cell, not a blank frame."""
+    import os
+    import subprocess
+    import sys
+
+    from PIL import Image
+    png = tmp_path / "cell.png"
+    proc = subprocess.run(
+        [sys.executable, "-m", "hyperarm_description.mjcf", "--workcell",
+         str(CELLS / "workcell.yaml"), "-o", str(tmp_path / "cell.xml"), "--render", str(png)],
+        env={**os.environ, "MUJOCO_GL": "egl"}, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    pixels = np.asarray(Image.open(png))
+    assert pixels.shape == (640, 960, 3)
+    assert pixels.std() > 10.0  # table, arm, pegs and block: not one colour
