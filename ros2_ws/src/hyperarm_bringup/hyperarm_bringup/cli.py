@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from typing import Any, Callable
 
@@ -27,15 +28,35 @@ def _client():
     return HyperarmClient()
 
 
+def _variant_joints(variant: str) -> tuple[str, ...]:
+    from hyperarm_description.model import load_description
+    return tuple(load_description(None, variant).limits_by_name())
+
+
+def _state_table(states: dict[str, tuple], order: tuple[str, ...] = ()) -> str:
+    """The joints of ``order`` first, in that order, then any other heard."""
+    lines = [f"{'joint':10} {'position':>9} {'velocity':>9} {'effort':>9}"]
+    names = [n for n in order if n in states] + [n for n in states if n not in order]
+    for name, (p, v, e) in ((n, states[n]) for n in names):
+        lines.append(f"{name:10} {_fmt(p)} {_fmt(v)} {_fmt(e)}")
+    return "\n".join(lines)
+
+
 def cmd_state(a: argparse.Namespace) -> int:
     import time
+
+    from .ros_client import MissingJoints
+
+    required = _variant_joints(a.variant)
     with _client() as c:
         while True:
-            states = c.joint_states(a.timeout)
-            lines = [f"{'joint':10} {'position':>9} {'velocity':>9} {'effort':>9}"]
-            for name, (p, v, e) in states.items():
-                lines.append(f"{name:10} {_fmt(p)} {_fmt(v)} {_fmt(e)}")
-            text = "\n".join(lines)
+            try:
+                text = _state_table(c.joint_states(a.timeout, required), required)
+            except MissingJoints as exc:
+                if a.once:
+                    print(_state_table(exc.states, required))
+                    raise
+                text = _state_table(exc.states, required) + f"\nmissing: {', '.join(exc.missing)}"
             if a.once:
                 print(text)
                 return 0
@@ -79,8 +100,13 @@ def cmd_reboot(a: argparse.Namespace) -> int:
 
 
 def cmd_home(a: argparse.Namespace) -> int:
+    import time
+
+    start = time.monotonic()
     with _client() as c:
-        print(c.trigger(contract.RAIL_HOME, a.timeout) or "rail homed")
+        started = c.trigger(contract.RAIL_HOME, a.timeout)
+        name = c.wait_homed(max(0.0, a.timeout - (time.monotonic() - start)))
+    print(f"{started}; homed ({name})" if started else f"homed ({name})")
     return 0
 
 
@@ -112,7 +138,6 @@ def parse_assignments(items: list[str], limits: dict[str, tuple[float, float]]) 
 
 def cmd_move(a: argparse.Namespace) -> int:
     from hyperarm_description.model import load_description
-    from sensor_msgs.msg import JointState
 
     limits = load_description(a.description or None, a.variant).limits_by_name()
     try:
@@ -121,26 +146,26 @@ def cmd_move(a: argparse.Namespace) -> int:
         print(f"hyperarm move: refused, nothing sent: {exc}", file=sys.stderr)
         return 1
     with _client() as c:
-        msg = JointState(name=list(target), position=list(target.values()))
-        msg.header.stamp = c.node.get_clock().now().to_msg()
-        c.publish_command(msg, a.timeout)
-    print("sent: " + ", ".join(f"{n}={v:g}" for n, v in target.items()))
+        taken = c.send_command(target, a.timeout)
+    print("taken: " + ", ".join(f"{n}={v:g} (from {taken[n][0]:.4f})"
+                                for n, v in target.items()))
     return 0
 
 
 def cmd_ik(a: argparse.Namespace) -> int:
     from hyperarm_interfaces.srv import SolveIK
 
-    if len(a.quat) not in (0, 4):
-        print("hyperarm ik: give no orientation or all of QX QY QZ QW", file=sys.stderr)
+    if len(a.pose) not in (3, 7):
+        print(f"hyperarm ik: give X Y Z (m), and optionally QX QY QZ QW (got {len(a.pose)} "
+              "numbers)", file=sys.stderr)
         return 2
     req = SolveIK.Request()
     req.target.header.frame_id = contract.BASE_FRAME
     p = req.target.pose.position
-    p.x, p.y, p.z = a.x, a.y, a.z
-    if a.quat:
+    p.x, p.y, p.z = a.pose[:3]
+    if len(a.pose) == 7:
         o = req.target.pose.orientation
-        o.x, o.y, o.z, o.w = a.quat
+        o.x, o.y, o.z, o.w = a.pose[3:]
     else:
         req.target.pose.orientation.w = 1.0
         req.position_only = True
@@ -152,9 +177,10 @@ def cmd_ik(a: argparse.Namespace) -> int:
         return 1
     for name, q in zip(r.solution.name, r.solution.position):
         print(f"{name:8} {_fmt(q, 8)}")
-    print(f"position error {r.position_error * 1000:.3f} mm, orientation error "
-          f"{r.orientation_error:.2e} rad, {r.iterations} iterations, "
-          f"{r.solve_time * 1000:.1f} ms")
+    orientation = ("orientation free (position only)" if req.position_only else
+                   f"orientation error {r.orientation_error:.2e} rad")
+    print(f"position error {r.position_error * 1000:.3f} mm, {orientation}, "
+          f"{r.iterations} iterations, {r.solve_time * 1000:.1f} ms")
     return 0
 
 
@@ -252,8 +278,13 @@ def build_parser() -> argparse.ArgumentParser:
                         help=f"seconds to wait for the nodes (default {timeout:g})")
         return sp
 
-    sp = add("state", cmd_state, "live table of the joints (joint_states of every driver)")
+    variant = os.environ.get("HYPERARM_VARIANT", "arm")
+    sp = add("state", cmd_state, "live table of the joints (joint_states of every driver); "
+             "waits for every joint of the variant, exit 1 naming those missing")
     sp.add_argument("--once", action="store_true", help="print one table and exit")
+    sp.add_argument("--variant", default=variant, choices=("arm", "rail_arm"),
+                    help=f"whose joints to wait for (default {variant}: $HYPERARM_VARIANT "
+                    "or arm)")
     sp = add("diag", cmd_diag, "diagnostics summary (/diagnostics); exit 1 on an ERROR",
              timeout=3.0)
     sp.add_argument("-v", "--verbose", action="store_true", help="show every key/value")
@@ -265,16 +296,20 @@ def build_parser() -> argparse.ArgumentParser:
     sp = add("reboot", cmd_reboot, "reboot servos (none named: those reporting an error)",
              timeout=10.0)
     sp.add_argument("joints", nargs="*", metavar="JOINT")
-    add("home", cmd_home, "home the rail (rail/home, rail_arm)", timeout=120.0)
-    sp = add("move", cmd_move, "command joints: JOINT=VALUE (rad; rail m), limits checked")
+    add("home", cmd_home, "home the rail (rail/home, rail_arm) and wait until /diagnostics "
+        "reports it homed", timeout=120.0)
+    sp = add("move", cmd_move, "command joints: JOINT=VALUE (rad; rail m), limits checked; "
+             "waits until joint_states shows every joint taking its goal (exit 1 with the "
+             "driver's refusal, or naming the joints that did not move)")
     sp.add_argument("assignments", nargs="+", metavar="JOINT=VALUE")
-    sp.add_argument("--variant", default="arm", choices=("arm", "rail_arm"))
+    sp.add_argument("--variant", default=variant, choices=("arm", "rail_arm"),
+                    help=f"whose joint limits (default {variant}: $HYPERARM_VARIANT or arm)")
     sp.add_argument("--description", default="", help="robot YAML ('' = packaged)")
     sp = add("ik", cmd_ik, "solve IK for a tool0 pose in base_link (solve_ik); prints joints")
-    for axis in ("x", "y", "z"):
-        sp.add_argument(axis, type=float, help=f"{axis.upper()} (m)")
-    sp.add_argument("quat", type=float, nargs="*", metavar="Q",
-                    help="QX QY QZ QW (none: position only)")
+    sp.usage = "hyperarm ik [-h] [--timeout TIMEOUT] [--solver SOLVER] X Y Z [QX QY QZ QW]"
+    sp.add_argument("pose", type=float, nargs="*", metavar="X Y Z [QX QY QZ QW]",
+                    help="tool0's position (m), then optionally its orientation as a "
+                    "quaternion (none: position only)")
     sp.add_argument("--solver", default="", help="solver name ('' = the service default)")
     sp = add("run", cmd_run, "run a task on task_node (run_task action)", timeout=300.0)
     sp.add_argument("task")

@@ -33,6 +33,21 @@ def test_every_subcommand_has_help():
 
 
 @pytest.mark.core
+def test_ik_counts_its_numbers_and_q_is_optional(capsys):
+    """`hyperarm ik 1 2` names what is missing (X Y Z), not the optional quaternion; 3 or 7
+    numbers only (checked before any ROS)."""
+    from hyperarm_bringup.cli import main
+
+    for argv in (["ik", "1", "2"], ["ik", "1", "2", "3", "4"], ["ik", *"12345678"]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert "give X Y Z (m), and optionally QX QY QZ QW" in err, err
+        assert f"got {len(argv) - 1} numbers" in err and "required" not in err
+    usage = build_parser()._subparsers._group_actions[0].choices["ik"].format_usage()
+    assert "X Y Z [QX QY QZ QW]" in usage and " Q " not in usage
+
+
+@pytest.mark.core
 def test_move_rejects_the_whole_command_and_names_every_problem():
     limits = load_description(None, "arm").limits_by_name()
     assert parse_assignments(["joint1=0.5", "gripper=0.2"], limits) == {"joint1": 0.5,
@@ -52,6 +67,13 @@ def test_ros_commands_say_no_node_is_running(executable, ros_domain):
     assert r.returncode == 1 and "is a driver running" in r.stderr and "Traceback" not in r.stderr
     r = hyperarm(executable, "torque", "on", "--timeout", "1")
     assert r.returncode == 1 and "no node serves /hyperarm/set_torque" in r.stderr
+    # a short --timeout and no task_node: said so, not blamed on the task's name
+    r = hyperarm(executable, "run", "ready", "--timeout", "1")
+    assert r.returncode == 1 and "no task_node serves /hyperarm/run_task within 1 s" in r.stderr
+    assert "task name" not in r.stderr
+    r = hyperarm(executable, "move", "joint1=0.1", "--timeout", "1")
+    assert r.returncode == 1 and "no joint_states for joint1" in r.stderr, r.stderr
+    assert "nothing sent" in r.stderr and "sent:" not in r.stdout
 
 
 @pytest.mark.emulator
@@ -125,7 +147,7 @@ def test_ros_commands_against_the_mock(executable, launch, wait_for):
     r = hyperarm(executable, "move", "joint1=0.3", "joint2=9")
     assert r.returncode == 1 and "nothing sent" in r.stderr
     r = hyperarm(executable, "move", "joint1=0.3", "--timeout", "20")
-    assert r.returncode == 0, r.stderr
+    assert r.returncode == 0 and r.stdout.startswith("taken: joint1=0.3"), r.stderr
 
     def joint1():
         out = hyperarm(executable, "state", "--once", "--timeout", "5").stdout
@@ -136,6 +158,9 @@ def test_ros_commands_against_the_mock(executable, launch, wait_for):
                  "--timeout", "20")
     assert r.returncode == 0 and "position error" in r.stdout, r.stderr
     assert len([line for line in r.stdout.splitlines() if line.startswith("joint")]) == 9
+    r = hyperarm(executable, "ik", "0.4", "0.1", "0.2", "--timeout", "20")  # position only
+    assert r.returncode == 0 and "orientation free (position only)" in r.stdout, r.stderr
+    assert "orientation error" not in r.stdout
     r = hyperarm(executable, "ik", "5", "0", "0", "--timeout", "20")  # out of reach
     assert r.returncode == 1 and "no solution" in r.stderr
     r = hyperarm(executable, "run", "nosuch", "--timeout", "30")
