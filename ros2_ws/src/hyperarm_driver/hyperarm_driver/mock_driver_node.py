@@ -369,11 +369,13 @@ class MockDriver(Node):
         except (JointStateError, MockError) as exc:
             if self._sim.rail in msg.name:
                 self._stats.rejected_setpoints += 1
+                self._stats.last_rejection = str(exc)
             if (text := self._throttle.message(f"joint_command rejected: {exc}")):
                 self.get_logger().error(text)    # per reason: a new kind is never hidden
             return
         if report.rejected:       # the rail's part only: the arm's was applied
             self._stats.rejected_setpoints += 1
+            self._stats.last_rejection = str(report.rejected)
             if (text := self._throttle.message(
                     f"rail setpoint rejected, nothing sent: {report.rejected}")):
                 self.get_logger().error(text)

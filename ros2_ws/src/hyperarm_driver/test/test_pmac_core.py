@@ -438,3 +438,21 @@ def test_emulator_status_queries_have_the_cards_lengths() -> None:
     assert MotorStatus.from_hex(motor.decode()).amp_enabled
     assert lines("??") == [b"0" * 18] and lines("???") == [b"0" * 12]
     assert emu.execute("&17??").endswith(b"ERR003\r")
+
+
+def test_mock_rail_diagnostics_carry_the_pmac_drivers_keys() -> None:
+    """The mock's rail status mirrors the PMAC driver's /diagnostics keys (a client reads
+    either the same way), the watchdog trip count and the last refusal included."""
+    from hyperarm_driver.mock.diagnostics import BusStats, mock_diagnostics
+    from hyperarm_driver.mock.joint_sim import JointSim
+    from hyperarm_driver.pmac.axis import RailState
+    from hyperarm_driver.pmac.driver import DriverSnapshot
+
+    sim = JointSim(load_description(variant="rail_arm"))
+    stats = BusStats(rejected_setpoints=1, last_rejection="rail not homed")
+    (rail,) = [s for s in mock_diagnostics(sim, stats, 1.0, 1.0) if s.name.endswith(": rail")]
+    snap = DriverSnapshot(True, RailState(0.0, 0.0, 0.0, MotorStatus.from_words(0, 0)), 0.0,
+                          0.001, 0, 0, "", "127.0.0.1:1025", 1)
+    assert set(rail.values) == {k for k, _ in snap.diagnostic()[2]}
+    assert rail.values["last_rejection"] == "rail not homed"
+    assert rail.values["watchdog_trips"] == "0"

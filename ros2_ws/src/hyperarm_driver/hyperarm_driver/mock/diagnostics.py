@@ -30,6 +30,7 @@ class BusStats:
 
     cycles: int = 0
     rejected_setpoints: int = 0
+    last_rejection: str = ""      # why the last rail setpoint was refused (PMAC driver's key)
     cycle_times: list[float] = field(default_factory=list)
 
 
@@ -82,7 +83,7 @@ def mock_diagnostics(sim: JointSim, stats: BusStats, period: float, sim_speed: f
                     # (nothing to lose on the mock: always "on", as the driver's default)
                     "torque": "on" if enabled else "off",
                     "latched_faults": sim.errors.get(sim.rail, "none"),
-                    "watchdog": "on",
+                    "watchdog": "on", "watchdog_trips": "0",
                     "position_m": f"{sim.position[i]:.6f}",
                     "velocity_mps": f"{sim.velocity[i]:.6f}",
                     "following_error_m": f"{sim.goal[i] - sim.position[i]:.6f}"
@@ -92,7 +93,8 @@ def mock_diagnostics(sim: JointSim, stats: BusStats, period: float, sim_speed: f
                     "neg_limit": "false", "pos_limit": "false", "amp_fault": "false",
                     "fatal_following_error": "false", "warning_following_error": "false",
                     "status_word": "mock", "round_trip_ms": "0.0", "reconnects": "0",
-                    "rejected_setpoints": str(stats.rejected_setpoints), "last_error": ""}))
+                    "rejected_setpoints": str(stats.rejected_setpoints),
+                    "last_rejection": stats.last_rejection or "none", "last_error": ""}))
     if sim.host is not None:   # the scripted host motion (host_motion.py)
         hs = sim.host.status()
         out.append(DiagStatus(
