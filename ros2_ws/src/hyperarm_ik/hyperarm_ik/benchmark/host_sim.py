@@ -6,6 +6,11 @@
   0 -> +0.2 -> -0.2 -> 0 m at 0.2 m/s; every command reaches the simulation one step after
   the joint state it answers. Tool error by FK of the measured joints, rail included, and
   the reaction the node publishes (:class:`~hyperarm_ik.host.ReactionModel`).
+- :func:`rail_reach`: issue 24's item 1 on the same simulation: tool0 held about 0.62 m
+  ahead (:data:`Q_REACH`, 10 deg below forward, near the stretched singularity) while the
+  rail is streamed 0.2 m away from it at 0.1 m/s and back: the arm reaches full stretch
+  (the goal goes out of reach) and leaves it. Returns every command sent, for the step
+  invariant.
 - :func:`figure8_task`: the shipped figure-8 task (hyperarm_tasks, ``track_path``) run by
   the task runner on the simulation, as shipped or with ``redundancy: min_reaction``; the
   base moment over the figure-8's traversal, from the measured joint states.
@@ -33,12 +38,17 @@ from ..kinematics import Kinematics, rotation_angle
 if TYPE_CHECKING:
     from hyperarm_driver.mock.host_motion import HostMotionSpec
 
-__all__ = ["rail_sweep", "sway", "figure8_task", "Q0", "DT"]
+__all__ = ["rail_sweep", "rail_reach", "sway", "figure8_task", "Q0", "Q_REACH", "Q_AHEAD_40",
+           "DT"]
 
 ARM = [f"joint{i}" for i in range(1, 10)]
 #: tool0 pointing down 0.2 m in front of the base (reachable while the base moves)
 Q0 = [1.367, 0.62, -1.871, 0.548, 1.726, -1.732, 1.335, -0.596, 0.726]
 DT = 0.01
+#: tool0 0.62 m ahead of the base, 0.1 m up, 10 deg below forward (IK, issue 24 item 1)
+Q_REACH = [0.141, 0.134, -0.305, -0.071, 0.137, 0.3, 0.145, -0.19, -0.113]
+#: tool0 0.40 m ahead, 0.1 m up, 10 deg below forward (IK, issue 24 item 5)
+Q_AHEAD_40 = None
 
 
 def _rail_setpoint(t: float, speed: float = 0.2, dwell: float = 0.3) -> float:
@@ -63,21 +73,41 @@ def _sim(desc):
         cfg.imperfections, repeatability=0.0)))
 
 
+def _rail_reach_setpoint(t: float) -> float:
+    """0 -> -0.2 m (away from a tool ahead in +x) at 0.1 m/s, then back to 0."""
+    return -0.1 * t if t < 2.0 else (-0.2 + 0.1 * (t - 2.0) if t < 4.0 else 0.0)
+
+
+def rail_reach(duration: float = 5.0, config: CompensationConfig | None = None,
+               compensator=Compensator, loop_class=CompensationLoop
+               ) -> dict[str, np.ndarray]:
+    """Issue 24 item 1 (module doc): :func:`rail_sweep`'s arrays plus ``command`` ((n, 9)
+    rad, every command sent), ``dt`` (s, the states' periods) and ``status``.
+    ``compensator``/``loop_class``: the classes to run (a comparison with another core)."""
+    return rail_sweep(duration=duration, q0=Q_REACH, setpoint=_rail_reach_setpoint,
+                      config=config, compensator=compensator, loop_class=loop_class)
+
+
 def rail_sweep(lead: bool = True, duration: float = 5.2,
-               reaction: bool = False) -> dict[str, np.ndarray]:
+               reaction: bool = False, q0=None, setpoint=None,
+               config: CompensationConfig | None = None, compensator=Compensator,
+               loop_class=CompensationLoop) -> dict[str, np.ndarray]:
     """The rail sweep (see the module doc) for ``duration`` s (5.2: the whole sweep): arrays
     ``t`` (s), ``rail`` (m), ``position_error`` (m), ``orientation_error`` (rad), with
-    ``reaction`` also ``wrench`` ((n, 6) N, N·m at base_link), and ``answered`` (commands
-    per joint state)."""
+    ``reaction`` also ``wrench`` ((n, 6) N, N·m at base_link), ``command`` ((n, 9) rad),
+    ``status`` and ``answered`` (commands per joint state). ``q0``: the arm's start posture
+    (default :data:`Q0`); ``setpoint``: the rail's setpoint (m) at t s (default: the sweep);
+    ``config``: the compensation's (default: with ``lead``)."""
     desc = load_description(variant="rail_arm")
     sim = _sim(desc)
     sim.home_rail()
-    sim.command(ARM, Q0)
+    sim.command(ARM, Q0 if q0 is None else q0)
     for _ in range(300):
         sim.step(DT)
+    setpoint = _rail_setpoint if setpoint is None else setpoint
     kin, rail, arm = Kinematics(variant="rail_arm"), RailHost(desc), Kinematics(variant="arm")
-    loop = CompensationLoop(Compensator(arm, CompensationConfig(profile_lead=lead)),
-                            DelayEstimator(0.04), 0.1, host_from_states=True)
+    cfg = config if config is not None else CompensationConfig(profile_lead=lead)
+    loop = loop_class(compensator(arm, cfg), DelayEstimator(0.04), 0.1, host_from_states=True)
     model, accel = ReactionModel(arm), AccelerationEstimator()
     idx = [sim.names.index(n) for n in ARM]
     chain = [sim.names.index(n) for n in kin.joint_names]
@@ -94,17 +124,22 @@ def rail_sweep(lead: bool = True, duration: float = 5.2,
         raise RuntimeError(why)
     goal = kin.forward(s.position[chain])
     out: dict[str, list] = {k: [] for k in ("t", "rail", "position_error",
-                                            "orientation_error", "wrench")}
+                                            "orientation_error", "wrench", "command",
+                                            "status", "dt")}
     pending, answered, n = None, 0, int(duration / DT)
     t0 = sim.time
     for k in range(n):
-        sim.command(["rail"], [_rail_setpoint(k * DT)])
+        sim.command(["rail"], [setpoint(k * DT)])
         if pending is not None:           # the previous answer arrives (one step later)
             sim.command(ARM, pending)
         sim.step(DT)
         s, q, host = measured()
         pending, _log = loop.on_state(sim.time, s.stamp, q, host, None, None)
         answered += pending is not None
+        if pending is not None:
+            out["command"].append(pending.copy())
+            out["dt"].append(DT)
+        out["status"].append(loop.status)
         tool = kin.forward(s.position[chain])
         dq = s.velocity[idx]
         out["t"].append(sim.time - t0)

@@ -7,10 +7,19 @@ expresses the world goal in ``base_link`` and runs a few damped least-squares it
 the nine arm joints, warm-started from the previous command (the rail, or the UAV, is a
 known input, not a variable); the first iteration also pulls the joints back towards the
 posture at start in the task's null space (``posture_gain``), so the redundant joints do
-not drift into a stretched, singular posture over a long motion. The change from the previous command is then limited to
+not drift into a stretched, singular posture over a long motion, and pushes every joint
+within ``limit_band`` of a limit away from it (``limit_gain``; the posture pull fades there,
+so the push dominates): a joint does not run into its limit while the others can hold the
+tool. The change from the previous command is then limited to
 ``speed_scale`` x each joint's velocity limit x dt (uniform scaling, so the tool's path
 keeps its direction): the command never jumps. Joints stay ``limit_margin`` inside their
-limits.
+limits. The damped least squares is singularity-robust: below ``singular_threshold`` of the
+weighted Jacobian's smallest singular value its damping grows towards ``singular_damping``
+(manipulability-scaled, Nakamura & Hanafusa), so neither the iterations nor the feed-forward
+speeds explode at the stretched singularity; the feed-forward speeds are capped at the step
+limit's speeds. The command finally sent (``q`` plus the profile lead) passes LAST through
+:func:`hyperarm_description.limits.limit_step`: no joint ever steps further from the
+previous command than its velocity limit x dt, and none leaves the margins.
 
 When the pose cannot be reached (the miss stays above the tolerances and stops shrinking
 for ``stall_cycles`` cycles while the step limit is not what holds the motion back, or the
@@ -31,6 +40,7 @@ from enum import Enum
 import numpy as np
 import pinocchio as pin
 
+from hyperarm_description.limits import limit_step
 from hyperarm_description.model import RobotDescription
 from hyperarm_description.pinocchio_model import build_model
 
@@ -211,6 +221,17 @@ class CompensationConfig:
     cannot compensate.
     stall_cycles: cycles in a row of a miss that does not shrink (not step-limited) after
     which the pose is reported unreachable.
+    limit_band: rad from a joint's limit margin within which the null space pushes it away.
+    limit_gain: the push per cycle (rad) is limit_gain x (limit_band - distance) inside the
+    band, in the task's null space; the posture pull fades as (distance / limit_band)^2.
+    track_position_tolerance / track_orientation_tolerance: m / rad, the MEASURED tool error
+    (FK of the measured joints on the host pose) above which the loop reports ``off_track``
+    (:class:`~hyperarm_ik.host.CompensationLoop`).
+    singular_threshold: m/rad, the weighted Jacobian's smallest singular value (position
+    rows in m/rad, orientation rows x orientation_scale) below which the damping grows.
+    singular_damping: m^2, the damping added at the singularity (smallest singular value
+    0), fading as (1 - (sigma/threshold)^2): a least-squares gain of at most
+    1 / (2 sqrt(singular_damping)) rad/m there.
     """
 
     iterations: int = 6
@@ -224,6 +245,12 @@ class CompensationConfig:
     stall_cycles: int = 10
     posture_gain: float = 0.05
     profile_lead: bool = True
+    singular_threshold: float = 0.02
+    singular_damping: float = 4e-4
+    limit_band: float = 0.3
+    limit_gain: float = 0.1
+    track_position_tolerance: float = 5e-3
+    track_orientation_tolerance: float = 0.035
 
     def __post_init__(self) -> None:
         if not isinstance(self.profile_lead, bool):
@@ -236,7 +263,11 @@ class CompensationConfig:
                              ("position_tolerance", 1e-6, 0.1),
                              ("orientation_tolerance", 1e-5, 1.0), ("speed_scale", 1e-3, 1.0),
                              ("limit_margin", 0.0, 0.5), ("max_horizon", 0.0, 1.0),
-                             ("posture_gain", 0.0, 1.0)):
+                             ("posture_gain", 0.0, 1.0), ("singular_threshold", 0.0, 1.0),
+                             ("singular_damping", 0.0, 1.0), ("limit_band", 0.0, 1.0),
+                             ("limit_gain", 0.0, 1.0),
+                             ("track_position_tolerance", 1e-5, 1.0),
+                             ("track_orientation_tolerance", 1e-4, 3.0)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
                     or not lo <= v <= hi:
@@ -245,6 +276,7 @@ class CompensationConfig:
 
 class Status(str, Enum):
     TRACKING = "tracking"          # the command holds tool0 at the goal (within tolerance)
+    OFF_TRACK = "off_track"        # the measured tool is off the goal (loop's judgement)
     CONVERGING = "converging"      # moving there, limited by the step limit
     UNREACHABLE = "unreachable"    # holding the closest configuration; reason says why
 
@@ -284,12 +316,15 @@ class Compensator:
         self.upper = kin.upper - c.limit_margin
         if np.any(self.lower >= self.upper):
             raise HostConfigError(f"limit_margin {c.limit_margin} rad leaves no joint range")
-        self.speed = np.array([j.velocity for j in kin.desc.joints]) * c.speed_scale  # rad/s
+        self.velocity_limit = np.array([j.velocity for j in kin.desc.joints])      # rad/s
+        self.speed = self.velocity_limit * c.speed_scale                              # rad/s
         self.acceleration = np.array([j.acceleration for j in kin.desc.joints])    # rad/s^2
         self._s2 = np.array([1.0, 1.0, 1.0] + [c.orientation_scale ** 2] * 3)  # error weights
         self._winv = np.diag(1.0 / self._s2)
+        self._wsqrt = np.sqrt(self._s2)
         self._best, self._stuck = math.inf, 0
-        self.q: np.ndarray | None = None        # the last command (rad)
+        self.q: np.ndarray | None = None        # the last solution (rad)
+        self.sent: np.ndarray | None = None     # the last command sent, lead included (rad)
         self.goal: np.ndarray | None = None     # tool0 in world (4x4)
 
     @property
@@ -305,6 +340,7 @@ class Compensator:
         ``goal`` (tool0 in world) or, if None, where tool0 is now. Returns the goal."""
         q = self.kin._q(q_measured)     # raises InvalidSeedError (an IKError) when malformed
         self.q = np.clip(q, self.lower, self.upper)
+        self.sent = self.q.copy()
         self._ref = self.q.copy()               # the posture the null space pulls towards
         self._best, self._stuck = math.inf, 0
         self.goal = (self.tool_in_world(q, host) if goal is None
@@ -319,7 +355,7 @@ class Compensator:
         self._best, self._stuck = math.inf, 0
 
     def stop(self) -> None:
-        self.q = self.goal = None
+        self.q = self.goal = self.sent = None
 
     def step(self, host: HostState, horizon: float, dt: float) -> CompensationStep:
         """One cycle: the arm command for the host pose ``horizon`` s ahead (s, clamped to
@@ -353,9 +389,12 @@ class Compensator:
                 at_q = (float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:])), j)
                 break
             lam = c.damping + cost
-            # first iteration: a pull towards the posture at start, in the task's null space
-            z = pull * (self._ref - q) if it == 0 and pull > 0.0 else None
+            # first iteration: a pull towards the posture at start and a push away from the
+            # limits, in the task's null space
+            z = self._null_space(q, pull) if it == 0 and pull > 0.0 else None
             dq = self._dls(j, e, lam, z)
+            if c.limit_band > 0.0 and pull > 0.0:   # reachable: spare joints near limits
+                dq = self._dls(j, e, lam, z, self._limit_weights(q, dq))
             out = ((q + dq < self.lower) & (dq < 0)) | ((q + dq > self.upper) & (dq > 0))
             if out.any():          # joints held at a limit leave the step (active set, once)
                 j = j.copy()
@@ -387,8 +426,11 @@ class Compensator:
                     else self._feed_forward(host, predicted, j_q))
         command = self.q.copy()
         if c.profile_lead:
-            command = np.clip(command + velocity * np.abs(velocity) / (2.0 * self.acceleration),
-                              self.lower, self.upper)
+            command = command + velocity * np.abs(velocity) / (2.0 * self.acceleration)
+        # LAST, after every other term: one cycle's reach of the previous command, limits
+        command = limit_step(command, self.sent, self.velocity_limit, dt, self.lower,
+                             self.upper)
+        self.sent = command
         if unreachable:
             why = (f"beyond the arm's reach by {excess:.3f} m" if excess > 0.0 else
                    f"closest configuration misses by {perr_ik * 1e3:.1f} mm, "
@@ -401,6 +443,37 @@ class Compensator:
                                      and oerr <= c.orientation_tolerance) else Status.CONVERGING
         return CompensationStep(self.q.copy(), status, "", perr, oerr, limited, command,
                                 velocity)
+
+    def _null_space(self, q: np.ndarray, pull: float) -> np.ndarray:
+        """The null-space motion of one cycle (rad): ``pull`` of the way back to the posture
+        at start, faded as (d / limit_band)^2 near a limit (d: rad to the nearer margin), plus
+        limit_gain x (limit_band - d) away from a limit within the band."""
+        c = self.config
+        z = pull * (self._ref - q)
+        if c.limit_band <= 0.0:
+            return z
+        lo, hi = q - self.lower, self.upper - q
+        d = np.minimum(lo, hi)
+        inside = d < c.limit_band
+        if inside.any():
+            fade = np.clip(d / c.limit_band, 0.0, 1.0) ** 2
+            away = np.where(lo <= hi, 1.0, -1.0)
+            z = np.where(inside, fade * z + away * c.limit_gain * (c.limit_band - d), z)
+        return z
+
+    def measured_error(self, q, host: HostState) -> tuple[float, float]:
+        """(m, rad) tool0 of the MEASURED arm joints ``q`` on ``host`` against the goal."""
+        if self.goal is None:
+            raise NotStartedError("measured_error before start")
+        tool = self.tool_in_world(self.kin._q(q), host)
+        return (float(np.linalg.norm(tool[:3, 3] - self.goal[:3, 3])),
+                rotation_angle(self.goal[:3, :3], tool[:3, :3]))
+
+    def limit_joints(self, q, within: float = 1e-3) -> list[str]:
+        """Names of the joints of ``q`` (rad) within ``within`` rad of the limit margins."""
+        q = np.asarray(q, dtype=float)
+        near = (q <= self.lower + within) | (q >= self.upper - within)
+        return [self.kin.desc.joints[i].name for i in np.flatnonzero(near)]
 
     def _feed_forward(self, host: HostState, predicted: np.ndarray,
                       j: np.ndarray) -> np.ndarray:
@@ -416,11 +489,47 @@ class Compensator:
                                 -r.T @ host.angular))
         j = j.copy()
         j[:, (self.q <= self.lower + 1e-9) | (self.q >= self.upper - 1e-9)] = 0.0
-        return self._dls(j, twist, self.config.damping)
+        v = self._dls(j, twist, self.config.damping)
+        if self.config.limit_band > 0.0:
+            v = self._dls(j, twist, self.config.damping, None, self._limit_weights(self.q, v))
+        ratio = float(np.max(np.abs(v) / self.speed))
+        return v / ratio if ratio > 1.0 else v      # at most the step limit's speeds
+
+    def singular_damping(self, j: np.ndarray) -> float:
+        """Damping (m^2) added near a singularity of ``j``: singular_damping x
+        (1 - (sigma_min / singular_threshold)^2) below the threshold, else 0 (sigma_min: the
+        smallest singular value of the weighted Jacobian, m/rad)."""
+        c = self.config
+        if c.singular_damping <= 0.0 or c.singular_threshold <= 0.0:
+            return 0.0
+        a = self._wsqrt[:, None] * j
+        s2 = max(float(np.linalg.eigvalsh(a @ a.T)[0]), 0.0)
+        t2 = c.singular_threshold ** 2
+        return c.singular_damping * (1.0 - s2 / t2) if s2 < t2 else 0.0
+
+    def _limit_weights(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray | None:
+        """Weighted least norm (Chan & Dubey): each joint's share of the task motion, 1
+        but (d / limit_band)^2 (at least 1e-3) for a joint within limit_band (d, rad) of a
+        limit margin that ``dq`` moves towards it; None when every weight is 1."""
+        band = self.config.limit_band
+        lo, hi = q - self.lower, self.upper - q
+        d = np.where(dq < 0.0, lo, hi)
+        toward = (d < band) & (dq != 0.0)
+        if not toward.any():
+            return None
+        return np.where(toward, np.clip(d / band, 0.0316, 1.0) ** 2, 1.0)
 
     def _dls(self, j: np.ndarray, e: np.ndarray, lam: float,
-             z: np.ndarray | None = None) -> np.ndarray:
-        """Weighted damped least squares: argmin |J dq - e|^2_W + lam |dq - z|^2."""
+             z: np.ndarray | None = None, w: np.ndarray | None = None) -> np.ndarray:
+        """Weighted damped least squares: argmin |J dq - e|^2_W + lam |dq - z|^2, with
+        lam raised near a singularity (:meth:`singular_damping`). ``w``: per-joint weights of
+        the motion (|dq - z|^2 weighted by 1/w; None: all 1)."""
+        lam = lam + self.singular_damping(j)
+        if w is not None:
+            jw = j * w
+            a = jw @ j.T + lam * self._winv
+            return (jw.T @ np.linalg.solve(a, e) if z is None
+                    else z + jw.T @ np.linalg.solve(a, e - j @ z))
         if z is None:
             return j.T @ np.linalg.solve(j @ j.T + lam * self._winv, e)
         return z + j.T @ np.linalg.solve(j @ j.T + lam * self._winv, e - j @ z)

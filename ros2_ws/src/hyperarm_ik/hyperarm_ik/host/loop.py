@@ -8,8 +8,16 @@ each joint state, enable, disable and silence, on top of :class:`Compensator`.
 - Enabling needs fresh joint states and a host state; it holds tool0 where it is.
   Disabling, silence of the joint states (``stale_timeout``) or of the host pose stop the
   stream, latched until enabled again.
-- Status changes (unreachable, reachable again, stopped) come back as ``(level, text)``
-  log lines, level ``"warn"`` or ``"info"``.
+- The status is judged from the MEASURED tool: FK of the measured arm joints on the host
+  pose of their stamp, against the goal. Beyond the config's ``track_position_tolerance``
+  or ``track_orientation_tolerance`` for ``off_track_cycles`` states in a row the status is
+  ``off_track`` (the reason gives the error and any joint at its limit margin) even when
+  the command itself solves the pose; it returns to the command's status after as many
+  states within them.
+- The period given to the step limit is the difference of the joint states' stamps (their
+  arrival times' when unstamped), so a burst of queued states does not widen the step.
+- Status changes (unreachable, off track, reachable again, stopped) come back as
+  ``(level, text)`` log lines, level ``"warn"`` or ``"info"``.
 
 Times in s on one clock (the node's); ``stamp`` values are the messages' header stamps.
 """
@@ -32,7 +40,7 @@ class CompensationLoop:
     age is theirs; else it is a host pose with a stamp of its own."""
 
     def __init__(self, comp: Compensator, delay: DelayEstimator, stale_timeout: float,
-                 host_from_states: bool) -> None:
+                 host_from_states: bool, off_track_cycles: int = 3) -> None:
         self.comp, self.delay = comp, delay
         self.stale_timeout = float(stale_timeout)
         self.host_from_states = host_from_states
@@ -45,6 +53,11 @@ class CompensationLoop:
         self._own_gap = OwnGap(self.stale_timeout)   # between check_stale calls
         self._host_grace = -math.inf           # s, host pose not judged stale before this
         self.error = (0.0, 0.0)            # m, rad of the last command (predicted goal)
+        self.measured = (0.0, 0.0)         # m, rad of the measured tool against the goal
+        self.off_track_cycles = int(off_track_cycles)
+        self._off, self._on = 0, 0         # states in a row beyond / within the tolerances
+        self.off_track = 0                 # states judged beyond the tolerances since enable
+        self.last_stamp = 0.0              # s, header stamp of the last joint state
 
     def on_state(self, now: float, stamp: float, q: np.ndarray, host: HostState | None,
                  host_stamp: float | None, host_arrival: float | None
@@ -66,28 +79,64 @@ class CompensationLoop:
                     host_arrival is None or now - host_arrival > self.stale_timeout)):
                 log += self.disable("host pose stale or missing: compensation stopped")
             else:
-                command, log = self._cycle(now, age, host, host_stamp)
+                if stamp > 0.0 and 0.0 < self.last_stamp < stamp:
+                    dt = stamp - self.last_stamp
+                else:
+                    dt = now - self.last_state if self.last_state is not None else 0.01
+                measured = self._measured(q, host, stamp, host_stamp)
+                command, log = self._cycle(now, age, host, host_stamp, dt, q, measured)
                 self.delay.measured(now - age, q)      # when the joints were there
         self.latency += 0.1 * (age - self.latency)
         self.last_state = now
+        if stamp > 0.0:
+            self.last_stamp = stamp
         return command, log
 
-    def _cycle(self, now: float, age: float, host: HostState,
-               host_stamp: float | None) -> tuple[np.ndarray, Log]:
-        dt = now - self.last_state if self.last_state is not None else 0.01
+    def _measured(self, q: np.ndarray, host: HostState, stamp: float,
+                  host_stamp: float | None) -> tuple[float, float]:
+        """(m, rad) the measured tool against the goal, the host taken at the joint
+        state's stamp (the rail's own state; a host pose moved on by its twist)."""
+        if not self.host_from_states and host_stamp is not None and stamp > 0.0:
+            host = HostState.trusted(host.predict(min(max(stamp - host_stamp, -0.5), 0.5)),
+                                     host.linear, host.angular)
+        return self.comp.measured_error(q, host)
+
+    def _cycle(self, now: float, age: float, host: HostState, host_stamp: float | None,
+               dt: float, q: np.ndarray, measured: tuple[float, float]
+               ) -> tuple[np.ndarray, Log]:
         dt = min(max(dt, 1e-3), 0.1)
         h_age = age if self.host_from_states or host_stamp is None else \
             min(max(now - host_stamp, 0.0), 0.5)
         step = self.comp.step(host, h_age + self.delay.delay, dt)
         self.cycles += 1
         self.error = (step.position_error, step.orientation_error)
+        self.measured = measured
+        c = self.comp.config
+        beyond = measured[0] > c.track_position_tolerance \
+            or measured[1] > c.track_orientation_tolerance
+        self._off, self._on = (self._off + 1, 0) if beyond else (0, self._on + 1)
+        self.off_track += beyond
+        status, reason = step.status, step.reason
+        stays_off = self.status == Status.OFF_TRACK.value and self._on < self.off_track_cycles
+        if status is not Status.UNREACHABLE and (self._off >= self.off_track_cycles
+                                                 or stays_off):
+            limits = self.comp.limit_joints(q, 0.01)
+            reason = (f"measured tool {measured[0] * 1e3:.1f} mm, "
+                      f"{math.degrees(measured[1]):.2f} deg off the goal (tolerance "
+                      f"{c.track_position_tolerance * 1e3:g} mm, "
+                      f"{math.degrees(c.track_orientation_tolerance):g} deg)"
+                      + (f"; at the limit margin: {', '.join(limits)}" if limits else ""))
+            status = Status.OFF_TRACK
         log: Log = []
-        if step.status.value != self.status:
-            if step.status is Status.UNREACHABLE:
-                log.append(("warn", step.reason))
+        if status.value != self.status:
+            if status in (Status.UNREACHABLE, Status.OFF_TRACK):
+                log.append(("warn", reason))
             elif self.status == Status.UNREACHABLE.value:
-                log.append(("info", f"goal reachable again: {step.status.value}"))
-            self.status, self.reason = step.status.value, step.reason or step.status.value
+                log.append(("info", f"goal reachable again: {status.value}"))
+            elif self.status == Status.OFF_TRACK.value:
+                log.append(("info", f"back on track: {status.value}"))
+        if status.value != self.status or status is Status.OFF_TRACK:
+            self.status, self.reason = status.value, reason or status.value
         self.delay.commanded(now, step.q)
         return step.command, log
 
@@ -101,7 +150,8 @@ class CompensationLoop:
             return False, f"cannot enable: no host pose yet ({source})", None
         goal = self.comp.start(q, host)
         self.delay.reset()
-        self.cycles = self.states = 0
+        self.cycles = self.states = self.off_track = 0
+        self._off = self._on = 0
         self.enabled, self.status, self.reason = True, "tracking", "enabled"
         return True, "", goal
 
@@ -130,4 +180,7 @@ class CompensationLoop:
                 "cycles": self.cycles, "states": self.states, "latency_ms": f"{self.latency * 1e3:.2f}",
                 "loop_delay_ms": f"{self.delay.delay * 1e3:.2f}",
                 "position_error_m": f"{self.error[0]:.5f}",
-                "orientation_error_rad": f"{self.error[1]:.5f}"}
+                "orientation_error_rad": f"{self.error[1]:.5f}",
+                "measured_position_error_m": f"{self.measured[0]:.5f}",
+                "measured_orientation_error_rad": f"{self.measured[1]:.5f}",
+                "off_track_states": self.off_track}
