@@ -163,7 +163,9 @@ def build_fast_sync_status(items: list[tuple[int, int, bytes]]) -> bytes:
 
 
 BYTE_GAP_TIMEOUT = 0.0015   # s: a servo drops a packet whose bytes come further apart
-                            # (e-Manual, Protocol 2.0: 1.5 ms between the bytes of a packet)
+                            # (1.5 ms between the bytes of a packet: the e-Manual's
+                            # Protocol 2.0 rule as issue 24 item 9 quotes it; the passage
+                            # itself was not among the references searched)
 
 
 class PacketReader:
