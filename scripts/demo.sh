@@ -9,6 +9,8 @@
 # block_transfer_back (and back), printing every step. The run is recorded to an MCAP file
 # and plotted to PNGs; the script says where. Real time: about 2 minutes.
 # Output directory: HYPERARM_DEMO_OUT (default demo_output/ in the repository).
+# Ctrl-C at any moment stops it within about 2 s (exit 130; nothing plotted): run_task.sh
+# cancels the task and stops every node it started.
 set -eo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
@@ -26,6 +28,10 @@ ros2_ws/src/hyperarm_tasks/scripts/run_task.sh --record "$OUT/block_transfer.mca
   --logs "$OUT/logs" block_transfer block_transfer_back
 rc=$?
 set -e
+if [ "$rc" -eq 130 ]; then   # Ctrl-C: run_task.sh has stopped the task and every node
+  echo "== demo interrupted (Ctrl-C): task cancelled, every node stopped; logs: $OUT/logs"
+  exit 130
+fi
 if [ -f "$OUT/block_transfer.mcap" ]; then
   echo "== plotting the recording"
   ros2_ws/install/hyperarm_tasks/lib/hyperarm_tasks/plot_task "$OUT/block_transfer.mcap" --out "$OUT"

@@ -26,7 +26,7 @@ setup(
     entry_points={
         "console_scripts": [
             "task_node = hyperarm_tasks.entry:task_node",
-            "run_task = hyperarm_tasks.run_task:main",
+            "run_task = hyperarm_tasks.run_task:entry",
             "task_recorder = hyperarm_tasks.entry:task_recorder",
             "plot_task = hyperarm_tasks.plots:main",
             "soak_block_transfer = hyperarm_tasks.benchmarks.soak:main",

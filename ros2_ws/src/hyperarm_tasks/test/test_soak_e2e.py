@@ -31,8 +31,10 @@ def test_signal_to_the_soak_stops_the_cycles_stack(sig, executable, ros_domain, 
             time.sleep(0.2)
         assert pids.exists() and len(still_running(pids.parent)) >= 3, "no stack came up"
         time.sleep(1.0)
+        sent = time.monotonic()
         proc.send_signal(sig)
         out, _ = proc.communicate(timeout=90)
+        took = time.monotonic() - sent
     except BaseException:   # the test failed: leave nothing running for the next tests
         if proc.poll() is None:
             proc.kill()
@@ -44,6 +46,8 @@ def test_signal_to_the_soak_stops_the_cycles_stack(sig, executable, ros_domain, 
                 pass
         raise
     assert proc.returncode == 130, out
+    assert took < 2.0, f"stopped {took:.2f} s after the signal\n{out}"   # issue 24, item 2
+    assert "killing it" not in out, out          # no node SIGKILLed
     assert "interrupted in cycle 1 (seed 4)" in out, out
     assert "Traceback" not in out, out
     assert still_running(pids.parent) == []

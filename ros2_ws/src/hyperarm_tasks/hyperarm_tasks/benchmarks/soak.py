@@ -61,6 +61,9 @@ def _run(cmd: list[str], timeout: float, pids: Path) -> tuple[int, str, str]:
             signal.pthread_sigmask(signal.SIG_SETMASK, held)
         if isinstance(exc, subprocess.TimeoutExpired):
             return 124, stdout, stderr + f"\nsoak: the cycle took more than {timeout:g} s"
+        for line in (stdout + stderr).splitlines():   # a node run_task.sh had to SIGKILL
+            if "killing it" in line or "did not stop" in line:
+                print(line, file=sys.stderr, flush=True)
         raise
 
 
