@@ -6,6 +6,11 @@ world) and ``host_compensation/goal`` (PoseStamped of tool0 in world); serves
 publishes arm-only ``joint_command`` on every joint_states message; always publishes
 ``base_reaction`` (WrenchStamped, the arm's wrench on its mount, base_link) and
 diagnostics. The logic is in ``hyperarm_ik.host`` (no ROS); docs/host.md.
+
+Inputs: a host_pose or joint state older than the newest one used (per source), or older
+than ``max_message_age``, is rejected (``hyperarm_description.freshness.StampGate``); a
+malformed one (``hyperarm_ik.host.inputs``) too, whole. Each rejection is counted in the
+diagnostics and logged, throttled per kind, naming the field.
 """
 from __future__ import annotations
 
@@ -22,6 +27,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool
 
 from hyperarm_description import contract
+from hyperarm_description.freshness import StampGate, stamp_seconds
 from hyperarm_description.joints import JointStateCache, JointStateError
 from hyperarm_description.log_throttle import ReasonThrottle
 from hyperarm_description.params import OneOf, ParamSpec, Range, declare_parameters
@@ -32,6 +38,7 @@ from .errors import IKError
 from .host import (AccelerationEstimator, CompensationConfig, CompensationLoop, Compensator,
                    DelayEstimator, HostAccelerationEstimator, HostPoseTracker, HostState,
                    LatestWrench, RailHost, ReactionModel)
+from .host.inputs import joint_state_problem, pose_problem
 from .host.reaction import STANDARD_GRAVITY
 from .kinematics import Kinematics
 from .ros_conversions import pose_to_matrix
@@ -69,6 +76,14 @@ PARAMETERS: ParamSpec = {
     "contact_wrench_timeout": (0.2, "s: the force node's ee_wrench_base (the wrench the tool "
                                "applies, base_link) enters the reaction while at most this "
                                "old (by arrival); 0 = never", Range(0.0, 10.0)),
+    "max_message_age": (0.5, "s: a host_pose or joint_states stamped longer ago than this (by "
+                        "the node's clock) is rejected, as is one older than the newest used",
+                        Range(0.01, 10.0)),
+    "track_position_tolerance": (_C.track_position_tolerance, "m: measured tool error beyond "
+                                 "which (3 states in a row) the status is off_track",
+                                 Range(1e-5, 1.0)),
+    "track_orientation_tolerance": (_C.track_orientation_tolerance, "rad: likewise for "
+                                    "orientation", Range(1e-4, 3.0)),
     "diagnostics_period": (1.0, "s between diagnostics", Range(0.05, 60.0)),
     "executor": ("events", "rclpy executor: 'events' (rclpy.experimental.EventsExecutor, the "
                  "least overhead per message) or 'single' (SingleThreadedExecutor)",
@@ -96,7 +111,9 @@ class HostCompensationNode(Node):
                 limit_margin=p["limit_margin"], max_horizon=p["max_horizon"],
                 position_tolerance=p["position_tolerance"],
                 orientation_tolerance=p["orientation_tolerance"],
-                posture_gain=p["posture_gain"], profile_lead=p["profile_lead"])
+                posture_gain=p["posture_gain"], profile_lead=p["profile_lead"],
+                track_position_tolerance=p["track_position_tolerance"],
+                track_orientation_tolerance=p["track_orientation_tolerance"])
             self._loop = CompensationLoop(
                 Compensator(Kinematics(arm_desc), cfg),
                 DelayEstimator(min(p["initial_delay"], p["max_horizon"])),
@@ -112,6 +129,12 @@ class HostCompensationNode(Node):
         self._base = desc.base_frame
         self._cache = JointStateCache()
         self._throttle = ReasonThrottle(5.0)
+        # unstamped messages (stamp 0) are taken as stamped on arrival, as before
+        self._host_gate = StampGate(contract.HOST_POSE, p["max_message_age"],
+                                    allow_unstamped=True)
+        self._state_gate = StampGate(contract.JOINT_STATES, p["max_message_age"],
+                                     allow_unstamped=True)
+        self._malformed: dict[str, int] = {}     # "<stream> <kind>" -> messages rejected
         self._tracker = HostPoseTracker()
         self._host_time: float | None = None     # arrival (node clock) of the newest host_pose
         self._accel = AccelerationEstimator()
@@ -147,12 +170,17 @@ class HostCompensationNode(Node):
     def _on_host_pose(self, msg: PoseStamped) -> None:
         if self._source != "host_pose":
             return
-        pose = self._world_pose(msg, "host_pose ignored")
+        pose = self._world_pose(msg, "host_pose ignored", contract.HOST_POSE)
         if pose is None:
             return
         now = self._now()
+        stamp = stamp_seconds(msg.header.stamp)
+        rejected = self._host_gate.check(stamp, now)
+        if rejected is not None:
+            self._warn(rejected.text, f"{contract.HOST_POSE} {rejected.reason}")
+            return
         try:
-            self._tracker.update(_seconds(msg.header.stamp) or now, pose)
+            self._tracker.update(stamp or now, pose)
         except IKError as exc:
             self._warn(f"host_pose ignored: {exc}")
             return
@@ -171,6 +199,18 @@ class HostCompensationNode(Node):
 
     def _on_joint_states(self, msg: JointState) -> None:
         t0 = time.perf_counter()
+        problem = joint_state_problem(msg.name, msg.position, msg.velocity, msg.effort,
+                                      self._arm_set)
+        if problem is not None:
+            self._reject_malformed(contract.JOINT_STATES, *problem)
+            return
+        now = self._now()
+        # per source: each driver publishes its own joints with its own stamps
+        rejected = self._state_gate.check(stamp_seconds(msg.header.stamp), now,
+                                          source=tuple(msg.name))
+        if rejected is not None:
+            self._warn(rejected.text, f"{contract.JOINT_STATES} {rejected.reason}")
+            return
         try:
             self._cache.update(msg.name, msg.position, msg.velocity, msg.effort)
         except JointStateError as exc:
@@ -179,7 +219,6 @@ class HostCompensationNode(Node):
         c = self._cache
         if not any(n in self._arm_set for n in msg.name) or not c.has(self._arm):
             return
-        now = self._now()
         q = np.array([c.position[n] for n in self._arm])
         host = self._host_state()
         command, log = self._loop.on_state(now, _seconds(msg.header.stamp), q, host,
@@ -206,7 +245,7 @@ class HostCompensationNode(Node):
         if not self._loop.enabled:
             self._warn(f"{contract.HOST_COMP_GOAL} ignored: not enabled")
             return
-        goal = self._world_pose(msg, "goal rejected")
+        goal = self._world_pose(msg, "goal rejected", contract.HOST_COMP_GOAL)
         if goal is None:
             return
         try:
@@ -216,16 +255,17 @@ class HostCompensationNode(Node):
             return
         self.get_logger().info("new world goal for tool0")
 
-    def _world_pose(self, msg: PoseStamped, what: str) -> np.ndarray | None:
+    def _world_pose(self, msg: PoseStamped, what: str, stream: str) -> np.ndarray | None:
         """The message's pose as a 4x4 matrix if it is in world with a finite, unit
-        quaternion and a finite position; else None (and a warning)."""
+        quaternion and a finite position; else None (and a warning of its own kind, naming
+        the field, counted per ``stream`` and kind)."""
         o, p = msg.pose.orientation, msg.pose.position
-        n = math.sqrt(o.x * o.x + o.y * o.y + o.z * o.z + o.w * o.w)
-        if msg.header.frame_id != contract.WORLD_FRAME or not abs(n - 1.0) < 1e-3 \
-                or not all(math.isfinite(v) for v in (p.x, p.y, p.z)):
-            self._warn(f"{what}: needs frame {contract.WORLD_FRAME!r}, a finite position and "
-                       f"a unit quaternion, got {msg.header.frame_id!r}, |q| = {n:.4g}")
+        problem = pose_problem(msg.header.frame_id, (p.x, p.y, p.z), (o.x, o.y, o.z, o.w),
+                               contract.WORLD_FRAME, what)
+        if problem is not None:
+            self._reject_malformed(stream, *problem)
             return None
+        n = math.sqrt(o.x * o.x + o.y * o.y + o.z * o.z + o.w * o.w)
         out = pose_to_matrix(msg.pose)
         out[:3, :3] = pin.Quaternion(o.w / n, o.x / n, o.y / n, o.z / n).toRotationMatrix()
         return out
@@ -252,7 +292,10 @@ class HostCompensationNode(Node):
     def _publish_reaction(self, now, q, host: HostState | None, stamp) -> None:
         c = self._cache
         dq = np.array([c.velocity.get(n, 0.0) for n in self._arm])
-        ddq = self._accel.update(now, dq) if self._fd else None
+        # differenced at the states' stamps (arrival only for unstamped states): states
+        # that arrive in bursts are still 10 ms of motion apart
+        t_state = _seconds(stamp) if _seconds(stamp) > 0.0 else now
+        ddq = self._accel.update(t_state, dq) if self._fd else None
         r = host.pose[:3, :3] if host is not None else np.eye(3)
         acc = None
         if self._host_accel is not None and host is not None:
@@ -284,7 +327,11 @@ class HostCompensationNode(Node):
 
     def _publish_diagnostics(self) -> None:
         loop = self._loop
-        values = dict(loop.diagnostics(), host_source=self._source,
+        rejected = {f"{g.stream}_rejected_{r}": n for g in (self._host_gate, self._state_gate)
+                    for r, n in g.counts.items()}
+        malformed = {f"{k.replace(' ', '_rejected_')}": n
+                     for k, n in sorted(self._malformed.items())}
+        values = dict(loop.diagnostics(), **rejected, **malformed, host_source=self._source,
                       contact_wrench="in use" if self._contact.get(self._now()) is not None
                       else "none",
                       compute_ms=f"{self._compute * 1e3:.3f}")
@@ -303,8 +350,13 @@ class HostCompensationNode(Node):
             else:
                 self.get_logger().info(text)
 
-    def _warn(self, text: str) -> None:
-        if (shown := self._throttle.message(text)):
+    def _reject_malformed(self, stream: str, kind: str, text: str) -> None:
+        key = f"{stream} {kind}"
+        self._malformed[key] = self._malformed.get(key, 0) + 1
+        self._warn(text, key)
+
+    def _warn(self, text: str, reason: str | None = None) -> None:
+        if (shown := self._throttle.message(text, reason)):
             self.get_logger().warn(shown)
 
     def _now(self) -> float:
