@@ -7,6 +7,7 @@ answer within the timeout, a refusal (success=false and the node's message).
 from __future__ import annotations
 
 import os
+import sys
 import time
 from typing import Any, Callable
 
@@ -356,18 +357,30 @@ class HyperarmClient:
         return self.call(SolveIK, contract.SOLVE_IK, request, timeout)
 
     def run_task(self, task: str, timeout: float, on_feedback: Callable[[Any], None]) -> Any:
+        """Run ``task`` on task_node. Ctrl-C (KeyboardInterrupt) at any moment cancels it
+        (a goal whose acceptance is still on its way is cancelled once known), prints the
+        node's confirmation and re-raises; a second Ctrl-C meanwhile only says so."""
+        import signal
+
+        from rclpy.signals import (get_current_signal_handlers_options,
+                                   install_signal_handlers, uninstall_signal_handlers)
+
         from hyperarm_tasks.task_client import TaskClient, TaskResult
 
+        # rclpy's SIGINT handler shuts the context down: the cancel could not be confirmed
+        # (it raised RCLError 'the given context is not valid'). Python's own handler meanwhile.
+        options = get_current_signal_handlers_options()
+        uninstall_signal_handlers()
         client = TaskClient(self.node)
-        if not client.send(task, timeout=min(timeout, 10.0)):
-            if "not available" in client.message:     # never reached task_node
-                raise ClientError(f"no task_node serves {self._full(contract.RUN_TASK)} "
-                                  f"within {min(timeout, 10.0):g} s (--timeout; {_where()}): "
-                                  "is task_node running?")
-            raise ClientError(f"task_node did not accept task {task!r} ({_where()}): "
-                              f"{client.message}")
-        deadline = time.monotonic() + timeout
         try:
+            if not client.send(task, timeout=min(timeout, 10.0)):
+                if "not available" in client.message:     # never reached task_node
+                    raise ClientError(f"no task_node serves {self._full(contract.RUN_TASK)} "
+                                      f"within {min(timeout, 10.0):g} s (--timeout; {_where()}): "
+                                      "is task_node running?")
+                raise ClientError(f"task_node did not accept task {task!r} ({_where()}): "
+                                  f"{client.message}")
+            deadline = time.monotonic() + timeout
             while not client.done():
                 if time.monotonic() > deadline:
                     client.cancel()
@@ -376,8 +389,23 @@ class HyperarmClient:
                 if fb is not None:
                     on_feedback(fb)
         except KeyboardInterrupt:
-            client.cancel()
+            previous = signal.signal(signal.SIGINT, lambda *_: print(
+                "already cancelling, please wait", file=sys.stderr, flush=True))
+            try:
+                if client.sent():
+                    print(f"Ctrl-C: cancelling task {task!r}", file=sys.stderr, flush=True)
+                    client.cancel(timeout=1.5)
+                    end = time.monotonic() + 1.5
+                    while not client.done() and time.monotonic() < end:
+                        pass
+                    if client.result_message() is not None:
+                        print(f"task {task!r} {client.result().name.lower()}: {client.message}",
+                              file=sys.stderr, flush=True)
+            finally:
+                signal.signal(signal.SIGINT, previous)
             raise
+        finally:
+            install_signal_handlers(options)
         result = client.result()
         msg = client.result_message()
         if result is TaskResult.REJECTED:   # the node's reason (it names the task)

@@ -34,12 +34,14 @@ def run_task_sh() -> str:
                / "run_task.sh")
 
 
-def interrupt_at(cmd: list[str], delay: float, after: str = "logs in", group: bool = False,
-                 env: dict | None = None) -> tuple[int, float, str, float]:
+def interrupt_at(cmd: list[str], delay: float, after: str | None = "logs in",
+                 group: bool = False, env: dict | None = None
+                 ) -> tuple[int, float, str, float]:
     """Run ``cmd`` (e.g. ``run_task.sh --logs LOGS TASK``; SIGINT not ignored, as from a
     terminal) and send it SIGINT ``delay`` s after its first output line containing
-    ``after`` (to its whole process group with ``group``, as a terminal's Ctrl-C). Returns
-    (exit code, s from the signal to the exit, output, the signal's wall-clock time)."""
+    ``after`` (None: after its start) (to its whole process group with ``group``, as a
+    terminal's Ctrl-C). Returns (exit code, s from the signal to the exit, output, the
+    signal's wall-clock time)."""
     proc = subprocess.Popen(cmd,
                             env=dict(env or os.environ, PYTHONUNBUFFERED="1"),
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
@@ -47,7 +49,7 @@ def interrupt_at(cmd: list[str], delay: float, after: str = "logs in", group: bo
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     lines = []
     try:
-        for line in proc.stdout:
+        for line in (proc.stdout if after is not None else ()):
             lines.append(line)
             if after in line:
                 break
@@ -86,8 +88,9 @@ def left_running(logs: Path) -> list[str]:
 
 
 def task_node_lines(logs: Path) -> list[tuple[float, str]]:
-    """(wall-clock time, message) of the task node's log lines."""
-    path = logs / "task_node.log"
+    """(wall-clock time, message) of the task node's log lines (``logs``: run_task.sh's
+    logs directory, or the task node's log file)."""
+    path = logs if logs.is_file() else logs / "task_node.log"
     out = []
     for line in (path.read_text(errors="replace").splitlines() if path.exists() else []):
         m = _STAMP.match(line)
@@ -108,8 +111,16 @@ def check_stopped(code: int, took: float, out: str, logs: Path, wall: float) -> 
     left = left_running(logs)
     if left:
         problems.append(f"left running: {left}")
-    lines = task_node_lines(logs)
-    cancel = [t for t, msg in lines if msg.startswith("cancel requested")]
+    problems += late_steps(task_node_lines(logs), wall, out)
+    return problems
+
+
+def late_steps(lines: list[tuple[float, str]], wall: float, out: str) -> list[str]:
+    """Steps the task node started after a Ctrl-C at ``wall`` (``lines``: its log from
+    :func:`task_node_lines`, ``out``: the client's output)."""
+    problems = []
+    lines = [(t, msg) for t, msg in lines if t > wall - 60.0]
+    cancel = [t for t, msg in lines if msg.startswith("cancel requested") and t > wall]
     # no step may start after the cancel reached the node (or, without a cancel: nothing
     # was sent, no step at all after the Ctrl-C)
     since = cancel[0] if cancel else wall
