@@ -13,7 +13,9 @@ kinematics equals pinocchio's: the worldbody is the root frame (base_link for ``
 world for ``rail_arm``); ``rail_carriage`` (rail_arm only) slides on joint ``rail``;
 ``base_link``, ``link1`` .. ``link9`` (hinge ``joint<i>`` about the body's z), ``tool0``
 (fixed on link9, DH frame 9) and ``gripper_finger`` (hinge ``gripper`` about tool0's x at
-0.04 m along tool0's y, as in the URDF). Link masses, centres of mass and inertias are the
+0.04 m along tool0's y, as in the URDF), and two fingers (``finger_left``/``finger_right``,
+slide joints along tool0's ±z coupled to ``gripper`` by stiff equality constraints, box pads
+that hold the block by friction). Link masses, centres of mass and inertias are the
 description's (the URDF's inertial frames); collision geometry is the description's
 capsules; joint ranges are its limits.
 
@@ -59,7 +61,8 @@ from .world import MOCK_WORLD_KEYS, WorldSpec, parse_world
 
 __all__ = ["PhysicsOptions", "CAMERA_FROM_LINK", "SERVO_MODES", "build_model",
            "generate_mjcf", "block_pieces", "prism_inertia", "options_from_workcell", "set_servo_mode",
-           "camera_link_pose", "render_png", "main"]
+           "camera_link_pose", "render_png", "finger_travel", "PAD_HALF_SIZE",
+           "FINGER_MASS", "main"]
 
 #: Rotation of a MuJoCo camera's frame in ``camera_link`` (columns: the MuJoCo camera's x, y,
 #: z axes): MuJoCo looks along -z with +y up, camera_link along +x with +z up.
@@ -72,6 +75,27 @@ SERVO_MODES = ("position", "current_based_position", "current", "off")
 
 #: Collision geoms of the robot (capsules, carriage) and of the work cell / block.
 _ROBOT_GROUP, _WORLD_GROUP, _BLOCK_GROUP = 0, 1, 2
+
+#: Contact bits (MuJoCo collides two geoms when contype of one & conaffinity of the other):
+#: robot capsules (arm links, base, carriage) touch each other, the world and the block; the
+#: gripper's capsule (an envelope of palm and closed fingers) touches the links and the
+#: world but not the block, which the finger pads hold; the pads touch the block and the
+#: world; the world's geoms (table, pegs, poles) touch everything but each other.
+_BIT_ROBOT, _BIT_WORLD, _BIT_BLOCK, _BIT_HAND, _BIT_PAD = 1, 2, 4, 8, 16
+_CONTACT = {
+    "robot": {"contype": _BIT_ROBOT, "conaffinity": _BIT_ROBOT},
+    "hand": {"contype": _BIT_HAND, "conaffinity": _BIT_ROBOT | _BIT_WORLD},
+    "pad": {"contype": _BIT_PAD, "conaffinity": _BIT_BLOCK | _BIT_WORLD},
+    "world": {"contype": _BIT_WORLD, "conaffinity": _BIT_ROBOT | _BIT_BLOCK},
+    "block": {"contype": _BIT_BLOCK, "conaffinity": _BIT_ROBOT | _BIT_WORLD | _BIT_BLOCK},
+}
+
+#: The finger pads (assumptions: the description gives only the opening): boxes of these
+#: half sizes (m) along tool0 x, y, z, their inner faces ``gripper.max_opening`` apart at
+#: the gripper's upper limit and touching at its lower limit, centred on tool0's origin in
+#: x and y (where the held block's centre is); each finger's mass (kg).
+PAD_HALF_SIZE = (0.012, 0.015, 0.003)
+FINGER_MASS = 0.01
 
 
 @dataclass(frozen=True)
@@ -182,7 +206,8 @@ def _capsules(body: ET.Element, desc: RobotDescription, frame: str) -> None:
             continue
         a, b = cap.endpoints()
         _el(body, "geom", name=f"capsule_{cap.name}", type="capsule", size=[cap.radius],
-            fromto=[*a, *b], group=_ROBOT_GROUP, rgba=_ROBOT_RGBA, mass=0.0)
+            fromto=[*a, *b], group=_ROBOT_GROUP, rgba=_ROBOT_RGBA, mass=0.0,
+            **_CONTACT["hand" if frame == desc.tool_frame else "robot"])
 
 
 def _joint(body: ET.Element, name: str, kind: str, axis: Sequence[float], lower: float,
@@ -213,7 +238,8 @@ def _robot(worldbody: ET.Element, actuators: ET.Element, desc: RobotDescription,
         _inertial(carriage, r.carriage_mass, (0.0, 0.0, 0.0), 0.01 * np.eye(3))  # as the URDF
         _joint(carriage, r.name, "slide", r.axis, r.lower, r.upper, None, opts)
         _el(carriage, "geom", name="rail_carriage", type="box", size=[0.1, 0.1, 0.02],
-            pos=[0.0, 0.0, 0.02], group=_ROBOT_GROUP, rgba=[0.3, 0.4, 0.6, 1.0], mass=0.0)
+            pos=[0.0, 0.0, 0.02], group=_ROBOT_GROUP, rgba=[0.3, 0.4, 0.6, 1.0], mass=0.0,
+            **_CONTACT["robot"])
         _actuator(actuators, r.name, r.lower, r.upper, opts.rail_kp, opts.rail_kv, None)
         mount = np.eye(4)
         mount[:3, :3] = _rpy_matrix(r.mount_rpy)
@@ -243,6 +269,52 @@ def _robot(worldbody: ET.Element, actuators: ET.Element, desc: RobotDescription,
         pos=[0.0, -0.02, 0.0], contype=0, conaffinity=0, group=_ROBOT_GROUP, rgba=_ROBOT_RGBA,
         mass=0.0)
     _actuator(actuators, g.name, g.lower, g.upper, opts.gripper_kp, opts.gripper_kv, g.effort)
+    _fingers(tool, desc, opts)
+
+
+def finger_travel(desc: RobotDescription) -> float:
+    """Each finger's travel per radian of the gripper joint, m/rad: the pads' opening grows
+    linearly from 0 at the lower limit to ``max_opening`` at the upper one (an assumption:
+    the linkage is not modelled), half of it per finger."""
+    g = desc.gripper
+    return 0.5 * g.max_opening / (g.upper - g.lower)
+
+
+def _fingers(tool: ET.Element, desc: RobotDescription, opts: PhysicsOptions) -> None:
+    """Two fingers on tool0, sliding along tool0's +z (``finger_left``) and -z
+    (``finger_right``), coupled to the gripper joint by equality constraints (added by
+    :func:`_finger_coupling`): the servo's torque τ squeezes each pad with τ / (2 ·
+    finger_travel) N."""
+    g = desc.gripper
+    hx, hy, hz = PAD_HALF_SIZE
+    i = FINGER_MASS / 12.0 * np.diag([(2 * hy) ** 2 + (2 * hz) ** 2,
+                                       (2 * hx) ** 2 + (2 * hz) ** 2,
+                                       (2 * hx) ** 2 + (2 * hy) ** 2])
+    travel = finger_travel(desc)
+    for side, sign in (("left", 1.0), ("right", -1.0)):
+        body = _el(tool, "body", name=f"finger_{side}")
+        _inertial(body, FINGER_MASS, (0.0, 0.0, sign * hz), i)
+        _el(body, "joint", name=f"finger_{side}", type="slide", axis=[0.0, 0.0, sign],
+            range=[0.0, travel * (g.upper - g.lower)], limited="true",
+            damping=opts.joint_damping)
+        _el(body, "geom", name=f"pad_{side}", type="box", size=PAD_HALF_SIZE,
+            pos=[0.0, 0.0, sign * hz], condim=4, group=_ROBOT_GROUP,
+            friction=[opts.friction, opts.torsional_friction, 1e-4],
+            rgba=[0.25, 0.25, 0.28, 1.0], mass=0.0, **_CONTACT["pad"])
+
+
+def _finger_coupling(root: ET.Element, desc: RobotDescription, opts: PhysicsOptions) -> None:
+    """<equality>: finger = finger_travel · (gripper - lower), per finger; as stiff as
+    MuJoCo allows (time constant 2 timesteps, impedance 0.99-0.999): the servo's torque
+    reaches the pads through it (MuJoCo's default, 0.02 s, let the fingers lag the joint by
+    19 mm under the default grip torque; this: 0.05 mm)."""
+    g = desc.gripper
+    travel = finger_travel(desc)
+    eq = _el(root, "equality")
+    for side in ("left", "right"):
+        _el(eq, "joint", name=f"finger_{side}", joint1=f"finger_{side}", joint2=g.name,
+            polycoef=[-travel * g.lower, travel, 0.0, 0.0, 0.0],
+            solref=[2.0 * opts.timestep, 1.0], solimp=[0.99, 0.999, 0.0001, 0.5, 2.0])
 
 
 def block_pieces(size: Sequence[float], hole_radius: float, pieces: int
@@ -328,18 +400,19 @@ def _world(asset: ET.Element, worldbody: ET.Element, world: WorldSpec,
             size=[0.5 * (t.x_range[1] - t.x_range[0]), 0.5 * (t.y_range[1] - t.y_range[0]),
                   0.5 * thick],
             pos=[0.5 * sum(t.x_range), 0.5 * sum(t.y_range), t.height - 0.5 * thick],
-            group=_WORLD_GROUP, material="table")
+            group=_WORLD_GROUP, material="table", **_CONTACT["world"])
     else:
         _el(worldbody, "geom", name="table", type="plane", size=[0.0, 0.0, 0.05],
-            pos=[0.0, 0.0, t.height], group=_WORLD_GROUP, material="table")
+            pos=[0.0, 0.0, t.height], group=_WORLD_GROUP, material="table",
+            **_CONTACT["world"])
     for p in world.pegs:
         _el(worldbody, "geom", name=f"peg_{p.name}", type="cylinder",
             size=[p.radius, 0.5 * p.height], pos=[*p.xy, t.height + 0.5 * p.height],
-            group=_WORLD_GROUP, rgba=grey)
+            group=_WORLD_GROUP, rgba=grey, **_CONTACT["world"])
     for p in world.poles:
         _el(worldbody, "geom", name=f"pole_{p.name}", type="cylinder",
             size=[p.radius, 0.5 * p.height], pos=[*p.xy, 0.5 * (p.z_min + p.z_max)],
-            group=_WORLD_GROUP, rgba=[0.8, 0.3, 0.2, 1.0])
+            group=_WORLD_GROUP, rgba=[0.8, 0.3, 0.2, 1.0], **_CONTACT["world"])
     b = world.block
     if b is None:
         return
@@ -353,7 +426,7 @@ def _world(asset: ET.Element, worldbody: ET.Element, world: WorldSpec,
         _el(body, "geom", name=f"block_piece{k}", type="mesh", mesh=f"block_piece{k}",
             condim=4,
             friction=[opts.friction, opts.torsional_friction, 0.0001], group=_BLOCK_GROUP,
-            rgba=[0.2, 0.5, 0.85, 1.0])
+            rgba=[0.2, 0.5, 0.85, 1.0], **_CONTACT["block"])
 
 
 def _touching_at_ready(root: ET.Element, desc: RobotDescription) -> list[tuple[str, str]]:
@@ -364,6 +437,7 @@ def _touching_at_ready(root: ET.Element, desc: RobotDescription) -> list[tuple[s
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
     robot = {desc.base_frame, "rail_carriage", desc.tool_frame, "gripper_finger",
+             "finger_left", "finger_right",
              *(f"link{i}" for i in range(1, len(desc.joints) + 1))}
     pairs = set()
     for c in data.contact[: data.ncon]:
@@ -403,6 +477,7 @@ def generate_mjcf(desc: RobotDescription, world: WorldSpec | None = None,
         quat=_quat(pose[:3, :3] @ CAMERA_FROM_LINK), fovy=math.degrees(desc.camera.fovy))
     _el(worldbody, "site", name=desc.camera.frame, size=[0.01], rgba=[0.1, 0.8, 0.1, 1.0],
         **_pose(pose))
+    _finger_coupling(root, desc, opts)
     root.append(actuators)
     pairs = _touching_at_ready(root, desc)
     if pairs:

@@ -11,8 +11,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from hyperarm_description.mjcf import (CAMERA_FROM_LINK, PhysicsOptions, block_pieces,
-                                       build_model, camera_link_pose, generate_mjcf, main,
+from hyperarm_description.mjcf import (CAMERA_FROM_LINK, FINGER_MASS, PAD_HALF_SIZE,
+                                       PhysicsOptions, block_pieces, build_model,
+                                       camera_link_pose, finger_travel, generate_mjcf, main,
                                        options_from_workcell, set_servo_mode)
 from hyperarm_description.model import DescriptionError, load_description
 from hyperarm_description.world import load_world, parse_world
@@ -112,8 +113,8 @@ def test_masses_inertias_limits_and_servo_dynamics_equal_the_description(variant
         assert body.mass[0] == pytest.approx(ref.mass, abs=1e-12)
         assert np.abs(body.ipos - ref.lever).max() < 1e-12
         assert np.abs(inertia - ref.inertia).max() < 1e-12, name
-    total = sum(j.link.mass for j in desc.joints) + 0.02 + (desc.rail.carriage_mass
-                                                            if desc.rail else 0.0)
+    total = sum(j.link.mass for j in desc.joints) + 0.02 + 2 * FINGER_MASS + (
+        desc.rail.carriage_mass if desc.rail else 0.0)
     assert model.body_subtreemass[0] == pytest.approx(total, abs=1e-12)
     for name, (lo, hi) in desc.limits_by_name().items():
         jid = model.joint(name).id
@@ -418,3 +419,94 @@ def test_the_command_line_renders_the_default_cell_offscreen(tmp_path):
     pixels = np.asarray(Image.open(png))
     assert pixels.shape == (640, 960, 3)
     assert pixels.std() > 10.0  # table, arm, pegs and block: not one colour
+
+
+def _pad_gap(model, data) -> float:
+    """Distance (m) between the two pads' inner faces, along tool0's z."""
+    r = data.body("tool0").xmat.reshape(3, 3)
+    z = [r[:, 2] @ data.geom(f"pad_{s}").xpos for s in ("left", "right")]
+    return (z[0] - z[1]) - 2 * PAD_HALF_SIZE[2]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_fingers_open_with_the_gripper_joint(seed):
+    """Pads touch at the gripper's lower limit, are max_opening apart at its upper one,
+    linear between (exact kinematics); a gripper goal is followed by both fingers (the
+    coupling holds within 0.1 mm while moving)."""
+    desc = load_description()
+    g = desc.gripper
+    model = build_model(desc)
+    data = mujoco.MjData(model)
+    k = finger_travel(desc)
+    rng = np.random.default_rng(seed)
+    for theta in (g.lower, g.upper, *rng.uniform(g.lower, g.upper, 5)):
+        data.qpos[model.joint(g.name).qposadr[0]] = theta
+        for side in ("left", "right"):
+            data.qpos[model.joint(f"finger_{side}").qposadr[0]] = k * (theta - g.lower)
+        mujoco.mj_forward(model, data)
+        expected = g.max_opening * (theta - g.lower) / (g.upper - g.lower)
+        assert _pad_gap(model, data) == pytest.approx(expected, abs=1e-12)
+    mujoco.mj_resetData(model, data)
+    for j in desc.joints:
+        set_servo_mode(model, j.name, "position", kp=1000.0, kv=5.0, force_limit=100.0)
+    goal = rng.uniform(g.lower + 0.3, g.upper - 0.1)
+    data.ctrl[model.actuator(g.name).id] = goal
+    worst = 0.0
+    for _ in range(2000):
+        mujoco.mj_step(model, data)
+        theta = data.qpos[model.joint(g.name).qposadr[0]]
+        for side in ("left", "right"):
+            worst = max(worst, abs(data.qpos[model.joint(f"finger_{side}").qposadr[0]]
+                                   - k * (theta - g.lower)))
+    assert worst < 1e-4
+    assert abs(theta - goal) < 0.02
+    assert _pad_gap(model, data) == pytest.approx(
+        g.max_opening * (goal - g.lower) / (g.upper - g.lower), abs=1e-3)
+
+
+def _hold(model, desc, world, torque: float) -> float:
+    """The block between the pads (centred on tool0, its z along tool0's y), squeezed by a
+    gripper torque (N·m, current mode) for 0.3 s without gravity, then pulled along the hand
+    (tool0's -y) by gravity for 0.5 s: how far (m) it slid out of the grasp."""
+    g = desc.gripper
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    r = data.body("tool0").xmat.reshape(3, 3).copy()
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, np.column_stack([r[:, 0], -r[:, 2], r[:, 1]]).reshape(9))
+    adr = model.joint("block").qposadr[0]
+    data.qpos[adr:adr + 3] = data.body("tool0").xpos
+    data.qpos[adr + 3:adr + 7] = quat
+    k = finger_travel(desc)
+    theta = g.lower + (world.block.size[1] + 2e-4) / (2 * k)  # 0.1 mm from each face
+    data.qpos[model.joint(g.name).qposadr[0]] = theta
+    for side in ("left", "right"):
+        data.qpos[model.joint(f"finger_{side}").qposadr[0]] = k * (theta - g.lower)
+    set_servo_mode(model, g.name, "current", force_limit=g.effort)
+    data.ctrl[model.actuator(g.name).id] = -torque  # closing
+    model.opt.gravity[:] = 0.0
+    for _ in range(300):
+        mujoco.mj_step(model, data)
+    model.opt.gravity[:] = 9.81 * (r @ [0.0, -1.0, 0.0])
+    for _ in range(500):
+        mujoco.mj_step(model, data)
+    return float(np.linalg.norm(data.body("block").xpos - data.body("tool0").xpos))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_pads_hold_the_block_by_friction_and_a_weak_grip_drops_it(seed):
+    """Friction predicts the grip torque at which the block slips out of the pads:
+    τ* = m g · 2·finger_travel / (2 μ) (each pad squeezes with τ / (2·finger_travel), two
+    pads, Coulomb μ). Below 0.8 τ* the block drops; from 1.5 τ* it is held (within 3 mm)."""
+    desc = load_description()
+    world = _cell()
+    model = build_model(desc, world)
+    for j in desc.joints:
+        set_servo_mode(model, j.name, "position", kp=1000.0, kv=5.0, force_limit=100.0)
+    mu = PhysicsOptions().friction
+    tau_star = world.block.mass * 9.81 * finger_travel(desc) / mu
+    rng = np.random.default_rng(seed)
+    assert _hold(model, desc, world, rng.uniform(0.3, 0.8) * tau_star) > 0.05
+    assert _hold(model, desc, world, rng.uniform(1.5, 3.0) * tau_star) < 3e-3
+    assert _hold(model, desc, world, desc.gripper.grip_effort) < 3e-3  # the default grip
