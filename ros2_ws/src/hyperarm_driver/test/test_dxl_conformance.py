@@ -404,6 +404,181 @@ def test_a_packet_whose_bytes_pause_is_dropped(bus, gap):
     """Issue 24 item 9: a servo drops a packet whose bytes come more than 1.5 ms apart
     (e-Manual, Protocol 2.0). A ping split 7 + 3 bytes with a pause of 5-50 ms gets no
     answer (the old emulator waited 50 ms for the rest: it answered 5 and 20 ms); the next
+    whole ping is answered. The emulator judges the gap from the last moment it saw the port
+    empty: when its process was not scheduled through the pause it saw all 10 bytes at once
+    and takes the ping, as it must not guess. So each try asserts what the emulator saw
+    (stats ``last_gap_s``): a gap over 1.5 ms -> no answer, a frame timeout; a try whose gap
+    it could not see is repeated, up to 8 tries, and at least one must see it."""
+    ping = p2.build_packet(X, p2.INST_PING)
+    seen = 0
+    for _ in range(8):
+        stats = bus.emu.ctl("stats")
+        bus.port.clearPort()
+        bus.port.writePort(list(ping[:7]))
+        deadline = time.monotonic() + 5.0
+        while bus.emu.ctl("stats")["bytes_in"] < stats["bytes_in"] + 7:
+            assert time.monotonic() < deadline, "the emulator did not take the first bytes"
+            time.sleep(0.001)
+        time.sleep(gap)
+        bus.port.writePort(list(ping[7:]))
+        bus.port.setPacketTimeoutMillis(50)
+        _, result = ph.rxPacket(bus.port, False)
+        after = bus.emu.ctl("stats")
+        if after["last_gap_s"] > p2.BYTE_GAP_TIMEOUT:
+            assert result != COMM_SUCCESS, f"answered after a {after['last_gap_s']:.4f} s gap"
+            assert after["frame_timeouts"] == stats["frame_timeouts"] + 1
+            seen += 1
+        else:                                 # not scheduled through the pause: taken whole
+            assert after["frame_timeouts"] == stats["frame_timeouts"]
+        model, result, _ = ph.ping(bus.port, X)
+        assert result == COMM_SUCCESS and model == MODEL[X]
+        if seen >= 2:
+            break
+    assert seen >= 1, "the emulator never saw the pause"
+
+
+# -- Control Table Backup 0x20 ([P2] Control Table Backup: X430/540 from firmware v45) -------
+def test_control_table_backup_store_restore_and_ram_restore(own):
+    """Issue 24 item 9: the emulated XM430-W350 reports firmware 46, and the instruction is
+    there from v45: store (P1 0x01 + "CTRL", torque off only, else Result Fail) sets Backup
+    Ready (147); restore (0x02) puts the EEPROM back and reboots; the backed-up gains come
+    back at start-up with Startup Configuration (60) bit 1. MX(2.0) and X firmware < 45:
+    Instruction Error. (The emulator before answered Instruction Error to all of it.)"""
+    b = own("--servos", "5:XM430-W350,6:MX-64")
+
+    def backup(sid: int, params: bytes) -> int:
+        rx, result = b.raw(p2.build_packet(sid, p2.INST_CONTROL_TABLE_BACKUP, params))
+        assert result == COMM_SUCCESS and rx[4] == sid
+        return rx[8] & 0x7F
+
+    def after_reboot(sid: int) -> None:
+        deadline = time.monotonic() + 2.0
+        time.sleep(0.06)                                                 # silent 50 ms
+        while ph.ping(b.port, sid)[1] != COMM_SUCCESS:
+            assert time.monotonic() < deadline, "no answer after the restore's reboot"
+
+    assert ph.read1ByteTxRx(b.port, 5, 147) == (0, COMM_SUCCESS, 0)       # no backup yet
+    assert backup(5, b"\x02CTRL") == 1                                    # nothing to restore
+    assert ph.write1ByteTxRx(b.port, 5, 64, 1) == (COMM_SUCCESS, 0)       # torque on
+    assert backup(5, b"\x01CTRL") == 1                                    # Result Fail
+    assert ph.write1ByteTxRx(b.port, 5, 64, 0) == (COMM_SUCCESS, 0)
+    assert backup(5, b"\x01CTRX") == 4 and backup(5, b"\x03CTRL") == 4     # Data Range
+    assert backup(5, b"\x01CTR") == 5                                     # Data Length
+    # the configuration to keep: EEPROM (Max Position Limit 48) and a RAM gain (84)
+    assert ph.write4ByteTxRx(b.port, 5, 48, 3000) == (COMM_SUCCESS, 0)
+    assert ph.write2ByteTxRx(b.port, 5, 84, 900) == (COMM_SUCCESS, 0)
+    assert backup(5, b"\x01CTRL") == 0
+    assert ph.read1ByteTxRx(b.port, 5, 147) == (1, COMM_SUCCESS, 0)       # Backup Ready
+    assert ph.write4ByteTxRx(b.port, 5, 48, 2000) == (COMM_SUCCESS, 0)
+    assert ph.write2ByteTxRx(b.port, 5, 84, 700) == (COMM_SUCCESS, 0)
+    assert backup(5, b"\x02CTRL") == 0                                    # restore EEPROM
+    after_reboot(5)
+    assert ph.read4ByteTxRx(b.port, 5, 48)[0] == 3000                     # EEPROM back
+    assert ph.read2ByteTxRx(b.port, 5, 84)[0] == 800                      # RAM: default
+    # with Startup Configuration bit 1 (RAM Restore) the backed-up gain comes back too
+    assert ph.write1ByteTxRx(b.port, 5, 60, 2) == (COMM_SUCCESS, 0)
+    assert ph.write2ByteTxRx(b.port, 5, 84, 900) == (COMM_SUCCESS, 0)
+    assert backup(5, b"\x01CTRL") == 0
+    assert ph.write2ByteTxRx(b.port, 5, 84, 700) == (COMM_SUCCESS, 0)
+    assert ph.reboot(b.port, 5) == (COMM_SUCCESS, 0)
+    after_reboot(5)
+    assert ph.read2ByteTxRx(b.port, 5, 84)[0] == 900
+    assert ph.read1ByteTxRx(b.port, 5, 147) == (1, COMM_SUCCESS, 0)       # kept over reboot
+    # not on MX(2.0), nor on X firmware before v45
+    assert backup(6, b"\x01CTRL") == 2
+    b.emu.ctl("register", id=5, name="firmware_version", value=44)
+    assert backup(5, b"\x01CTRL") == 2
+
+
+# -- FACTORY RESET 0x06, ID and baud changes, factory state ------------------------------------
+@pytest.mark.parametrize("model", ["XM430-W350", "MX-64"])
+def test_factory_reset_id_and_baud_changes(own, model):
+    b = own("--servos", f"5:{model}")
+    assert ph.write1ByteTxRx(b.port, 5, 9, 0) == (COMM_SUCCESS, 0)      # Return Delay 0
+    assert ph.write1ByteTxRx(b.port, 5, 7, 20) == (COMM_SUCCESS, 0)     # ID 5 -> 20
+    assert ph.ping(b.port, 5)[1] != COMM_SUCCESS and ph.ping(b.port, 20)[1] == COMM_SUCCESS
+    assert ph.factoryReset(b.port, 20, 0x02) == (COMM_SUCCESS, 0)       # keep ID and baud
+    deadline = time.monotonic() + 2.0
+    while ph.ping(b.port, 20)[1] != COMM_SUCCESS:
+        assert time.monotonic() < deadline
+    assert ph.read1ByteTxRx(b.port, 20, 9)[0] == 250                    # factory value
+    assert ph.factoryReset(b.port, 20, 0x07) == (COMM_SUCCESS, 4)       # no such option
+    # a new baud rate takes effect after the status packet ([XM] Baud Rate 8: 1 = 57600)
+    assert ph.write1ByteTxRx(b.port, 20, 8, 1) == (COMM_SUCCESS, 0)
+    assert ph.ping(b.port, 20)[1] != COMM_SUCCESS
+    assert b.port.setBaudRate(57600) and ph.ping(b.port, 20)[0] == MODEL[X if model[0] == "X"
+                                                                         else MX]
+    # broadcast Factory Reset with 0xFF is not executed; unicast 0xFF: ID 1, 57600
+    ph.factoryReset(b.port, p2.BROADCAST_ID, 0xFF)
+    assert ph.ping(b.port, 20)[1] == COMM_SUCCESS
+    assert ph.factoryReset(b.port, 20, 0xFF) == (COMM_SUCCESS, 0)
+    deadline = time.monotonic() + 2.0
+    while ph.ping(b.port, 1)[1] != COMM_SUCCESS:
+        assert time.monotonic() < deadline, "factory servo not at ID 1, 57600"
+
+
+def test_factory_and_mixed_states_for_scan_tools(own):
+    # one servo fresh from the factory (ID 1, 57600) next to configured ones at 1 Mbit/s
+    b = own("--servos", "7:MX-64,8:XM430-W350", "--factory", "XM430-W350")
+    ids, result = ph.broadcastPing(b.port)
+    assert result == COMM_SUCCESS and sorted(ids) == [7, 8]
+    assert b.port.setBaudRate(57600)
+    ids, result = ph.broadcastPing(b.port)
+    assert result == COMM_SUCCESS and sorted(ids) == [1]
+    # two factory servos share ID 1: both answer at once, the reply is garbled
+    b2 = own("--factory", "XM430-W350", "--factory", "XM430-W350", baud=57600)
+    assert ph.ping(b2.port, 1)[1] != COMM_SUCCESS
+    assert len(b2.emu.ctl("units")["units"]) == 2
+
+
+# -- Status Return Level 68 ([XM] 0: PING only, 1: PING and READ, 2: all) -----------------------
+@BOTH
+def test_status_return_level(bus, sid):
+    try:
+        ph.write1ByteTxOnly(bus.port, sid, 68, 1)
+        result, _ = ph.write1ByteTxRx(bus.port, sid, 65, 1)
+        assert result != COMM_SUCCESS                    # a WRITE gets no status ...
+        assert ph.read1ByteTxRx(bus.port, sid, 65) == (1, COMM_SUCCESS, 0)   # ... but ran
+        ph.write1ByteTxOnly(bus.port, sid, 68, 0)
+        assert ph.read1ByteTxRx(bus.port, sid, 65)[1] != COMM_SUCCESS   # not even a READ
+        assert ph.ping(bus.port, sid)[1] == COMM_SUCCESS                # PING always
+    finally:
+        ph.write1ByteTxOnly(bus.port, sid, 68, 2)
+        time.sleep(0.1)       # level 2 again: that write's status comes back, unread
+        bus.port.clearPort()
+    assert ph.write1ByteTxRx(bus.port, sid, 65, 0) == (COMM_SUCCESS, 0)
+    assert ph.read1ByteTxRx(bus.port, sid, 68) == (2, COMM_SUCCESS, 0)
+
+
+# -- Indirect Address 29-56 ([XM]/[MX] #indirect-address: 578-633, data 634-661) ---------------
+@BOTH
+def test_indirect_address_and_data_29_to_56(bus, sid):
+    assert ph.write2ByteTxRx(bus.port, sid, 578, 65) == (COMM_SUCCESS, 0)    # Ind. Addr 29
+    assert ph.write2ByteTxRx(bus.port, sid, 578 + 2 * 27, 0) == (COMM_SUCCESS, 4)  # < 64
+    assert ph.write1ByteTxRx(bus.port, sid, 634, 1) == (COMM_SUCCESS, 0)     # Ind. Data 29
+    assert reg(bus, sid, "led") == 1
+    assert ph.read1ByteTxRx(bus.port, sid, 634) == (1, COMM_SUCCESS, 0)
+    assert ph.write2ByteTxRx(bus.port, sid, 578 + 2, 132) == (COMM_SUCCESS, 0)  # -> Pres.Pos
+    assert ph.write1ByteTxRx(bus.port, sid, 635, 1) == (COMM_SUCCESS, 7)     # read-only
+    assert ph.write1ByteTxRx(bus.port, sid, 634, 0) == (COMM_SUCCESS, 0)
+
+
+# -- framing: a corrupt length field does not deafen the bus --------------------------------
+def test_a_corrupt_length_field_is_dropped_after_a_timeout(bus):
+    bad = bytearray(p2.build_packet(X, p2.INST_WRITE, bytes([65, 0, 1])))
+    bad[5:7] = (4080).to_bytes(2, "little")
+    bus.port.writePort(list(bad))
+    time.sleep(0.01)                  # > the 1.5 ms a servo waits for a packet's next byte
+    model, result, _ = ph.ping(bus.port, X)
+    assert result == COMM_SUCCESS and model == MODEL[X]
+    assert bus.emu.ctl("stats")["frame_timeouts"] >= 1 and reg(bus, X, "led") == 0
+
+
+@pytest.mark.parametrize("gap", [0.005, 0.02, 0.05])
+def test_a_packet_whose_bytes_pause_is_dropped(bus, gap):
+    """Issue 24 item 9: a servo drops a packet whose bytes come more than 1.5 ms apart
+    (e-Manual, Protocol 2.0). A ping split 7 + 3 bytes with a pause of 5-50 ms gets no
+    answer (the old emulator waited 50 ms for the rest: it answered 5 and 20 ms); the next
     whole ping is answered. The pause starts once the emulator has taken the first 7 bytes
     (an emulator process not scheduled during the pause would see all 10 bytes at once and,
     not knowing when they came, take the packet)."""

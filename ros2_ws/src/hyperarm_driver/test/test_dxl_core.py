@@ -69,7 +69,8 @@ def test_reader_drops_an_incomplete_packet_after_a_byte_gap():
     # the example: a ping split 7 + 3 bytes, 20 ms apart, is not answered
     r = p2.PacketReader()
     assert r.feed(ping[:7], now=0.0) == [] and r.feed(ping[7:], now=0.02) == []
-    assert r.timeouts == 1 and r.feed(ping, now=0.021) == [p2.Packet(1, p2.INST_PING, b"")]
+    assert r.timeouts == 1 and r.last_gap == pytest.approx(0.02)
+    assert r.feed(ping, now=0.021) == [p2.Packet(1, p2.INST_PING, b"")]
     # the gap runs from when the earlier bytes were taken to the earliest the later ones can
     # have come (arrived_after): a reader that was not scheduled does not drop a packet
     r = p2.PacketReader()

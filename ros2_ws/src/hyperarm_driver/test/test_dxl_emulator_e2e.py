@@ -48,10 +48,13 @@ def _status(port, packet: bytes, timeout_ms: float = 250.0) -> tuple[list[int], 
 
 def test_installed_emulator_drops_a_packet_whose_bytes_pause(bus) -> None:
     """A ping split 7 + 3 bytes, 20 ms apart (the issue's example), is not answered; the
-    same ping whole is. The pause starts once the emulator has taken the first 7 bytes."""
+    same ping whole is. The pause starts once the emulator has taken the first 7 bytes; a
+    try whose pause the emulator could not see (its process not scheduled through it: it
+    then saw the 10 bytes at once, stats ``last_gap_s``) is repeated, up to 8 tries."""
     port, control = bus
     ping = p2.build_packet(SID, p2.INST_PING)
-    for _ in range(3):
+    seen = 0
+    for _ in range(8):
         stats = control("stats")
         port.clearPort()
         port.writePort(list(ping[:7]))
@@ -63,10 +66,16 @@ def test_installed_emulator_drops_a_packet_whose_bytes_pause(bus) -> None:
         port.writePort(list(ping[7:]))
         port.setPacketTimeoutMillis(100)
         _, result = ph.rxPacket(port, False)
-        assert result != COMM_SUCCESS, "a ping whose bytes paused 20 ms was answered"
-        assert control("stats")["frame_timeouts"] == stats["frame_timeouts"] + 1
+        after = control("stats")
+        if after["last_gap_s"] > p2.BYTE_GAP_TIMEOUT:
+            assert result != COMM_SUCCESS, "a ping whose bytes paused 20 ms was answered"
+            assert after["frame_timeouts"] == stats["frame_timeouts"] + 1
+            seen += 1
         rx, result = _status(port, ping)
         assert result == COMM_SUCCESS and rx[4] == SID
+        if seen >= 3:
+            break
+    assert seen >= 1, "the emulator never saw the pause"
 
 
 def test_installed_emulator_control_table_backup(bus) -> None:

@@ -850,6 +850,7 @@ class EmulatedBus:
                 return {"ok": True, "packets": self.reader.packets, "frozen_s": self.frozen,
                         "crc_errors": self.reader.crc_errors,
                         "frame_timeouts": self.reader.timeouts, "bytes_in": self.reader.bytes,
+                        "last_gap_s": self.reader.last_gap,
                         "instructions": {hex(k): v for k, v in self.instructions.items()}}
             elif op != "ping":
                 return {"ok": False, "error": f"unknown op {op!r}"}

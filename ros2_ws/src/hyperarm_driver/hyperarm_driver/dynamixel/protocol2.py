@@ -195,14 +195,17 @@ class PacketReader:
         self.timeouts = 0
         self.packets = 0
         self.bytes = 0         # bytes fed
+        self.last_gap: float | None = None   # s, the gap judged last (bytes after a part)
 
     def feed(self, data: bytes, now: float | None = None,
              arrived_after: float | None = None) -> list[Packet]:
         if now is not None:
             start = now if arrived_after is None else min(arrived_after, now)
-            if self._buf and start - self._last > BYTE_GAP_TIMEOUT:
-                self._buf.clear()
-                self.timeouts += 1
+            if self._buf:
+                self.last_gap = start - self._last
+                if self.last_gap > BYTE_GAP_TIMEOUT:
+                    self._buf.clear()
+                    self.timeouts += 1
             self._last = now
         self.bytes += len(data)
         return self._parse(data)
