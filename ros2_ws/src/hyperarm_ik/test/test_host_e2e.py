@@ -8,6 +8,11 @@ one launch per scenario:
   then the mock's host motion ``rail_sweep`` moves the rail (someone else moves it: +-0.2 m
   at 0.2 m/s, 0.5 m/s^2 at the turnarounds), recorded from its start until it has been at
   +0.2 m and then at -0.2 m;
+- reach (issue 24 item 1): on rail_arm, tool0 held 0.62 m ahead (near the stretched
+  singularity) while the test streams rail setpoints 0.2 m away from it at 0.1 m/s and
+  back: no arm command steps a joint further than its velocity limit times the states'
+  period (the old node sent 0.47-3.65 rad in one command as the arm reached or left full
+  stretch);
 - 6-D sway: on the fixed arm the mock's host motion ``uav_sway`` (base_link sways 2 cm,
   heaves 1 cm and tilts 5 deg at 0.5 Hz in world), started with ``host_motion/enable``
   after compensation is enabled on ``host_pose``; recorded over the 2 s ramp and one full
@@ -44,6 +49,8 @@ ARM = list(contract.ARM_JOINTS)
 # tool0 pointing down 0.2 m in front of the base (its wrist stays inside its reach while
 # the base moves +-0.2 m; see test_host_core)
 Q0 = [1.367, 0.62, -1.871, 0.548, 1.726, -1.732, 1.335, -0.596, 0.726]
+# tool0 0.62 m ahead, 0.1 m up, 10 deg below forward (hyperarm_ik.benchmark.host_sim.Q_REACH)
+Q_REACH = [0.141, 0.134, -0.305, -0.071, 0.137, 0.3, 0.145, -0.19, -0.113]
 def _ns(stamp) -> int:
     return stamp.sec * 10**9 + stamp.nanosec
 
@@ -98,6 +105,7 @@ class Probe:
         self.states: list[tuple[float, dict]] = []
         self.state_stamps: list[int] = []
         self.commands: set[int] = set()     # the stamps of the arm commands (their state's)
+        self.command_list: list[tuple[int, np.ndarray]] = []   # (stamp ns, arm positions)
         self.reactions: list[np.ndarray] = []
         self.truth: list[tuple[int, np.ndarray]] = []    # (stamp ns, tool0 in world)
         self.hosts: dict[int, np.ndarray] = {}            # stamp ns -> base_link in world
@@ -135,6 +143,7 @@ class Probe:
         if list(msg.name) == ARM:
             with self.lock:
                 self.commands.add(_ns(msg.header.stamp))
+                self.command_list.append((_ns(msg.header.stamp), np.array(msg.position)))
 
     def _on_host(self, msg: PoseStamped) -> None:
         with self.lock:
@@ -193,13 +202,13 @@ def _start(launch, probe_args, variant: str, wait_for, **mock_params):
     return mock, comp, probe
 
 
-def _to_q0(probe: Probe, wait_for, rail: bool) -> None:
+def _to_q0(probe: Probe, wait_for, rail: bool, q0=Q0) -> None:
     def at_q0():
         q = probe.latest()
-        return max(abs(q[n] - v) for n, v in zip(ARM, Q0)) < 2e-3 and (
+        return max(abs(q[n] - v) for n, v in zip(ARM, q0)) < 2e-3 and (
             not rail or abs(q["rail"]) < 1e-3)
 
-    probe.send(ARM, Q0)
+    probe.send(ARM, q0)
     wait_for(at_q0, 15.0, period=0.05, what="arm at the start posture")
     wait_for(lambda: len(probe.reactions) > 0 and len(probe.truth) > 0, 10.0,
              what="base_reaction and the tool truth")
@@ -332,3 +341,49 @@ def test_tool_stays_in_the_world_under_a_6d_sway(motion, seconds, launch, rclpy_
     assert not failed, summary
     assert sway > 0.019 and math.degrees(tilt) > 4.9, summary      # the whole sway ran
     _check_clean(mock, comp)
+
+
+def test_no_command_jumps_while_the_rail_takes_the_arm_to_full_stretch_and_back(
+        launch, rclpy_context, executor, wait_for):
+    """Issue 24 item 1 through the installed executables: tool0 held 0.62 m ahead, the rail
+    streamed 0.2 m away at 0.1 m/s (simulated time) and back. Every pair of successive arm
+    commands received differs by at most the joints' velocity limit (3 rad/s) times the
+    difference of their stamps (the states' they answer)."""
+    mock, comp, probe = _start(launch, (rclpy_context, executor), "rail_arm", wait_for)
+    res = probe.call(probe.home, Trigger.Request(), wait_for)
+    assert res.success, res.message
+    wait_for(lambda: probe.homed, 20.0, what="rail homed (mock diagnostics)")
+    _to_q0(probe, wait_for, rail=True, q0=Q_REACH)
+    with probe.lock:
+        first_state, t0 = len(probe.states), probe.state_stamps[-1]
+        first_command = len(probe.command_list)
+    seen = {"away": False}
+
+    def stream() -> bool:               # one setpoint per call, on the mock's clock
+        with probe.lock:
+            t = (probe.state_stamps[-1] - t0) * 1e-9
+            rail = probe.states[-1][1]["rail"]
+        # 0.2 m away at 0.1 m/s, 0.5 s there, back at 0.1 m/s
+        x = -0.1 * t if t < 2.0 else min(-0.2 + 0.1 * max(t - 2.5, 0.0), 0.0)
+        probe.send(["rail"], [x])
+        seen["away"] |= rail < -0.19
+        return seen["away"] and t > 4.5 and rail > -0.005
+
+    wait_for(stream, 60.0, period=0.02, what="the rail 0.2 m away and back")
+    with probe.lock:
+        cmds = probe.command_list[first_command:]
+        rails = [q["rail"] for _t, q in probe.states[first_state:]]
+    vmax = np.array([j.velocity for j in Kinematics(variant="arm").desc.joints])
+    worst, where = 0.0, None
+    for (s0, q0), (s1, q1) in zip(cmds, cmds[1:]):
+        dt = (s1 - s0) * 1e-9
+        ratio = float(np.max(np.abs(q1 - q0) / (vmax * dt))) if dt > 0 else math.inf
+        if ratio > worst:
+            worst, where = ratio, (float(np.abs(q1 - q0).max()), dt)
+    summary = (f"{len(cmds)} commands; largest step / (velocity limit x period) {worst:.3f} "
+               f"({where[0]:.4f} rad over {where[1] * 1e3:.1f} ms); rail "
+               f"{min(rails):.3f}..{max(rails):.3f} m; node: {probe.diag}")
+    print(summary)
+    assert len(cmds) > 200 and min(rails) < -0.19, summary
+    assert worst <= 1.0 + 1e-6, summary
+    assert "Traceback" not in mock.output() + comp.output()
