@@ -61,7 +61,8 @@ from .world import MOCK_WORLD_KEYS, WorldSpec, parse_world
 
 __all__ = ["PhysicsOptions", "CAMERA_FROM_LINK", "SERVO_MODES", "build_model",
            "generate_mjcf", "block_pieces", "prism_inertia", "options_from_workcell", "set_servo_mode",
-           "camera_link_pose", "render_png", "finger_travel", "PAD_HALF_SIZE",
+           "camera_link_pose", "render_png", "finger_travel", "PAD_HALF_SIZE", "Mount",
+           "MOUNT_JOINTS",
            "FINGER_MASS", "main"]
 
 #: Rotation of a MuJoCo camera's frame in ``camera_link`` (columns: the MuJoCo camera's x, y,
@@ -229,9 +230,67 @@ def _actuator(actuators: ET.Element, name: str, lower: float, upper: float, kp: 
         **({"forcelimited": "false"} if force is None else limit))
 
 
-def _robot(worldbody: ET.Element, actuators: ET.Element, desc: RobotDescription,
+#: The passive mount's joints (:class:`Mount`): translations along the host's x, y, z, then
+#: rotations about its x, y, z (roll, pitch, yaw), in one body.
+MOUNT_JOINTS = ("mount_x", "mount_y", "mount_z", "mount_roll", "mount_pitch", "mount_yaw")
+
+
+@dataclass(frozen=True)
+class Mount:
+    """A passive 6-D spring-damper between the host (a UAV's airframe frame) and the robot's
+    root, as the mock's ``mount:`` (hyperarm_driver/config/host_motion/*.yaml): the mounted
+    body's ``mass`` (kg) and diagonal ``inertia`` (kg·m², at the root's origin, root axes),
+    diagonal ``stiffness`` (N/m x3, then N·m/rad x3) and ``damping`` (N·s/m x3, then
+    N·m·s/rad x3). Raises DescriptionError naming a bad field."""
+
+    mass: float
+    inertia: tuple[float, float, float]
+    stiffness: tuple[float, float, float, float, float, float]
+    damping: tuple[float, float, float, float, float, float]
+
+    def __post_init__(self) -> None:
+        check_number(self.mass, "mount.mass", positive=True)
+        for name, n, positive in (("inertia", 3, True), ("stiffness", 6, True),
+                                  ("damping", 6, False)):
+            values = getattr(self, name)
+            if isinstance(values, (str, bytes)) or not hasattr(values, "__len__") \
+                    or len(values) != n:
+                raise DescriptionError(f"mount.{name}: expected {n} numbers, got {values!r}")
+            for i, v in enumerate(values):
+                check_number(v, f"mount.{name}[{i}]", positive=positive, nonneg=not positive)
+
+    @classmethod
+    def from_mapping(cls, raw: Any, where: str = "mount") -> "Mount":
+        """A mount from a parsed ``mount:`` mapping (keys mass, inertia, stiffness, damping)."""
+        if not isinstance(raw, Mapping):
+            raise DescriptionError(f"{where}: expected a mapping, got {type(raw).__name__}")
+        keys = {"mass", "inertia", "stiffness", "damping"}
+        unknown, missing = sorted(set(map(str, raw)) - keys), sorted(keys - set(raw))
+        if unknown or missing:
+            raise DescriptionError(f"{where}: unknown key(s) {unknown}, missing {missing}")
+        return cls(mass=raw["mass"], inertia=tuple(raw["inertia"]),
+                   stiffness=tuple(raw["stiffness"]), damping=tuple(raw["damping"]))
+
+
+def _host(worldbody: ET.Element, mount: Mount | None) -> ET.Element:
+    """The mocap body ``host`` (its pose set at run time through ``data.mocap_pos`` /
+    ``mocap_quat``: the scripted host motion) and, with a ``mount``, the body ``mount``
+    hanging on it by the six spring-damper joints :data:`MOUNT_JOINTS`; returns the body
+    the robot's root goes into."""
+    host = _el(worldbody, "body", name="host", mocap="true")
+    if mount is None:
+        return host
+    body = _el(host, "body", name="mount")
+    _inertial(body, mount.mass, (0.0, 0.0, 0.0), np.diag(mount.inertia))
+    for k, name in enumerate(MOUNT_JOINTS):
+        _el(body, "joint", name=name, type="slide" if k < 3 else "hinge",
+            axis=np.eye(3)[k % 3], stiffness=mount.stiffness[k], damping=mount.damping[k],
+            limited="false")
+    return body
+
+
+def _robot(parent: ET.Element, actuators: ET.Element, desc: RobotDescription,
            opts: PhysicsOptions) -> None:
-    parent = worldbody
     if desc.rail:
         r = desc.rail
         carriage = _el(parent, "body", name="rail_carriage")
@@ -448,10 +507,13 @@ def _touching_at_ready(root: ET.Element, desc: RobotDescription) -> list[tuple[s
 
 
 def generate_mjcf(desc: RobotDescription, world: WorldSpec | None = None,
-                  options: PhysicsOptions | None = None) -> str:
+                  options: PhysicsOptions | None = None, *, host: bool = False,
+                  mount: Mount | None = None) -> str:
     """The MJCF text of ``desc`` (its variant decides the rail) and, if given, its work cell
     ``world`` (in the root frame); self-contained (meshes inline), numbers at full
-    precision."""
+    precision. ``host``: the robot's root sits on a mocap body ``host`` (a scripted host
+    motion moves it; the work cell and the camera stay in the world); ``mount`` (implies
+    ``host``): on a passive 6-D spring-damper from it."""
     opts = options or PhysicsOptions()
     root = ET.Element("mujoco", model=desc.name + ("_rail" if desc.rail else ""))
     src = Path(desc.source).name if desc.source else "the robot description"
@@ -469,7 +531,8 @@ def generate_mjcf(desc: RobotDescription, world: WorldSpec | None = None,
     _el(worldbody, "light", name="top", pos=[0.3, 0.0, 2.0], dir=[0.0, 0.0, -1.0],
         directional="true")
     actuators = ET.Element("actuator")
-    _robot(worldbody, actuators, desc, opts)
+    _robot(_host(worldbody, mount) if host or mount is not None else worldbody, actuators,
+           desc, opts)
     if world is not None:
         _world(asset, worldbody, world, opts)
     pose = camera_link_pose(desc)
@@ -490,9 +553,11 @@ def generate_mjcf(desc: RobotDescription, world: WorldSpec | None = None,
 
 
 def build_model(desc: RobotDescription, world: WorldSpec | None = None,
-                options: PhysicsOptions | None = None) -> mujoco.MjModel:
+                options: PhysicsOptions | None = None, *, host: bool = False,
+                mount: Mount | None = None) -> mujoco.MjModel:
     """The compiled MuJoCo model of :func:`generate_mjcf`'s text."""
-    return mujoco.MjModel.from_xml_string(generate_mjcf(desc, world, options))
+    return mujoco.MjModel.from_xml_string(generate_mjcf(desc, world, options, host=host,
+                                                        mount=mount))
 
 
 def set_servo_mode(model: mujoco.MjModel, joint: str, mode: str, *, kp: float = 0.0,
@@ -593,6 +658,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workcell", help="work-cell YAML (hyperarm_driver/config/workcell*.yaml):"
                     " adds the table, pegs, poles and block, and takes its friction and "
                     "servo settings; default: the robot alone")
+    ap.add_argument("--host-motion", metavar="YAML", help="a host-motion file "
+                    "(hyperarm_driver/config/host_motion/*.yaml): the robot's root on a "
+                    "mocap body 'host', and on its passive 6-D spring-damper mount if the "
+                    "file has 'mount:'")
     ap.add_argument("--timestep", type=float, help="physics step, s (default 0.001)")
     ap.add_argument("-o", "--out", help="output file (default: hyperarm_<variant>.xml)")
     ap.add_argument("--render", metavar="PNG", help="also render the model offscreen into this "
@@ -609,7 +678,12 @@ def main(argv: list[str] | None = None) -> int:
             options = options_from_workcell(data)
         if args.timestep is not None:
             options = PhysicsOptions(**{**options.__dict__, "timestep": args.timestep})
-        text = generate_mjcf(desc, world, options)
+        mount = None
+        if args.host_motion:
+            motion = read_yaml(Path(args.host_motion), "host-motion file")
+            if isinstance(motion, Mapping) and motion.get("mount") is not None:
+                mount = Mount.from_mapping(motion["mount"], f"{args.host_motion}: mount")
+        text = generate_mjcf(desc, world, options, host=bool(args.host_motion), mount=mount)
     except (DescriptionError, ValueError) as exc:
         print(f"generate_mjcf: {exc}", file=sys.stderr)
         return 2

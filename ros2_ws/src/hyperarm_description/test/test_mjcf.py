@@ -11,7 +11,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from hyperarm_description.mjcf import (CAMERA_FROM_LINK, FINGER_MASS, PAD_HALF_SIZE,
+from hyperarm_description.mjcf import (CAMERA_FROM_LINK, FINGER_MASS, PAD_HALF_SIZE, Mount,
                                        PhysicsOptions, block_pieces, build_model,
                                        camera_link_pose, finger_travel, generate_mjcf, main,
                                        options_from_workcell, set_servo_mode)
@@ -510,3 +510,82 @@ def test_the_pads_hold_the_block_by_friction_and_a_weak_grip_drops_it(seed):
     assert _hold(model, desc, world, rng.uniform(0.3, 0.8) * tau_star) > 0.05
     assert _hold(model, desc, world, rng.uniform(1.5, 3.0) * tau_star) < 3e-3
     assert _hold(model, desc, world, desc.gripper.grip_effort) < 3e-3  # the default grip
+
+
+def _random_pose(rng) -> tuple[np.ndarray, np.ndarray]:
+    quat = rng.normal(size=4)
+    quat /= np.linalg.norm(quat)
+    return rng.uniform(-0.5, 0.5, 3), quat
+
+
+@pytest.mark.parametrize("variant", ["arm", "rail_arm"])
+def test_a_scripted_host_carries_the_robot_and_leaves_the_cell(variant):
+    """With host=True the mocap body ``host`` carries the root: at a random host pose T
+    every body is T times its pose on a fixed host (within 1e-9); the cell and the camera
+    stay in the world."""
+    desc = load_description(variant=variant)
+    world = _cell("workcell_rail.yaml" if desc.rail else "workcell.yaml")
+    fixed = build_model(desc, world)
+    hosted = build_model(desc, world, host=True)
+    df, dh = mujoco.MjData(fixed), mujoco.MjData(hosted)
+    rng = np.random.default_rng(7)
+    bodies = [desc.base_frame, "link5", desc.tool_frame, "finger_left"]
+    for _ in range(50):
+        q = _random_q(desc, rng, gripper=True)
+        _set_q(fixed, df, desc, q)
+        _set_q(hosted, dh, desc, q)
+        pos, quat = _random_pose(rng)
+        dh.mocap_pos[0], dh.mocap_quat[0] = pos, quat
+        mujoco.mj_kinematics(fixed, df)
+        mujoco.mj_kinematics(hosted, dh)
+        rot = np.zeros(9)
+        mujoco.mju_quat2Mat(rot, quat)
+        rot = rot.reshape(3, 3)
+        for name in bodies:
+            assert np.abs(dh.body(name).xpos - (rot @ df.body(name).xpos + pos)).max() < TOL
+            assert np.abs(dh.body(name).xmat.reshape(3, 3)
+                          - rot @ df.body(name).xmat.reshape(3, 3)).max() < TOL
+        for geom in ("table", f"peg_{world.pegs[0].name}"):
+            assert dh.geom(geom).xpos.tolist() == df.geom(geom).xpos.tolist()
+        assert dh.cam_xpos[0].tolist() == df.cam_xpos[0].tolist()
+
+
+@pytest.mark.slow
+def test_the_passive_mount_sags_by_the_weight_over_its_stiffness():
+    """On a passive mount the robot and the mounted body hang on the z spring: at rest the
+    mount sits (M g) / k_z low, M = the mounted mass plus the robot's, within 1 %."""
+    desc = load_description()
+    mount = Mount(mass=8.0, inertia=(0.15, 0.15, 0.30),
+                  stiffness=(5900.0, 5900.0, 5900.0, 440.0, 475.0, 900.0),
+                  damping=(400.0, 400.0, 400.0, 30.0, 30.0, 30.0))  # settles in ~0.2 s
+    model = build_model(desc, mount=mount)
+    for j in desc.joints:
+        set_servo_mode(model, j.name, "position", kp=1000.0, kv=5.0, force_limit=100.0)
+    data = mujoco.MjData(model)
+    for _ in range(1500):
+        mujoco.mj_step(model, data)
+    total = model.body_subtreemass[model.body("mount").id]
+    assert total == pytest.approx(8.0 + model.body_subtreemass[model.body("base_link").id])
+    sag = -data.qpos[model.joint("mount_z").qposadr[0]]
+    assert sag == pytest.approx(total * 9.81 / 5900.0, rel=0.01)
+    assert np.abs(data.qvel[: 6]).max() < 1e-3  # at rest
+    # the arm's reach tilts it: the stretched arm's weight along +x pitches the mount
+    assert abs(data.qpos[model.joint("mount_pitch").qposadr[0]]) > 1e-3
+
+
+def test_a_bad_mount_is_a_clear_error(tmp_path):
+    good = {"mass": 8.0, "inertia": [0.1, 0.1, 0.2], "stiffness": [1.0] * 6,
+            "damping": [0.0] * 6}
+    assert Mount.from_mapping(good).mass == 8.0
+    for key, value, match in (("mass", 0.0, "mount.mass"),
+                              ("inertia", [0.1, 0.1], "mount.inertia"),
+                              ("stiffness", [1.0] * 5 + [float("nan")], r"mount.stiffness\[5\]"),
+                              ("damping", [-1.0] * 6, r"mount.damping\[0\]")):
+        with pytest.raises(DescriptionError, match=match):
+            Mount.from_mapping({**good, key: value})
+    with pytest.raises(DescriptionError, match="missing"):
+        Mount.from_mapping({"mass": 1.0})
+    motion = tmp_path / "motion.yaml"
+    motion.write_text("mount: {mass: 1.0, inertia: [0.1, 0.1], stiffness: [1, 1, 1, 1, 1, 1],"
+                      " damping: [0, 0, 0, 0, 0, 0]}\n")
+    assert main(["--host-motion", str(motion), "-o", str(tmp_path / "m.xml")]) == 2
