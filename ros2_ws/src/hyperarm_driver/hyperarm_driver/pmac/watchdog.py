@@ -21,7 +21,10 @@ coordinate-system status). So the card itself must
 3. never re-enable a motor that anyone killed: ``J/`` closes a killed motor's loop, so the
    watchdog may only send it to a motor whose loop is closed. The armed flag has two armed
    values: the enable sets 1 (in the same line as its ``J/``); the PLC raises it to 2 once it
-   reads the loop closed (open-loop bit, ``M138->X:$0000B0,18,1`` for motor 1) and drops it
+   reads the loop closed (the Open Loop Mode bit of the first ``#n?`` word, X:$0000B0 bit 18
+   for motor 1: "1 when the servo loop for the motor is open, either with outputs enabled
+   or disabled (killed) ... 0 when the servo loop is closed", Turbo PMAC Software
+   Reference, ``#n?``; an open-loop ``O`` command counts too) and drops it
    to 0 as soon as it reads the loop open again, whoever opened it (the driver's ``K``,
    another host's ``K``, the card's own kill on a fault). The trip fires only at 2, and
    only in the scan that has just read the loop closed; the disarm at 1 (timer out before
