@@ -6,6 +6,10 @@ the caches from the action's execute thread.
 
 - ``joint_states`` -> positions/efforts by name; ``joint_command`` <- streamed goals.
 - ``detections`` (camera_link) -> :class:`DetectionBuffer` (root frame).
+- Both are judged whole first (:mod:`.inputs`): a malformed, late (older than the
+  newest used, or than the documented age) or future-stamped message is not used; each
+  rejection is counted (:meth:`RosRobot.input_counts`, the node's diagnostics) and logged,
+  throttled per kind.
 - ``ee_wrench`` -> wrench; ``hybrid_force/enable`` + ``hybrid_goal`` for force control.
 - ``/diagnostics`` -> driver refusals: torque off, a hardware error, the rail not homed.
 - ``hold`` (and ``rail/hold``), ``rail/home`` services.
@@ -25,13 +29,15 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
 
+from hyperarm_description.freshness import stamp_seconds
 from hyperarm_description.log_throttle import ReasonThrottle
 from hyperarm_description import contract
-from hyperarm_description.joints import JointStateCache, JointStateError
+from hyperarm_description.joints import JointStateCache
 from hyperarm_description.model import RobotDescription
 from hyperarm_description.qos import qos_for
 from hyperarm_interfaces.msg import Detections, HybridGoal
 
+from .inputs import DetectionFeed, StateFeed
 from .perception import DetectionBuffer, camera_pose, matrix_to_quat, quat_to_matrix
 from .runner import HybridCommand
 
@@ -49,10 +55,16 @@ def pose_to_matrix(pose) -> np.ndarray:
 
 
 class RosRobot:
-    def __init__(self, node: Node, desc: RobotDescription) -> None:
+    """``states_max_age`` / ``detections_max_age``: s, the oldest joint_states / detections
+    message used (by the node's clock)."""
+
+    def __init__(self, node: Node, desc: RobotDescription, states_max_age: float = 0.5,
+                 detections_max_age: float = 1.0) -> None:
         self.node, self.desc = node, desc
         self._log_throttle = ReasonThrottle(5.0)  # per reason: a new kind is never hidden
         self.detections = DetectionBuffer(camera_pose(desc))
+        self.states_feed = StateFeed(states_max_age)
+        self.detections_feed = DetectionFeed(desc.camera.frame, detections_max_age)
         self._lock = threading.Lock()
         self._cache = JointStateCache()
         self._wrench: np.ndarray | None = None
@@ -85,29 +97,38 @@ class RosRobot:
         self._force = cli(SetBool, contract.HYBRID_ENABLE, callback_group=group)
 
     # --- subscriptions (executor threads) ----------------------------------------------
+    def _reject(self, problem: tuple[str, str]) -> None:
+        reason, text = problem
+        if (shown := self._log_throttle.message(text, reason)):
+            self.node.get_logger().warn(shown)
+
+    def input_counts(self) -> dict[str, int]:
+        """joint_states and detections accepted, and rejected by reason (diagnostics)."""
+        with self._lock:
+            return {**self.states_feed.counts(), **self.detections_feed.counts()}
+
     def _on_states(self, msg: JointState) -> None:
-        try:
-            with self._lock:
+        with self._lock:
+            problem = self.states_feed.check(msg.name, msg.position, msg.velocity, msg.effort,
+                                             stamp_seconds(msg.header.stamp), self.now())
+            if problem is None:
                 self._cache.update(msg.name, msg.position, msg.velocity, msg.effort)
                 self._states_time = self.now()
-        except JointStateError as exc:
-            if (text := self._log_throttle.message(f"joint_states ignored: {exc}")):
-                self.node.get_logger().warn(text)
+        if problem is not None:
+            self._reject(problem)
 
     def _on_detections(self, msg: Detections) -> None:
-        if msg.header.frame_id and msg.header.frame_id != self.desc.camera.frame:
-            self.node.get_logger().warn(f"detections in {msg.header.frame_id!r} ignored: "
-                                        f"expected {self.desc.camera.frame!r}",
-                                        throttle_duration_sec=5.0)
+        poses = [((p.position.x, p.position.y, p.position.z),
+                  (p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w))
+                 for p in msg.poses]
+        with self._lock:
+            problem = self.detections_feed.check(msg.header.frame_id, list(msg.names), poses,
+                                                 stamp_seconds(msg.header.stamp), self.now())
+        if problem is not None:
+            self._reject(problem)
             return
-        try:
-            poses = [pose_to_matrix(p) for p in msg.poses]
-        except ValueError as exc:
-            if (text := self._log_throttle.message(f"detections ignored: {exc}")):
-                self.node.get_logger().warn(text)
-            return
-        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
-        self.detections.add(stamp, list(msg.names), poses)
+        self.detections.add(stamp_seconds(msg.header.stamp), list(msg.names),
+                            [pose_to_matrix(p) for p in msg.poses])
 
     def _on_wrench(self, msg: WrenchStamped) -> None:
         f, t = msg.wrench.force, msg.wrench.torque

@@ -13,6 +13,7 @@ from __future__ import annotations
 import threading
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
@@ -20,6 +21,7 @@ from rclpy.node import Node
 
 from hyperarm_description import contract
 from hyperarm_description.params import ParamSpec, Range, declare_parameters
+from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import declare_robot_description, run_node
 from hyperarm_description.world import load_world
 from hyperarm_ik.collision import CollisionModel
@@ -33,6 +35,7 @@ from .runner import Feedback, Runner, RunnerParams
 from .sequence import load_task, packaged_tasks_dir
 
 FEEDBACK_PERIOD = 0.05   # s, feedback published at most this often
+DIAGNOSTICS_PERIOD = 1.0   # s, the inputs' diagnostics
 
 #: Every parameter of the node (also its --help): name -> (default, description, check).
 PARAMETERS: ParamSpec = {
@@ -41,7 +44,12 @@ PARAMETERS: ParamSpec = {
     "tasks_dir": ("", "directories of user task files (':'-separated), searched before the "
                       "package's share/hyperarm_tasks/tasks", None),
     "detection_frames": (5, "camera frames averaged per object estimate", Range(1, 30)),
-    "detection_max_age": (1.0, "s: an older detection is stale", Range(0.05, 60.0)),
+    "detection_max_age": (1.0, "s: an older detection is stale (and a detections message "
+                               "older than that, or than the newest used, is not used)",
+                          Range(0.05, 60.0)),
+    "joint_states_max_age": (0.5, "s: a joint_states message older than this, or than the "
+                                  "newest one used from the same driver, is not used",
+                             Range(0.01, 10.0)),
     "detection_timeout": (3.0, "s: wait this long for fresh detections", Range(0.1, 60.0)),
     "detection_outlier": (0.01, "m: detections this far from the median are rejected",
                           Range(0.0005, 1.0)),
@@ -66,6 +74,7 @@ class TaskNode(Node):
                              f"{', '.join(solver_names(self._desc.variant))}")
         self._dirs = [d for d in p.pop("tasks_dir").split(":") if d]
         check, world_file = p.pop("collision_check"), p.pop("world_file")
+        states_max_age = p.pop("joint_states_max_age")
         self._params = RunnerParams(**p)
         self._kin = Kinematics(self._desc)
         self._collisions = None
@@ -75,7 +84,11 @@ class TaskNode(Node):
             except (OSError, ValueError) as exc:
                 raise SystemExit(f"task_node: parameter world_file: {exc}") from None
             self._collisions = CollisionModel(self._kin, world)
-        self._robot = RosRobot(self, self._desc)
+        self._robot = RosRobot(self, self._desc, states_max_age, p["detection_max_age"])
+        self._diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
+                                           qos_for(contract.DIAGNOSTICS))
+        self._diag_counts: dict[str, int] = {}
+        self.create_timer(DIAGNOSTICS_PERIOD, self._publish_diagnostics)
         self._lock = threading.Lock()
         self._busy: str | None = None
         self._server = ActionServer(
@@ -87,6 +100,23 @@ class TaskNode(Node):
         self.get_logger().info(f"task_node ready: action {contract.RUN_TASK}, tasks from "
                                f"{', '.join(self._dirs + [str(packaged_tasks_dir())])}; "
                                f"path collision check: {checked}")
+
+    def _publish_diagnostics(self) -> None:
+        """'task_node: inputs': joint_states and detections accepted and rejected by reason
+        (totals); WARN while messages are being rejected."""
+        counts = self._robot.input_counts()
+        new = {k: v - self._diag_counts.get(k, 0) for k, v in counts.items()
+               if "_rejected_" in k and v > self._diag_counts.get(k, 0)}
+        self._diag_counts = counts
+        st = DiagnosticStatus(name="task_node: inputs", hardware_id="task_node")
+        st.level = DiagnosticStatus.WARN if new else DiagnosticStatus.OK
+        st.message = ("rejected in the last period: " + ", ".join(
+            f"{k.replace('_rejected_', ' ')} {v}" for k, v in sorted(new.items()))
+            if new else "inputs ok")
+        st.values = [KeyValue(key=k, value=str(v)) for k, v in sorted(counts.items())]
+        msg = DiagnosticArray(status=[st])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self._diag.publish(msg)
 
     def _on_goal(self, goal: RunTask.Goal) -> GoalResponse:
         # Every goal is accepted; _execute refuses one while another runs, with the reason
