@@ -15,7 +15,9 @@ world for ``rail_arm``); ``rail_carriage`` (rail_arm only) slides on joint ``rai
 (fixed on link9, DH frame 9) and ``gripper_finger`` (hinge ``gripper`` about tool0's x at
 0.04 m along tool0's y, as in the URDF), and two fingers (``finger_left``/``finger_right``,
 slide joints along tool0's ±z coupled to ``gripper`` by stiff equality constraints, box pads
-that hold the block by friction). Link masses, centres of mass and inertias are the
+that hold the block by friction). With ``host``/``mount`` the root sits on a mocap body
+``host`` (and a 6-D spring-damper ``mount``) instead. Link masses, centres of mass and
+inertias are the
 description's (the URDF's inertial frames); collision geometry is the description's
 capsules; joint ranges are its limits.
 
@@ -59,11 +61,10 @@ from .model import (VARIANTS, DescriptionError, RobotDescription, _rpy_matrix, c
 from .urdf import _fixed_part, _rz
 from .world import MOCK_WORLD_KEYS, WorldSpec, parse_world
 
-__all__ = ["PhysicsOptions", "CAMERA_FROM_LINK", "SERVO_MODES", "build_model",
-           "generate_mjcf", "block_pieces", "prism_inertia", "options_from_workcell", "set_servo_mode",
-           "camera_link_pose", "render_png", "finger_travel", "PAD_HALF_SIZE", "Mount",
-           "MOUNT_JOINTS",
-           "FINGER_MASS", "main"]
+__all__ = ["PhysicsOptions", "Mount", "CAMERA_FROM_LINK", "SERVO_MODES", "MOUNT_JOINTS",
+           "PAD_HALF_SIZE", "FINGER_MASS", "build_model", "generate_mjcf", "block_pieces",
+           "prism_inertia", "finger_travel", "options_from_workcell", "set_servo_mode",
+           "camera_link_pose", "render_png", "main"]
 
 #: Rotation of a MuJoCo camera's frame in ``camera_link`` (columns: the MuJoCo camera's x, y,
 #: z axes): MuJoCo looks along -z with +y up, camera_link along +x with +z up.

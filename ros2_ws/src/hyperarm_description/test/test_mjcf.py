@@ -16,7 +16,7 @@ from hyperarm_description.mjcf import (CAMERA_FROM_LINK, FINGER_MASS, PAD_HALF_S
                                        camera_link_pose, finger_travel, generate_mjcf, main,
                                        options_from_workcell, set_servo_mode)
 from hyperarm_description.model import DescriptionError, load_description
-from hyperarm_description.world import load_world, parse_world
+from hyperarm_description.world import load_world
 
 pytestmark = pytest.mark.core
 
@@ -264,8 +264,9 @@ def test_a_block_dropped_aligned_threads_and_one_far_off_does_not(seed):
     """Default cell (2 mm radial clearance): dropped with its hole within 0.75 x the
     clearance of the peg's axis the block threads down to the table, upright; dropped 3-5 x
     the clearance off it rests on the peg's top (tilted, jammed, or leaning on the peg) or
-    tips off beside the peg, never reaching the table around it. (Between 1 and 3 x the block lands on the peg's rim
-    with its centre of mass over the hole and tips: it may jam or thread, docs/mujoco.md.)"""
+    tips off beside the peg, never reaching the table around it. (Between 1 and 3 x the
+    block lands on the peg's rim with its centre of mass over the hole and tips: it may jam
+    or thread, docs/mujoco.md.)"""
     world = _cell()
     model = _held_arm_model(world)
     clearance = world.clearance("destination")
@@ -340,6 +341,13 @@ def test_servo_modes_change_at_run_time_without_rebuilding(seed):
     for _ in range(5):
         mujoco.mj_step(model, data)
         assert data.actuator_force[aid] == 0.0
+    # back to position: the goal range is the joint's again, the PD acts at once
+    set_servo_mode(model, "joint2", "position", kp=40.0, kv=0.0, force_limit=8.4)
+    assert model.actuator_ctrlrange[aid].tolist() == model.jnt_range[
+        model.joint("joint2").id].tolist()
+    data.ctrl[aid] = data.qpos[model.joint("joint2").qposadr[0]] + 0.1
+    mujoco.mj_forward(model, data)
+    assert data.actuator_force[aid] == pytest.approx(4.0, abs=1e-9)
     with pytest.raises(ValueError, match="unknown servo mode"):
         set_servo_mode(model, "joint2", "velocity")
     with pytest.raises(ValueError, match="no actuator"):
