@@ -575,3 +575,39 @@ def test_a_watchdog_trip_is_counted_latched_and_named_in_refusals(wd_driver, wd_
              what="killed by the driver on the latch")
     assert wd_driver.request("enable").startswith("torque on")
     assert wd_driver.snapshot().latched == () and wd_driver.snapshot().watchdog_trips == 1
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_setpoint_after_a_trip_is_caught_at_once_not_at_the_next_poll(wd_emu, wait_for,
+                                                                        seed) -> None:
+    """After a trip (the PLC stopped and holds the rail, disarmed) a setpoint the late
+    worker sends before its next poll moves the rail with no watchdog armed. The jog's own
+    line reads the armed flag: the driver latches the trip and kills the motor one round
+    trip after that jog, whatever the poll period (1 s here: the old driver let the rail
+    run unarmed until the next poll). Random trip instants and targets, 3 seeds."""
+    import random
+    from hyperarm_driver.pmac.watchdog import WatchdogConfig
+    rng = random.Random(seed)
+    client = PmacClient("127.0.0.1", wd_emu.port, timeout=0.5)
+    ax = RailAxis(client, RailConfig.from_rail(load_description(variant="rail_arm").rail),
+                  watchdog=WatchdogConfig(timeout=2.0))
+    d = RailDriver(ax, rate=1.0, reconnect_period=0.1, require_homing=False)
+    d.start()
+    try:
+        wait_for(lambda: d.snapshot().link_up, 3.0, what="link")
+        d.request("enable")
+        time.sleep(rng.uniform(0.0, 0.5))
+        with wd_emu._lock:
+            wd_emu.set("I", 5111, 0)                   # the timer runs out: the trip
+        wait_for(lambda: wd_emu.pvars[8003] == 0, 2.0, what="the PLC tripped")
+        assert not d.snapshot().latched               # the 1 Hz poll has not seen it yet
+        t0 = time.monotonic()
+        d.set_target(rng.uniform(0.05, 0.3))
+        wait_for(lambda: d.snapshot().latched, 0.5, what="the trip latched with the jog")
+        assert time.monotonic() - t0 < 0.5
+        assert d.snapshot().latched[0].startswith("watchdog PLC tripped")
+        wait_for(lambda: not wd_emu.motor(1).closed_loop, 0.5, what="killed after the jog")
+        assert abs(wd_emu.motor(1).pos - 2000) < 0.002 * CPM   # < 2 mm moved unarmed
+    finally:
+        d.stop()
+        client.close()

@@ -219,6 +219,8 @@ class RailAxis:
         self.config = config
         self.servo_period = servo_period or servo_period_from_i10(I10_DEFAULT)
         self.watchdog = watchdog
+        # the safety PLC's armed flag read in the last jog's line (None: no PLC / no jog)
+        self.last_jog_armed: bool | None = None
         m = config.motor
         self._poll = f"#{m}P#{m}V#{m}F#{m}?"
         if watchdog is not None:
@@ -327,7 +329,8 @@ class RailAxis:
     # -- motion ---------------------------------------------------------------------------
     def jog_to(self, metres: float) -> tuple[float, MotorStatus]:
         """Jog to an absolute position (m) at the jog speed; returns (target in counts, the
-        motor status read on the card just before the jog, in the same command line).
+        motor status read on the card just before the jog, in the same command line). With
+        the safety PLC the line also reads its armed flag first: :attr:`last_jog_armed`.
 
         A jog closes the loop of a killed motor, so the caller must check that status: if it
         shows the motor killed, the jog re-enabled it and the caller must kill it again.
@@ -341,13 +344,20 @@ class RailAxis:
         counts = min(max(math.floor(c.to_counts(x) * 10 + 0.5) / 10, math.ceil(lo * 10) / 10),
                      math.floor(hi * 10) / 10)
         line = f"#{self.motor}?#{self.motor}J={counts:.1f}"
-        if self.watchdog is not None:             # streamed setpoints feed the watchdog too
-            hb = f"P{self.watchdog.heartbeat}"
-            line = f"{hb}={hb}+1 {line}"
-        lines = self.port.command(line)
-        if len(lines) != 1:
-            raise PmacProtocolError(f"jog: expected the status line, got {lines!r}")
-        return counts, MotorStatus.from_hex(lines[0])
+        if self.watchdog is None:
+            lines = self.port.command(line)
+            if len(lines) != 1:
+                raise PmacProtocolError(f"jog: expected the status line, got {lines!r}")
+            return counts, MotorStatus.from_hex(lines[0])
+        # streamed setpoints feed the watchdog too; the armed flag read in the same line
+        # tells the caller at once if the safety PLC had tripped (the jog then ran unarmed)
+        hb = f"P{self.watchdog.heartbeat}"
+        lines = self.port.command(f"{hb}={hb}+1 P{self.watchdog.armed} {line}")
+        if len(lines) != 2:
+            raise PmacProtocolError(f"jog: expected the armed flag and the status line, "
+                                    f"got {lines!r}")
+        self.last_jog_armed = parse_number(lines[:1], "armed flag") != 0.0
+        return counts, MotorStatus.from_hex(lines[1])
 
     def stop(self) -> None:
         """``#nJ/``: decelerate and hold position with the servo on (also closes the loop)."""

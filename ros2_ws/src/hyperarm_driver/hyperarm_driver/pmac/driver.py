@@ -463,6 +463,11 @@ class RailDriver:
             # the card had killed the motor since the last poll: the jog just closed its loop
             self._latch(f"{_fault_reason(before)} on the card" if before.faults else
                         "motor killed by the card", " (seen with a setpoint: killed again)")
+        elif self.axis.last_jog_armed is False:
+            # the safety PLC tripped since the last poll (this worker was late: the very
+            # condition of a trip, so the next poll may be late too): the jog ran unarmed
+            self._latch(f"{WATCHDOG_TRIP} (heartbeat lost): the card stopped the rail",
+                        " (seen with a setpoint: killed)")
 
     def _serve_requests(self) -> None:
         with self._lock:
