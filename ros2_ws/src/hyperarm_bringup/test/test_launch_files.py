@@ -600,16 +600,16 @@ def _ik(executable, *args: str) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["mock.launch.xml", "hardware.launch.xml"])
-def test_launched_ik_service_refuses_targets_in_the_table(name, launch, executable, wait_for,
+def test_launched_ik_service_refuses_targets_in_the_table(launch, executable, wait_for,
                                                          tmp_path):
     """`hyperarm ik 0.35 0 -0.25` (5 cm below the table) has no solution from the ik_service
-    the launch file starts, and its first log line names the work cell (variant arm: the
-    CLI's targets are in base_link, the rail_arm variant takes them in world)."""
-    variant = "arm"
+    mock.launch.xml starts, and its first log line names the work cell (variant arm: the
+    CLI's targets are in base_link; hardware.launch.xml passes the same ik_service
+    parameters: test_launch_file_starts_under_jazzy_rules)."""
     from hyperarm_description.world import load_world
 
-    node, params = launched(name, variant=variant, rviz="false")["ik_service"]
+    variant = "arm"
+    node, params = launched("mock.launch.xml", variant=variant, rviz="false")["ik_service"]
     world = load_world(params["world_file"])
     proc = _start_as_launched(launch, tmp_path, node)
     assert wait_for(lambda: "ik_service" in proc.output(), timeout=60), proc.output()
