@@ -116,7 +116,7 @@ def test_singularity_robust_damping_bounds_the_least_squares_gain():
     for _ in range(20):
         e = rng.normal(size=6)
         e /= np.linalg.norm(e)
-        dq = comp._dls(j, e * 0.01, cfg.damping)
+        dq = comp._dls(j, e * 0.01, cfg.damping + comp.singular_damping(j))
         assert np.linalg.norm(dq) / 0.01 <= bound * 1.01, np.linalg.norm(dq) / 0.01
     assert comp.singular_damping(j) == pytest.approx(cfg.singular_damping)
 

@@ -154,8 +154,8 @@ def rail_sweep(lead: bool = True, duration: float = 5.2,
 
 
 def sway(motion: str | Path | HostMotionSpec = "uav_sway", duration: float = 4.2,
-         lead: bool = True, delay_steps: int = 1, config: CompensationConfig | None = None
-         ) -> dict[str, np.ndarray]:
+         lead: bool = True, delay_steps: int = 1, config: CompensationConfig | None = None,
+         q0=None) -> dict[str, np.ndarray]:
     """The mock's host motion ``motion`` (a shipped name such as ``uav_sway`` or
     ``uav_sway_passive``, a path, or a ``HostMotionSpec``) on the fixed
     arm, compensated by :class:`CompensationLoop` on the host pose the mock publishes
@@ -163,14 +163,15 @@ def sway(motion: str | Path | HostMotionSpec = "uav_sway", duration: float = 4.2
     states on the host pose (``position_error``, ``orientation_error``) and by the mock's
     truth (``truth_position_error``, ``truth_orientation_error``), ``wrench`` (the
     reaction the node publishes), ``host`` ((n, 4, 4) host poses). Commands reach the
-    simulation ``delay_steps`` steps after the state they answer."""
+    simulation ``delay_steps`` steps after the state they answer. ``q0``: the arm's start
+    posture (default :data:`Q0`)."""
     from hyperarm_driver.mock.host_motion import HostMotion, load_host_motion
 
     desc = load_description(variant="arm")
     sim = _sim(desc)
     spec = load_host_motion(motion) if isinstance(motion, (str, Path)) else motion
     sim.host = HostMotion(spec, sim)
-    sim.command(ARM, Q0)
+    sim.command(ARM, Q0 if q0 is None else q0)
     for _ in range(200):
         sim.step(DT)
     arm = Kinematics(variant="arm")

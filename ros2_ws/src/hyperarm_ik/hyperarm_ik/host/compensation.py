@@ -388,13 +388,17 @@ class Compensator:
             if math.sqrt(cost) < 1e-7:
                 at_q = (float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:])), j)
                 break
-            lam = c.damping + cost
+            if it == 0:     # the singularity's damping, once per cycle (J changes little)
+                lam_s = self.singular_damping(j)
+            lam = c.damping + cost + lam_s
             # first iteration: a pull towards the posture at start and a push away from the
             # limits, in the task's null space
             z = self._null_space(q, pull) if it == 0 and pull > 0.0 else None
             dq = self._dls(j, e, lam, z)
             if c.limit_band > 0.0 and pull > 0.0:   # reachable: spare joints near limits
-                dq = self._dls(j, e, lam, z, self._limit_weights(q, dq))
+                w = self._limit_weights(q, dq)
+                if w is not None:
+                    dq = self._dls(j, e, lam, z, w)
             out = ((q + dq < self.lower) & (dq < 0)) | ((q + dq > self.upper) & (dq > 0))
             if out.any():          # joints held at a limit leave the step (active set, once)
                 j = j.copy()
@@ -489,9 +493,11 @@ class Compensator:
                                 -r.T @ host.angular))
         j = j.copy()
         j[:, (self.q <= self.lower + 1e-9) | (self.q >= self.upper - 1e-9)] = 0.0
-        v = self._dls(j, twist, self.config.damping)
-        if self.config.limit_band > 0.0:
-            v = self._dls(j, twist, self.config.damping, None, self._limit_weights(self.q, v))
+        lam = self.config.damping + self.singular_damping(j)
+        v = self._dls(j, twist, lam)
+        w = self._limit_weights(self.q, v) if self.config.limit_band > 0.0 else None
+        if w is not None:
+            v = self._dls(j, twist, lam, None, w)
         ratio = float(np.max(np.abs(v) / self.speed))
         return v / ratio if ratio > 1.0 else v      # at most the step limit's speeds
 
@@ -522,9 +528,9 @@ class Compensator:
     def _dls(self, j: np.ndarray, e: np.ndarray, lam: float,
              z: np.ndarray | None = None, w: np.ndarray | None = None) -> np.ndarray:
         """Weighted damped least squares: argmin |J dq - e|^2_W + lam |dq - z|^2, with
-        lam raised near a singularity (:meth:`singular_damping`). ``w``: per-joint weights of
-        the motion (|dq - z|^2 weighted by 1/w; None: all 1)."""
-        lam = lam + self.singular_damping(j)
+        ``lam`` includes the singularity's damping (:meth:`singular_damping`, added by the
+        caller). ``w``: per-joint weights of the motion (|dq - z|^2 weighted by 1/w; None:
+        all 1)."""
         if w is not None:
             jw = j * w
             a = jw @ j.T + lam * self._winv
