@@ -47,7 +47,7 @@ def cmd_state(a: argparse.Namespace) -> int:
 
     from .ros_client import MissingJoints
 
-    required = _variant_joints(a.variant)
+    required = tuple(a.joints) or _variant_joints(a.variant)
     with _client() as c:
         while True:
             try:
@@ -285,6 +285,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--variant", default=variant, choices=("arm", "rail_arm"),
                     help=f"whose joints to wait for (default {variant}: $HYPERARM_VARIANT "
                     "or arm)")
+    sp.add_argument("--joints", nargs="+", default=[], metavar="JOINT",
+                    help="wait for these joints instead (e.g. --joints rail: the rail driver "
+                    "alone)")
     sp = add("diag", cmd_diag, "diagnostics summary (/diagnostics); exit 1 on an ERROR",
              timeout=3.0)
     sp.add_argument("-v", "--verbose", action="store_true", help="show every key/value")

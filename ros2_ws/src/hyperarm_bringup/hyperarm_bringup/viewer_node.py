@@ -3,8 +3,8 @@ camera detections, and the wrench estimate.
 
 Open the URL it logs (default http://localhost:8080) in a browser: the robot (from the URDF
 of hyperarm_description) posed from ``joint_states``, the work-cell objects from
-``detections`` (or the mock's ``debug/detections_truth``), the table, pegs and poles of a
-work-cell file, the recent tool path, and the force of ``ee_wrench_base`` as an arrow at
+``detections`` (or the mock's ``debug/detections_truth``), the table, pegs and poles of the
+work-cell file (by default the one the mock and ik_service use), the recent tool path, and the force of ``ee_wrench_base`` as an arrow at
 tool0. The scene lives in hyperarm_bringup.viewer_scene (no ROS); this node only converts
 messages and refreshes the scene at ``update_rate``.
 """
@@ -23,10 +23,11 @@ from hyperarm_description.params import NonEmpty, Range, declare_parameters
 from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import declare_robot_description, run_node
 from hyperarm_description.world import WorldSpecError, load_world
+from hyperarm_driver.mock.config import default_workcell_path
 from hyperarm_ik.ros_conversions import pose_to_matrix
 from hyperarm_interfaces.msg import Detections
 
-from .viewer_scene import RobotScene, SceneConfig, SceneInputError, ViewerError
+from .viewer_scene import RobotScene, SceneConfig, SceneInputError, ViewerError, frame_view
 
 PARAMETERS = {
     "host": ("0.0.0.0", "address the web server listens on (0.0.0.0: every interface; "
@@ -35,8 +36,9 @@ PARAMETERS = {
     "objects_topic": (contract.DETECTIONS, "Detections topic of the work-cell objects "
                       f"(on the mock, {contract.DETECTIONS_TRUTH} shows the true poses)",
                       NonEmpty()),
-    "workcell_file": ("", "work-cell YAML whose table, pegs and poles are drawn ('' = none)",
-                      None),
+    "workcell_file": ("", "work-cell YAML whose table, pegs and poles are drawn ('' = the "
+                      "packaged config/workcell.yaml of hyperarm_driver, as the mock and "
+                      "ik_service use; 'none' = no work cell)", None),
     "update_rate": (20.0, "scene refreshes per second (Hz)", Range(1.0, 60.0)),
     "path_length": (500, "tool positions kept in the tool path", Range(2, 100000)),
     "path_min_step": (0.002, "distance tool0 moves before a new tool-path point (m)",
@@ -59,9 +61,11 @@ class ViewerNode(Node):
         desc = declare_robot_description(self)
         p = declare_parameters(self, PARAMETERS)
         world = None
-        if p["workcell_file"]:
+        if p["workcell_file"] != "none":
+            # '' = the work cell the mock simulates and ik_service avoids by default
+            path = p["workcell_file"] or str(default_workcell_path())
             try:
-                world = load_world(p["workcell_file"])
+                world = load_world(path)
             except (WorldSpecError, OSError) as exc:
                 raise SystemExit(f"viewer: workcell_file: {exc}") from exc
         try:
@@ -75,9 +79,12 @@ class ViewerNode(Node):
             raise SystemExit(f"viewer: {exc}") from exc
         self.server.scene.configure_default_lights(cast_shadow=p["shadows"])
         self.server.gui.configure_theme(show_logo=False, show_share_button=False)
-        self.server.initial_camera.position = (0.45, -0.85, 0.55)
-        self.server.initial_camera.look_at = (0.25, 0.0, 0.05)
         self.scene = RobotScene(self.server.scene, desc, world, config)
+        # the first view: the arm at rest and the work cell, left of the control panel
+        position, look_at = frame_view(self.scene.view_points())
+        self.server.initial_camera.up = (0.0, 0.0, 1.0)
+        self.server.initial_camera.position = tuple(position)
+        self.server.initial_camera.look_at = tuple(look_at)
         self._lock = threading.Lock()
         self._joints: JointState | None = None
         self._wrench: WrenchStamped | None = None

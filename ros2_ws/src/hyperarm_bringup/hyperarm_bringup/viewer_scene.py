@@ -34,7 +34,8 @@ from hyperarm_description.model import RobotDescription
 from hyperarm_description.urdf import generate_urdf
 from hyperarm_description.world import WorldSpec
 
-__all__ = ["ViewerError", "SceneInputError", "SceneConfig", "RobotScene", "wxyz_of"]
+__all__ = ["ViewerError", "SceneInputError", "SceneConfig", "RobotScene", "wxyz_of",
+           "frame_view", "project", "visible_box"]
 
 ROBOT = "/robot"
 OBJECTS = "/objects"
@@ -47,6 +48,98 @@ WRENCH_COLOR = (220, 30, 30)
 OBJECT_COLORS = {"block": (40, 110, 230), "peg": (40, 170, 70)}
 OTHER_OBJECT_COLOR = (160, 60, 200)
 TABLE_COLOR = (205, 185, 150)
+
+
+# The first view (:func:`frame_view`): from the front right, above; a browser window of
+# VIEW_SIZE px (half of a 1920 x 1200 screen: a browser beside a terminal) whose right
+# PANEL_PX are covered by viser's control panel ("medium": 20 em of 16 px, floating 15 px
+# from the edge), the scene kept MARGIN (normalised image coordinates, -1..1) off the edges.
+# A wider window only adds room on the left.
+VIEW_DIRECTION = (-0.2, 0.85, -0.5)     # camera to target, any length (root frame)
+VIEW_FOV = math.radians(75.0)           # viser's default vertical field of view
+VIEW_SIZE = (960, 600)                  # px, width x height
+PANEL_PX = 335
+MARGIN = 0.15
+APPROACH = 0.10     # m above each peg's top: where the tool comes and goes (also framed)
+
+
+def _camera_axes(direction: Sequence[float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(forward, right, up) unit vectors of a camera looking along ``direction``, z up."""
+    d = np.asarray(direction, dtype=float)
+    d = d / np.linalg.norm(d)
+    r = np.cross(d, (0.0, 0.0, 1.0))
+    r = r / np.linalg.norm(r)
+    return d, r, np.cross(r, d)
+
+
+def project(points: np.ndarray, position: Sequence[float], look_at: Sequence[float],
+            fov_y: float = VIEW_FOV, size: tuple[int, int] = VIEW_SIZE) -> np.ndarray:
+    """(N, 2) normalised image coordinates (x right, y up; -1..1 is the window) of
+    ``points`` (N, 3; m) seen by a pinhole camera at ``position`` looking at ``look_at``
+    (z up) with vertical field of view ``fov_y`` (rad) in a window of ``size`` px;
+    points behind the camera come out as inf."""
+    pos = np.asarray(position, dtype=float)
+    d, r, u = _camera_axes(np.asarray(look_at, dtype=float) - pos)
+    rel = np.asarray(points, dtype=float).reshape(-1, 3) - pos
+    z = rel @ d
+    ky = math.tan(fov_y / 2)
+    kx = ky * size[0] / size[1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.stack([(rel @ r) / (z * kx), (rel @ u) / (z * ky)], axis=1)
+    out[z <= 1e-6] = np.inf
+    return out
+
+
+def visible_box(size: tuple[int, int] = VIEW_SIZE, panel_px: int = PANEL_PX,
+                margin: float = MARGIN) -> tuple[float, float, float, float]:
+    """(x_lo, x_hi, y_lo, y_hi) in normalised image coordinates: the part of the window
+    the control panel does not cover, less ``margin``."""
+    x_hi = 1.0 - 2.0 * panel_px / size[0]
+    return -1.0 + margin, x_hi - margin, -1.0 + margin, 1.0 - margin
+
+
+def frame_view(points: np.ndarray, direction: Sequence[float] = VIEW_DIRECTION,
+               fov_y: float = VIEW_FOV, size: tuple[int, int] = VIEW_SIZE,
+               panel_px: int = PANEL_PX, margin: float = MARGIN
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """(position, look_at) of the nearest camera looking along ``direction`` that shows
+    every one of ``points`` (N, 3; m) in :func:`visible_box` (left of the control panel).
+
+    Along the view axis the distance is bisected; across it the camera slides so that the
+    points' extremes sit inside the box (each axis is a pair of linear bounds on the
+    shift, since the depth of a point does not change with a sideways shift)."""
+    pts = np.asarray(points, dtype=float).reshape(-1, 3)
+    if pts.size == 0 or not np.isfinite(pts).all():
+        raise ViewerError("frame_view: need one or more finite points")
+    d, r, u = _camera_axes(direction)
+    centre = (pts.min(axis=0) + pts.max(axis=0)) / 2
+    rel = pts - centre
+    a, b, depth = rel @ r, rel @ u, rel @ d
+    ky = math.tan(fov_y / 2)
+    kx = ky * size[0] / size[1]
+    x_lo, x_hi, y_lo, y_hi = visible_box(size, panel_px, margin)
+
+    def shifts(dist: float) -> tuple[float, float] | None:
+        z = depth + dist
+        if (z <= 1e-3).any():
+            return None
+        s_lo, s_hi = np.max(a - x_hi * z * kx), np.min(a - x_lo * z * kx)
+        t_lo, t_hi = np.max(b - y_hi * z * ky), np.min(b - y_lo * z * ky)
+        if s_lo > s_hi or t_lo > t_hi:
+            return None
+        return (s_lo + s_hi) / 2, (t_lo + t_hi) / 2
+
+    lo, hi = 0.0, 1.0
+    while shifts(hi) is None:
+        lo, hi = hi, hi * 2
+        if hi > 1e6:
+            raise ViewerError("frame_view: no camera distance shows every point")
+    for _ in range(60):
+        mid = (lo + hi) / 2
+        lo, hi = (lo, mid) if shifts(mid) is not None else (mid, hi)
+    s, t = shifts(hi)
+    position = centre - hi * d + s * r + t * u
+    return position, position + hi * d
 
 
 class ViewerError(Exception):
@@ -179,6 +272,30 @@ class RobotScene:
             self.scene.add_cylinder(f"{WORLD}/poles/{pole.name}", radius=pole.radius,
                                     height=pole.height, color=(120, 120, 120),
                                     position=(*pole.xy, (pole.z_min + pole.z_max) / 2))
+
+    def view_points(self) -> np.ndarray:
+        """(N, 3) points the first view must show (m, root frame): every link's origin at
+        the drawn joint positions, tool0, the front half of a ring of the arm's reach around
+        its base, and the work cell's pegs (foot, top and APPROACH
+        above it), poles and the corners of a bounded table."""
+        pts = [self.data.oMf[self._frames[n]].translation for n in self.links]
+        pts.append(self.tool_position())
+        # where the arm can swing: a ring of its reach at rest around its base, level with it
+        base = self.data.oMf[self._frames[BASE_FRAME]].translation
+        reach = float(np.linalg.norm(self.tool_position() - base))
+        pts += [base + reach * np.array([math.cos(a), math.sin(a), 0.0])
+                for a in np.linspace(-math.pi / 2, math.pi / 2, 7)]
+        w = self._world
+        if w is not None:
+            t = w.table
+            for peg in w.pegs:
+                top = t.height + peg.height
+                pts += [(*peg.xy, t.height), (*peg.xy, top), (*peg.xy, top + APPROACH)]
+            for pole in w.poles:
+                pts += [(*pole.xy, pole.z_min), (*pole.xy, pole.z_max)]
+            if all(math.isfinite(v) for v in (*t.x_range, *t.y_range)):
+                pts += [(x, y, t.height) for x in t.x_range for y in t.y_range]
+        return np.array(pts, dtype=float).reshape(-1, 3)
 
     # -- joint state -------------------------------------------------------------------
     def set_joints(self, names: Sequence[str], positions: Sequence[float]) -> None:

@@ -162,3 +162,56 @@ def test_config_is_validated():
         SceneConfig(path_length=1)
     with pytest.raises(ViewerError, match="wrench_scale"):
         SceneConfig(wrench_scale=float("nan"))
+
+
+# -- the first view (issue 25 item 6: the control panel hid the outer half of the arm) ----
+OLD_CAMERA = ((0.45, -0.85, 0.55), (0.25, 0.0, 0.05))   # the fixed first view before
+
+
+@pytest.mark.parametrize("variant,cell", [("arm", "workcell.yaml"),
+                                          ("rail_arm", "workcell_rail.yaml")])
+def test_first_view_shows_arm_and_work_cell_left_of_the_panel(server, variant, cell):
+    from hyperarm_bringup.viewer_scene import frame_view, project, visible_box
+
+    world = load_world(default_workcell_path().with_name(cell))
+    scene = RobotScene(server.scene, load_description(None, variant), world)
+    pts = scene.view_points()
+    assert len(pts) >= 12 + 4           # links, tool0, the pegs' feet and tops at least
+    position, look_at = frame_view(pts)
+    x_lo, x_hi, y_lo, y_hi = visible_box()
+    xy = project(pts, position, look_at)
+    assert ((xy[:, 0] >= x_lo - 1e-9) & (xy[:, 0] <= x_hi + 1e-9)
+            & (xy[:, 1] >= y_lo - 1e-9) & (xy[:, 1] <= y_hi + 1e-9)).all(), xy
+    # framed, not merely far away: the points span most of the visible box
+    assert np.ptp(xy[:, 0]) > 0.8 * (x_hi - x_lo) or np.ptp(xy[:, 1]) > 0.8 * (y_hi - y_lo)
+    if variant == "arm":    # the fixed view before put the outstretched arm under the panel
+        old = project(pts, *OLD_CAMERA)
+        assert (old[:, 0] > x_hi).any()
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_frame_view_fits_random_point_clouds(seed):
+    from hyperarm_bringup.viewer_scene import frame_view, project, visible_box
+
+    rng = np.random.default_rng(seed)
+    x_lo, x_hi, y_lo, y_hi = visible_box()
+    for _ in range(10):
+        pts = rng.normal(size=(rng.integers(1, 30), 3)) * rng.uniform(0.01, 2.0, size=3)
+        direction = rng.normal(size=3)
+        direction[2] = -abs(direction[2]) - 0.1          # from above, never straight down
+        position, look_at = frame_view(pts, direction=direction)
+        xy = project(pts, position, look_at)
+        assert np.isfinite(xy).all()
+        assert (xy[:, 0] >= x_lo - 1e-6).all() and (xy[:, 0] <= x_hi + 1e-6).all()
+        assert (xy[:, 1] >= y_lo - 1e-6).all() and (xy[:, 1] <= y_hi + 1e-6).all()
+    with pytest.raises(ViewerError):
+        frame_view(np.array([[0.0, 0.0, np.nan]]))
+
+
+def test_the_viewer_draws_the_packaged_work_cell_by_default(server):
+    """workcell_file '' = the cell the mock simulates: table and both pegs are drawn."""
+    scene = RobotScene(server.scene, load_description(None, "arm"),
+                       load_world(default_workcell_path()))
+    names = set(server.scene._handle_from_node_name)
+    assert {"/workcell/table", "/workcell/pegs/source", "/workcell/pegs/destination"} <= names
+    assert scene.view_points().shape[1] == 3
