@@ -4,9 +4,11 @@ camera detections, and the wrench estimate.
 Open the URL it logs (default http://localhost:8080) in a browser: the robot (from the URDF
 of hyperarm_description) posed from ``joint_states``, the work-cell objects from
 ``detections`` (or the mock's ``debug/detections_truth``), the table, pegs and poles of the
-work-cell file (by default the one the mock and ik_service use), the recent tool path, and the force of ``ee_wrench_base`` as an arrow at
-tool0. The scene lives in hyperarm_bringup.viewer_scene (no ROS); this node only converts
-messages and refreshes the scene at ``update_rate``.
+work-cell file (by default the one the mock and ik_service use), the recent tool path,
+and the force of ``ee_wrench_base`` as an arrow at tool0; the first view frames the arm
+and the work cell left of the control panel (viewer_scene.frame_view). The scene lives in
+hyperarm_bringup.viewer_scene (no ROS); this node only converts messages and refreshes the
+scene at ``update_rate``.
 """
 from __future__ import annotations
 

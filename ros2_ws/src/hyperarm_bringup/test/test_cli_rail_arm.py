@@ -146,5 +146,5 @@ def test_one_shot_commands_confirm_or_fail_50_times(rail_arm, capsys, wait_for):
             code, out, err = attempt(capsys, *argv, "--timeout", "10")
             assert code == 0, (i, argv, err)
     took = time.monotonic() - start
-    print(f"{RUNS} rounds of state and move (and {RUNS // 2} services) in {took:.1f} s; refused with a "
-          f"reason and sent again: {len(REFUSED)}", *REFUSED, sep="\n  ")
+    print(f"{RUNS} rounds of state and move (and {RUNS // 2} services) in {took:.1f} s; "
+          f"refused with a reason and sent again: {len(REFUSED)}", *REFUSED, sep="\n  ")
