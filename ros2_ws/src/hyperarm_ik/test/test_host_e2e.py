@@ -39,6 +39,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
 
 from hyperarm_description import contract
+from rclpy.duration import Duration
 from hyperarm_description.qos import qos_for
 from hyperarm_ik.kinematics import Kinematics, rotation_angle
 from hyperarm_ik.ros_conversions import pose_to_matrix
@@ -111,6 +112,7 @@ class Probe:
         self.hosts: dict[int, np.ndarray] = {}            # stamp ns -> base_link in world
         self.homed = False
         self.diag: dict = {}
+        self.diag_log: list[tuple[int, dict]] = []      # (stamp ns, values) of every one
         self.diag_time = 0.0
         self.diag_stamp = 0
         n = self.node
@@ -164,6 +166,8 @@ class Probe:
                 self.diag = {kv.key: kv.value for kv in st.values}
                 self.diag_time = time.monotonic()
                 self.diag_stamp = _ns(msg.header.stamp)
+                with self.lock:
+                    self.diag_log.append((self.diag_stamp, dict(self.diag)))
             if any(kv.key == "homed" and kv.value == "true" for kv in st.values):
                 self.homed = True
 
@@ -373,6 +377,21 @@ def test_no_command_jumps_while_the_rail_takes_the_arm_to_full_stretch_and_back(
     with probe.lock:
         cmds = probe.command_list[first_command:]
         rails = [q["rail"] for _t, q in probe.states[first_state:]]
+        states = [q for _t, q in probe.states[first_state:]]
+        stamps = np.array(probe.state_stamps[first_state:])
+        diags = [(st, d) for st, d in probe.diag_log if st >= stamps[0]]
+    # issue 24 item 5: the status follows the MEASURED tool: wherever the tool (FK of the
+    # measured joints, rail included) was more than 10 mm off over the 100 ms before a
+    # diagnostics message, that message does not say tracking (the old node did)
+    kin = Kinematics(variant="rail_arm")
+    goal = kin.forward(np.array([states[0][n] for n in kin.joint_names]))
+    err = np.array([np.linalg.norm(kin.forward(np.array([q[n] for n in kin.joint_names]))
+                                   [:3, 3] - goal[:3, 3]) for q in states])
+    wrong = [(st, d["status"]) for st, d in diags
+             if d["enabled"] == "True" and d["status"] == "tracking"
+             and np.any(w := (stamps <= st) & (stamps > st - 100_000_000))
+             and err[w].min() > 0.010]
+    statuses = sorted({d["status"] for _st, d in diags})
     vmax = np.array([j.velocity for j in Kinematics(variant="arm").desc.joints])
     worst, where = 0.0, None
     for (s0, q0), (s1, q1) in zip(cmds, cmds[1:]):
@@ -382,8 +401,82 @@ def test_no_command_jumps_while_the_rail_takes_the_arm_to_full_stretch_and_back(
             worst, where = ratio, (float(np.abs(q1 - q0).max()), dt)
     summary = (f"{len(cmds)} commands; largest step / (velocity limit x period) {worst:.3f} "
                f"({where[0]:.4f} rad over {where[1] * 1e3:.1f} ms); rail "
-               f"{min(rails):.3f}..{max(rails):.3f} m; node: {probe.diag}")
+               f"{min(rails):.3f}..{max(rails):.3f} m; tool error max {err.max() * 1e3:.1f} mm; "
+               f"statuses {statuses}; 'tracking' while > 10 mm off: {wrong[:5]}; node: "
+               f"{probe.diag}")
     print(summary)
     assert len(cmds) > 200 and min(rails) < -0.19, summary
     assert worst <= 1.0 + 1e-6, summary
+    assert err.max() > 0.010 and len(diags) > 10, summary     # the tool was off: judged
+    assert not wrong, summary
     assert "Traceback" not in mock.output() + comp.output()
+
+
+def test_a_late_host_pose_moves_nothing_and_is_counted(launch, rclpy_context, executor,
+                                                       wait_for):
+    """Issue 24 item 3 through the installed host_compensation (fixed arm, host from
+    host_pose): joint states and host poses at 100 Hz from the test, compensation enabled;
+    then one host pose stamped now - 2 s and one 30 ms out of order, each 3 cm off. The
+    commands do not move the tool (the old node took each as the current host pose: ~6 mm),
+    the diagnostics count them, the log says why."""
+    comp = launch("hyperarm_ik", "host_compensation", params={
+        "variant": "arm", "diagnostics_period": 0.2, "stale_timeout": 1.0})
+    probe = Probe(rclpy_context, executor)
+    host = probe.node.create_publisher(PoseStamped, contract.HOST_POSE,
+                                       qos_for(contract.HOST_POSE))
+    states = probe.node.create_publisher(JointState, contract.JOINT_STATES,
+                                         qos_for(contract.JOINT_STATES))
+    kin = Kinematics(variant="arm")
+    clock = probe.node.get_clock()
+
+    def tick(x: float = 0.0, age: float = 0.0) -> None:
+        now = clock.now()
+        msg = PoseStamped()
+        msg.header.frame_id = contract.WORLD_FRAME
+        msg.header.stamp = (now - Duration(seconds=age)).to_msg()
+        msg.pose.position.x = x
+        msg.pose.orientation.w = 1.0
+        host.publish(msg)
+        st = JointState()
+        st.header.stamp = now.to_msg()
+        st.name, st.position = ARM, list(Q0)
+        states.publish(st)
+
+    def tool(q) -> np.ndarray:
+        return kin.forward(np.asarray(q))[:3, 3]
+
+    answers = []
+
+    def enabled():
+        tick()
+        answers.append(probe.call(probe.enable, SetBool.Request(data=True), wait_for))
+        return answers[-1].success
+
+    wait_for(enabled, 20.0, period=0.1, what="host_compensation enabled")
+    for _ in range(30):
+        tick()
+        time.sleep(0.01)
+    wait_for(lambda: len(probe.command_list) > 10, 10.0, what="arm commands")
+    with probe.lock:
+        steady = probe.command_list[-1][1]
+        first = len(probe.command_list)
+    tick(x=0.03, age=2.0)                      # late by 2 s, 3 cm off
+    time.sleep(0.01)
+    tick(x=0.03, age=0.03)                     # older than the newest used, 3 cm off
+    for _ in range(30):
+        time.sleep(0.01)
+        tick()
+    t = time.monotonic()
+    wait_for(lambda: probe.diag_time > t + 0.05, 5.0, what="diagnostics")
+    with probe.lock:
+        after = [q for _s, q in probe.command_list[first:]]
+        d = dict(probe.diag)
+    moved = max(float(np.linalg.norm(tool(q) - tool(steady))) for q in after)
+    summary = f"{len(after)} commands after; tool moved {moved * 1e3:.3f} mm; node: {d}"
+    print(summary)
+    assert len(after) > 10, summary
+    assert moved < 1e-4, summary
+    assert int(d["host_pose_rejected_stale"]) >= 1, summary
+    assert int(d["host_pose_rejected_out_of_order"]) >= 1, summary
+    out = comp.output()
+    assert "stamped 2.0" in out and "before the newest one used" in out, out[-2000:]
