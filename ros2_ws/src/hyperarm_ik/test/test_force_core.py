@@ -93,7 +93,7 @@ def test_gravity_is_the_gradient_of_the_potential_energy(kin):
         assert np.abs(g - law.gravity.torques(q, Payload())).max() > 0.01
 
 
-def _reference_torque(kin, cfg: LawConfig, q, dq, p0, r0, k, s, fd, payload):
+def _reference_torque(kin, cfg: LawConfig, q, dq, p0, r0, k, s, fd, payload, dt=0.01):
     """The law written out independently: FK/Jacobian by finite differences, gravity by the
     gradient of the potential, the null-space projector by an SVD pseudo-inverse with the
     same damping, no saturation (the test keeps it inactive)."""
@@ -117,7 +117,10 @@ def _reference_torque(kin, cfg: LawConfig, q, dq, p0, r0, k, s, fd, payload):
             if d < m:
                 push[i] += sign * cfg.limit_stiffness * m * (m - d) / max(d, m / 4)
     fade = min(1.0, min(np.min(q - lo), np.min(hi - q)) / m)
-    tau0 = fade ** 2 * cfg.posture_stiffness * (0.0 - q) + push
+    # the spring's reference starts at the posture of reset (q) and moves posture_speed x dt
+    # towards the posture (0) per cycle: the first cycle's
+    ref = q + np.clip(0.0 - q, -cfg.posture_speed * dt, cfg.posture_speed * dt)
+    tau0 = fade ** 2 * cfg.posture_stiffness * (ref - q) + push
     return grav + j.T @ f + null @ tau0 - cfg.joint_damping * dq
 
 

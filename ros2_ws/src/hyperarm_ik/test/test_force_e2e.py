@@ -12,7 +12,8 @@ import pytest
 from hyperarm_description import contract
 from hyperarm_description.model import load_description
 from hyperarm_description.qos import qos_for
-from hyperarm_ik.benchmark.force_probe import ForceProbe, MockArm, mean_force, step_response
+from hyperarm_ik.benchmark.force_probe import (ForceProbe, MockArm, excursion, mean_force,
+                                               step_response)
 from hyperarm_ik.kinematics import Kinematics
 
 pytestmark = [pytest.mark.e2e]
@@ -359,21 +360,6 @@ def overshoot(xs: np.ndarray, start: np.ndarray, goal: np.ndarray) -> float:
     return float(max(progress.max() - 1.0, 0.0))
 
 
-def _excursion(probe: ForceProbe, arm: MockArm, p0: np.ndarray, action,
-               seconds: float = 0.6) -> float:
-    """Largest distance (m) of the tool (FK of the measured joints) from ``p0`` during
-    ``seconds`` after ``action()``."""
-    with probe.lock:
-        n = len(probe.states)
-    action()
-    time.sleep(seconds)
-    with probe.lock:
-        states = [m for _, m in probe.states[n:]]
-    idx = [list(states[0].name).index(j) for j in arm.arm]
-    xs = np.array([arm.kin.forward(np.array(m.position)[idx])[:3, 3] for m in states])
-    return float(np.linalg.norm(xs - p0, axis=1).max())
-
-
 @pytest.mark.slow
 def test_step_tracking_and_no_sag(launch, rclpy_context, executor, wait_for, tmp_path):
     """The tool (FK of the measured joints) moves less than 1 mm around the controller's
@@ -385,7 +371,7 @@ def test_step_tracking_and_no_sag(launch, rclpy_context, executor, wait_for, tmp
     arm.move([0.35, -0.05, -0.05])
     time.sleep(0.3)
     p0 = arm.tool()[:3, 3].copy()
-    sag = {"start": _excursion(probe, arm, p0, lambda: probe.enable(True))}
+    sag = {"start": excursion(probe, arm, p0, lambda: probe.enable(True))}
     ts, xs, goal = step_response(probe, arm)
     start = goal - np.array([0.0, 0.02, 0.0])
     ov = overshoot(xs, start, goal)
@@ -395,9 +381,9 @@ def test_step_tracking_and_no_sag(launch, rclpy_context, executor, wait_for, tmp
     assert np.linalg.norm(xs[-1] - goal) < 0.001
     assert np.abs(xs[:, [0, 2]] - start[[0, 2]]).max() < 0.003   # the other axes held
     p1 = arm.tool()[:3, 3].copy()
-    sag["compliance on"] = _excursion(probe, arm, p1, lambda: probe.compliance(True))
-    sag["compliance off"] = _excursion(probe, arm, p1, lambda: probe.compliance(False))
-    sag["stop"] = _excursion(probe, arm, p1, lambda: probe.enable(False))
+    sag["compliance on"] = excursion(probe, arm, p1, lambda: probe.compliance(True))
+    sag["compliance off"] = excursion(probe, arm, p1, lambda: probe.compliance(False))
+    sag["stop"] = excursion(probe, arm, p1, lambda: probe.enable(False))
     print("tool excursion (mm):", {k: round(v * 1e3, 3) for k, v in sag.items()})
     assert all(v < 0.001 for v in sag.values()), sag
 

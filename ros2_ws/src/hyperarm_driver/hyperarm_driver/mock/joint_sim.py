@@ -303,8 +303,9 @@ class JointSim:
 
     def _switch(self, i: int, mode: ControlMode) -> None:
         """Set joint ``i``'s mode; changing between position-class and current (torque)
-        control turns its torque off for ``servo.mode_switch_gap`` s first (rounded up to
-        whole steps), as the real driver must (Operating Mode is written with torque off)."""
+        control turns its torque off for ``servo.mode_switch_gap`` s first (:meth:`step`
+        splits a step at the gap's end), as the real driver must (Operating Mode is written
+        with torque off)."""
         old = self.mode[i]
         if old is not ControlMode.OFF and (old is ControlMode.TORQUE) != (mode is ControlMode.TORQUE):
             self._gap[i] = self.cfg.servo.mode_switch_gap
@@ -587,6 +588,16 @@ class JointSim:
         self.time += dt
         while self._pending and self._pending[0][0] <= self.time + 1e-12:
             self._pending.popleft()[1]()
+        # a mode switch's torque-off gap ends inside this step: step to its end first, then
+        # the rest (the gap lasts servo.mode_switch_gap, not a whole step)
+        rest = 0.0
+        if _any(self._gap):
+            self._gap[self._gap < 1e-6] = 0.0
+            gaps = self._gap[self._gap > 0.0]
+            if gaps.size and float(gaps.min()) < dt - 1e-6:
+                rest = dt - float(gaps.min())
+                dt -= rest
+                self.time -= rest
         if self.host is not None:
             self.host.before_step(dt)
         self._settle_offset(dt)
@@ -678,6 +689,8 @@ class JointSim:
         if self.host is not None:
             self.host.after_step(dt)
         self._record()
+        if rest > 0.0:
+            self.step(rest)
 
     def _report_efforts(self, gapped: np.ndarray | None) -> None:
         """The efforts the servos report: the true torque (plus the friction the motor also

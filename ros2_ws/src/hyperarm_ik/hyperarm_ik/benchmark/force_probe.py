@@ -245,6 +245,21 @@ class MockArm:
         return self.kin.forward(self.q_now())
 
 
+def excursion(probe: ForceProbe, arm: MockArm, p0: np.ndarray, action,
+              seconds: float = 0.6) -> float:
+    """Largest distance (m) of the tool (FK of the measured joints) from ``p0`` during
+    ``seconds`` after ``action()``."""
+    with probe.lock:
+        n = len(probe.states)
+    action()
+    time.sleep(seconds)
+    with probe.lock:
+        states = [m for _, m in probe.states[n:]]
+    idx = [list(states[0].name).index(j) for j in arm.arm]
+    xs = np.array([arm.kin.forward(np.array(m.position)[idx])[:3, 3] for m in states])
+    return float(np.linalg.norm(xs - p0, axis=1).max())
+
+
 def step_response(probe: ForceProbe, arm: MockArm, step=(0.0, 0.02, 0.0),
                   stiffness=(800.0, 800.0, 800.0, 20.0, 20.0, 20.0), settle: float = 1.0,
                   duration: float = 2.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -100,7 +100,10 @@ class ControllerConfig:
     passive; limit_guard: rad from a joint limit at which it goes passive;
     default_stiffness: K of the hold goal at enable and of position axes a goal leaves at 0
     [N/m x3, N·m/rad x3]; state_max_age / goal_max_age: s, a joint state / goal stamped
-    longer ago is not used (nor one older than the newest used: :class:`StampGate`)."""
+    longer ago is not used (nor one older than the newest used: :class:`StampGate`);
+    switch_gap: s the servos' torque is off when the first effort-only command after enable
+    switches them into current mode (the 'torque' output): that command adds back the
+    impulse lost in it (0: no compensation)."""
 
     output: str = "position"
     stale_timeout: float = 0.1
@@ -109,13 +112,14 @@ class ControllerConfig:
     max_dt: float = 0.05
     state_max_age: float = 0.2
     goal_max_age: float = 1.0
+    switch_gap: float = 0.005
 
     def __post_init__(self) -> None:
         if self.output not in OUTPUTS:
             raise ForceConfigError(f"output {self.output!r}: one of {', '.join(OUTPUTS)}")
         for name, lo, hi in (("stale_timeout", 0.01, 10.0), ("limit_guard", 0.0, 0.5),
                              ("max_dt", 1e-3, 1.0), ("state_max_age", 0.01, 10.0),
-                             ("goal_max_age", 0.01, 60.0)):
+                             ("goal_max_age", 0.01, 60.0), ("switch_gap", 0.0, 0.05)):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and lo <= v <= hi):
                 raise ForceConfigError(f"{name}: {v!r} not within {lo:g}..{hi:g}")
@@ -155,6 +159,9 @@ class ForceController:
         self._last_state: float | None = None
         self._own_gap = OwnGap(self.config.stale_timeout)    # between check_stale calls
         self._last_cycle: float | None = None
+        self._last_now: float | None = None
+        self._period = 0.01                # s, the joint states' period (running estimate)
+        self._switching = False            # the next torque command switches the servos
         self._q: np.ndarray | None = None
         self.last_estimate: WrenchEstimate | None = None
         self._last_rotation = np.eye(3)
@@ -182,6 +189,7 @@ class ForceController:
         self.goal = self.law.hold_goal(self._q, self._default_k)
         self.mode, self.reason = Mode.ACTIVE, "enabled"
         self._last_cycle = None
+        self._switching = self.config.output == "torque"
         return self._event(Event("enabled", "info", f"enabled ({self.config.output} output), "
                                  "holding the present pose"))
 
@@ -299,6 +307,9 @@ class ForceController:
             raise StateError("joint state: wrong length or non-finite values")
         self._q = q
         self._last_state = stamp if stamp > 0.0 else now
+        if self._last_now is not None and 0.0 < now - self._last_now < 0.1:
+            self._period += 0.1 * (now - self._last_now - self._period)
+        self._last_now = now
         event = None
         cmd = None
         if self.mode is Mode.ACTIVE:
@@ -320,13 +331,28 @@ class ForceController:
             cal = self.calibration
             exact = not cal.joints
             if self.config.output == "torque":
-                efforts = (cmd.tau if exact else cal.command(self.arm_names, cmd.tau)).tolist()
+                tau = self._switch_impulse(cmd.tau) if self._switching else cmd.tau
+                self._switching = False
+                efforts = (tau if exact else cal.command(self.arm_names, tau)).tolist()
             else:
                 positions = cmd.q_cmd.tolist()
                 efforts = (cmd.effort_limit if exact else
                            cal.command(self.arm_names, cmd.effort_limit)).tolist()
         return Output(self.arm_names, positions, efforts, command=cmd, q=q, dq=dq,
                       effort=effort), event
+
+    def _switch_impulse(self, tau: np.ndarray) -> np.ndarray:
+        """The first effort-only command after enable switches the servos into current
+        mode, their torque off for ``switch_gap`` s (Operating Mode is written with torque
+        off): a gravity-loaded joint falls meanwhile (1-2 mm at the tool on the mock). This
+        command holds for about one state period T, so it carries tau x T / (T - gap): its
+        impulse over the period is the one planned (N·m, within the torque limits)."""
+        gap = self.config.switch_gap
+        if gap <= 0.0:
+            return tau
+        factor = min(gap / max(self._period - gap, gap), 1.0)
+        limit = self.law.limit
+        return np.minimum(np.maximum(tau * (1.0 + factor), -limit), limit)
 
     def estimate(self, out: Output) -> Output:
         """Fill ``out``'s wrench estimate (root and tool0 axes) from its joint state."""

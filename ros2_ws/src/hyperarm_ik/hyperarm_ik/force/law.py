@@ -115,6 +115,10 @@ class LawConfig:
     workspace_margin: m beyond the arm's reach bound a goal may lie (else refused).
     max_speed / max_angular_speed: m/s, rad/s at which the law's reference follows the
       goal's X0 (a goal step is tracked as a ramp).
+    posture_speed: rad/s at which the null-space posture spring's reference moves from the
+      posture at :meth:`HybridLaw.reset` to ``posture`` (no null-space lurch at enable).
+    transition_time: s over which whole-arm compliance fades in or out (its springs and
+      its effort cap), instead of a torque step.
     """
 
     damping: tuple[float, ...] = (8.0, 8.0, 8.0, 0.05, 0.05, 0.05)
@@ -141,6 +145,8 @@ class LawConfig:
     workspace_margin: float = 0.02
     max_speed: float = 0.1
     max_angular_speed: float = 0.5
+    posture_speed: float = 0.5
+    transition_time: float = 0.5
 
     def __post_init__(self) -> None:
         d = _finite(self.damping, "damping", (6,))
@@ -166,7 +172,8 @@ class LawConfig:
                              ("max_linear_stiffness", 0.0, 1e6),
                              ("max_angular_stiffness", 0.0, 1e4),
                              ("workspace_margin", 0.0, 10.0), ("max_speed", 1e-3, 2.0),
-                             ("max_angular_speed", 1e-3, 10.0)):
+                             ("max_angular_speed", 1e-3, 10.0),
+                             ("posture_speed", 1e-3, 10.0), ("transition_time", 0.0, 10.0)):
             _check(getattr(self, name), name, lo, hi)
         if not isinstance(self.servo_holds_gravity, bool):
             raise ForceConfigError(f"servo_holds_gravity: expected a bool, got "
@@ -412,6 +419,8 @@ class HybridLaw:
         self._q_cmd = np.zeros(self.na)
         self._q_out: np.ndarray | None = None        # the last position command sent
         self._compliance_posture = self.posture.copy()
+        self._posture_ref = self.posture.copy()      # moves to posture at posture_speed
+        self._compliance_w = 0.0                     # 0 off .. 1 on (fades)
         cfg = self.config
         self._d = np.asarray(cfg.damping)
         self._k_pos = np.asarray(cfg.position_stiffness)
@@ -456,6 +465,8 @@ class HybridLaw:
         self._q_cmd = q[self.arm].copy()
         self._q_out = None
         self._compliance_posture = q[self.arm].copy()
+        self._posture_ref = q[self.arm].copy()
+        self._compliance_w = 0.0
         self._ref_p = self._ref_r = None
         self._ref_at = None
 
@@ -489,9 +500,12 @@ class HybridLaw:
         twist = j @ dqa
         jjt = j @ j.T
         jjt_inv = np.linalg.inv(jjt + self._damp6)      # damped: (J J^T + l^2 I)^-1
+        self._advance(compliance, dt)
+        w = self._compliance_w
         limit = self.limit
-        if compliance:
-            limit = np.minimum(limit, np.abs(g) + cfg.compliance_effort)
+        if w > 0.0:       # the cap fades from the stall limits to |g| + compliance_effort
+            limit = np.minimum(limit, w * (np.abs(g) + cfg.compliance_effort)
+                               + (1.0 - w) * limit)
         if output == "position":
             return self._pseudo_goal(goal, qa, j, r, jjt, jjt_inv, g, err, twist, limit,
                                      compliance, dt)
@@ -500,8 +514,8 @@ class HybridLaw:
         f, wscale = scale_wrench(f, cfg.max_force, cfg.max_moment)
         # J^T F + N tau0 - d_j dq, N tau0 = tau0 - J^T (J J^T + l^2)^-1 J tau0
         delta = j.T @ (f - jjt_inv @ (j @ tau0)) + tau0 - cfg.joint_damping * dqa
-        if compliance:
-            delta += cfg.compliance_stiffness * (self._compliance_posture - qa)
+        if w > 0.0:
+            delta += (w * cfg.compliance_stiffness) * (self._compliance_posture - qa)
         tau, jscale = scale_into_limits(g, delta, limit)
         tau, limited = rate_limit(tau, self._tau_prev, cfg.torque_rate * dt)
         tau = np.minimum(np.maximum(tau, -limit), limit)
@@ -514,7 +528,7 @@ class HybridLaw:
         """``scale`` x the null-space term's torque tau_0 (N·m x scale): see
         :func:`null_space_torque`."""
         cfg = self.config
-        return scale * null_space_torque(qa, self.lower, self.upper, self.posture,
+        return scale * null_space_torque(qa, self.lower, self.upper, self._posture_ref,
                                          cfg.posture_stiffness, cfg.limit_margin,
                                          cfg.limit_stiffness)
 
@@ -567,9 +581,9 @@ class HybridLaw:
         # J^+ dx + N v with v = (position_filter / k_s) tau_0: v + J^T M^-1 (dx - J v)
         v = self._posture_torque(qa, cfg.position_filter / ks)
         step = v + j.T @ (jjt_inv @ (dx - j @ v))
-        if compliance:
-            step += (cfg.position_filter * cfg.compliance_stiffness / ks) * (
-                self._compliance_posture - self._q_cmd)
+        if self._compliance_w > 0.0:
+            step += (self._compliance_w * cfg.position_filter * cfg.compliance_stiffness
+                     / ks) * (self._compliance_posture - self._q_cmd)
         # torque-rate limit: at a given q the servo torque changes by k_s * step
         max_step = cfg.torque_rate * dt / ks
         step = np.minimum(np.maximum(step, -max_step), max_step)
@@ -612,6 +626,21 @@ class HybridLaw:
         changed = bool(np.any(limited != q_out))
         self._q_out = limited
         return limited, changed
+
+    def _advance(self, compliance: bool, dt: float) -> None:
+        """Move the posture spring's reference towards ``posture`` by posture_speed x dt
+        per joint, and the compliance weight towards 1 (on) or 0 (off) by
+        dt / transition_time."""
+        cfg = self.config
+        d = self.posture - self._posture_ref
+        if d.any():
+            step = cfg.posture_speed * dt
+            self._posture_ref += np.minimum(np.maximum(d, -step), step)
+        target = 1.0 if compliance else 0.0
+        if self._compliance_w != target:
+            rate = dt / cfg.transition_time if cfg.transition_time > 0.0 else 1.0
+            self._compliance_w = min(max(target, self._compliance_w - rate),
+                                     self._compliance_w + rate)
 
     def _reference(self, goal: HybridGoal, p: np.ndarray, r: np.ndarray,
                    dt: float) -> tuple[np.ndarray, np.ndarray]:

@@ -39,6 +39,9 @@ PARAMETERS: ParamSpec = {
                       "newest one used from its driver) is dropped", Range(0.01, 10.0)),
     "goal_max_age": (_C.goal_max_age, "s, a hybrid goal stamped longer ago (or before the "
                      "newest one used) is ignored", Range(0.01, 60.0)),
+    "switch_gap": (_C.switch_gap, "s the servos' torque is off when the 'torque' output's "
+                   "first command switches them into current mode (its lost impulse is added "
+                   "to that command; 0 = not)", Range(0.0, 0.05)),
     "limit_guard": (_C.limit_guard, "rad from a joint limit at which the node goes passive",
                     Range(0.0, 0.5)),
     "default_stiffness": (list(_C.default_stiffness), "K [N/m x3, N·m/rad x3] of the hold "
@@ -52,6 +55,8 @@ PARAMETERS: ParamSpec = {
                 None),
     "posture_stiffness": (_L.posture_stiffness, "N·m/rad of the null-space posture spring",
                           Range(0.0, 100.0)),
+    "posture_speed": (_L.posture_speed, "rad/s at which the posture spring's reference moves "
+                      "from the posture at enable to 'posture'", Range(1e-3, 10.0)),
     "limit_margin": (_L.limit_margin, "rad from a limit where the null-space push starts",
                      Range(0.0, 1.0)),
     "limit_stiffness": (_L.limit_stiffness, "N·m/rad scale of the push away from the "
@@ -85,6 +90,8 @@ PARAMETERS: ParamSpec = {
                      Range(1e-3, 1.0)),
     "compliance_stiffness": (_L.compliance_stiffness, "N·m/rad per joint in compliance mode",
                              Range(0.0, 100.0)),
+    "transition_time": (_L.transition_time, "s over which whole-arm compliance fades in or "
+                        "out", Range(0.0, 10.0)),
     "compliance_effort": (_L.compliance_effort, "N·m above gravity per joint in compliance "
                           "mode", Range(0.0, 100.0)),
     "payload_mass": (0.0, "kg held at tool0 (gravity compensated; may be set at run time)",
