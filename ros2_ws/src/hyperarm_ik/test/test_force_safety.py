@@ -316,3 +316,41 @@ def test_a_mode_switch_gap_lasts_its_configured_time_not_a_whole_step(kin):
         sags[dt] = abs(sim.position[1] - before)
     assert sags[0.001] > 1e-5, sags                       # the gap is there
     assert abs(sags[0.01] - sags[0.001]) < 0.3 * sags[0.001], sags
+
+
+# -- the torque margin after calibration (issue 24 item 7, the saturated press) ------------
+
+Q_PRESS = np.array([0.0, 0.5, 0.0, 0.6, 0.0, 0.5, 0.0, -1.0, 0.0])   # tool down, ahead
+
+
+def test_commanded_efforts_stay_within_the_margin_after_calibration(kin):
+    """A calibration with every servo's scale 0.9 (commands are divided by it): in both
+    outputs no commanded effort exceeds stall x torque_margin, even when the law asks for
+    its limits (a press 15 mm deep at 4000 N/m with the tool held, as the issue's; a goal
+    5 cm deep in the torque output). Fails on the old controller: 1.11 x the margin
+    (0.8 / 0.9 = 0.89 of stall)."""
+    from hyperarm_ik.force.calibration import JointCalibration, TorqueCalibration
+    from hyperarm_ik.force.controller import ControllerConfig, ForceController
+
+    for output, depth in (("position", 0.015), ("torque", 0.05)):
+        law = HybridLaw(kin)
+        cal = TorqueCalibration({n: JointCalibration(scale=0.9) for n in law.arm_names})
+        ctl = ForceController(law, calibration=cal, config=ControllerConfig(output=output))
+        q = Q_PRESS.copy()
+        now = 10.0
+        ctl.control(now, q, np.zeros(9), [0.0] * 9)
+        ctl.enable(True, now)
+        t = kin.forward(q)
+        quat = pin.Quaternion(t[:3, :3])
+        goal, event = ctl.on_goal(kin.root_frame, t[:3, 3] - [0.0, 0.0, depth],
+                                  [quat.x, quat.y, quat.z, quat.w],
+                                  [800.0, 800.0, 4000.0, 20.0, 20.0, 20.0],
+                                  [False, False, True, False, False, False], [0.0] * 6)
+        assert goal is not None, event
+        peak = 0.0
+        for _ in range(300):
+            now += 0.01
+            out, _ = ctl.control(now, q, np.zeros(9), [0.0] * 9)
+            peak = max(peak, float(np.max(np.abs(out.efforts) / law.limit)))
+        print(f"{output}: largest |effort| / (stall x margin) {peak:.3f}")
+        assert peak <= 1.0 + 1e-9, (output, peak)

@@ -330,14 +330,19 @@ class ForceController:
         if cmd is not None:
             cal = self.calibration
             exact = not cal.joints
+            # the torque margin applies to what is commanded, after the calibration's
+            # division by each servo's scale (a scale < 1 once took efforts to 0.88 of stall)
+            limit = self.law.limit
             if self.config.output == "torque":
                 tau = self._switch_impulse(cmd.tau) if self._switching else cmd.tau
                 self._switching = False
-                efforts = (tau if exact else cal.command(self.arm_names, tau)).tolist()
+                tau = tau if exact else cal.command(self.arm_names, tau)
+                efforts = np.minimum(np.maximum(tau, -limit), limit).tolist()
             else:
                 positions = cmd.q_cmd.tolist()
-                efforts = (cmd.effort_limit if exact else
-                           cal.command(self.arm_names, cmd.effort_limit)).tolist()
+                effort = cmd.effort_limit if exact else cal.command(self.arm_names,
+                                                                    cmd.effort_limit)
+                efforts = np.minimum(effort, limit).tolist()
         return Output(self.arm_names, positions, efforts, command=cmd, q=q, dq=dq,
                       effort=effort), event
 
