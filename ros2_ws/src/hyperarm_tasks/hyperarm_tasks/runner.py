@@ -14,6 +14,7 @@ from typing import Callable, Mapping, Protocol, Sequence
 import numpy as np
 import pinocchio as pin
 
+from hyperarm_description.limits import limit_step
 from hyperarm_ik.collision import CollisionModel
 from hyperarm_ik.kinematics import Kinematics
 from hyperarm_ik.solvers import make_solver
@@ -149,6 +150,13 @@ class Runner:
         self.q_target: np.ndarray | None = None      # last commanded chain joints
         self.force_on = False
         self.metrics: dict[str, float] = {}
+        # the last joint_command sent, per joint: the step limiter's reference (forgotten
+        # when something else moves the arm: a hold, force control)
+        self.last_sent: dict[str, float] = {}
+        self._limits = {j.name: (j.lower, j.upper, j.velocity) for j in self.desc.joints}
+        if self.desc.rail is not None:
+            r = self.desc.rail
+            self._limits[r.name] = (r.lower, r.upper, r.velocity)
 
     # --- state ---------------------------------------------------------------------------
     @property
@@ -327,8 +335,31 @@ class Runner:
              efforts: Mapping[str, float] | None = None) -> None:
         if self.force_on:
             raise RuntimeError("joint_command while force control is enabled")  # a bug
-        self.robot.command(dict(zip(names, (float(v) for v in q))), efforts)
+        self.command(dict(zip(names, (float(v) for v in q))), efforts)
         self.q_target = np.asarray(q, dtype=float).copy()
+
+    def command(self, positions: Mapping[str, float],
+                efforts: Mapping[str, float] | None = None) -> dict[str, float]:
+        """Send one joint_command (rad, m; efforts N·m, N) with the step limiter applied
+        last (issue 24): no arm or rail joint steps further in one cycle than its velocity
+        limit × the period, nor leaves its limits, measured from the last command sent or,
+        when none is known (the start, after a hold or force control), the measured
+        position. The gripper's goals are not limited: an open or a close is one goal
+        past the object with an effort limit (the squeeze), which the servo's profile
+        moves and its current limit bounds. Returns what was sent."""
+        names = list(positions)
+        measured = self.robot.joint_positions()
+        sent = {n: float(positions[n]) for n in names}
+        arm = [n for n in names if n != self.desc.gripper.name]
+        if arm:
+            q = np.array([sent[n] for n in arm])
+            prev = np.array([self.last_sent.get(n, measured.get(n, sent[n])) for n in arm])
+            lim = np.array([self._limits[n] for n in arm])
+            sent.update(zip(arm, limit_step(q, prev, lim[:, 2], self.period, lim[:, 0],
+                                            lim[:, 1]).tolist()))
+        self.robot.command(sent, efforts)
+        self.last_sent.update(sent)
+        return sent
 
     def path_duration(self, qs: list[np.ndarray], length: float, speed: float) -> float:
         vmax = np.array([0.5 * (self.desc.rail.velocity if self.desc.rail and n == self.desc.rail.name
@@ -390,7 +421,7 @@ class Runner:
         t0 = self.robot.now()
         last, last_t, still_for = None, t0, 0.0
         while True:
-            self.robot.command(goal, efforts)
+            self.command(goal, efforts)
             pos = self.robot.joint_positions()
             missing = [n for n in names if n not in pos]
             if missing:
@@ -429,6 +460,7 @@ class Runner:
         if self.force_on:
             reason = self.robot.set_force_control(False)
             self.force_on = False
+            self.last_sent.clear()   # the force node moved the arm; it holds it now
             if reason:
                 self.robot.log("error", f"could not disable force control: {reason}")
             self.keep_squeezing()
@@ -439,7 +471,7 @@ class Runner:
         closing them at the grip effort."""
         if self.holding is not None:
             g = self.desc.gripper
-            self.robot.command({g.name: g.lower}, {g.name: self.holding})
+            self.command({g.name: g.lower}, {g.name: self.holding})
 
     # --- the task --------------------------------------------------------------------------
     def run(self) -> RunResult:
@@ -514,6 +546,7 @@ class Runner:
         """Force control off, then hold where the arm is."""
         self.force_off()
         reason = self.robot.hold()
+        self.last_sent.clear()      # the drivers hold the measured position now
         if reason:
             self.robot.log("error", f"hold failed: {reason}")
         self.keep_squeezing()
