@@ -9,10 +9,11 @@ camera_link). Both unknowns are constant: ``X`` (camera_link in the root frame) 
 :func:`calibrate_eye_to_hand` solves it with ``cv2.calibrateHandEye`` in its eye-to-hand form
 (OpenCV's documentation: pass the base-to-gripper transforms, the inverses of G_i, where the
 eye-in-hand form takes gripper-to-base; the result is then the camera in the base frame),
-estimates Y from every pair, reports each posture's residual (the target's predicted pose
-``X^-1 G_i Y`` against the detected ``C_i``: distance in m, angle in rad) and drops outliers
-one by one (the worst, while its residual exceeds ``outlier_factor`` times the median and the
-absolute floors), solving again each time.
+estimates Y from every pair, refines both (maximum likelihood, weighted by the detections'
+covariances), reports each posture's residual (the target's predicted pose ``X^-1 G_i Y``
+against the detected ``C_i``: distance in m, angle in rad) and drops outliers one by one
+(the worst, while its Mahalanobis distance exceeds ``outlier_factor`` times the median and
+chi-square's 99.9 % point), solving again each time.
 
 How many postures: the rotation of X is determined by the relative motions
 ``G_i^-1 G_j``, which need rotations about at least two non-parallel axes (Tsai & Lenz): so
@@ -40,6 +41,9 @@ class HandEyeError(PerceptionError):
     """The postures or detections cannot give a calibration (too few, degenerate, bad data,
     too many outliers)."""
 
+
+#: sqrt of chi-square's 99.9 % point for 6 degrees of freedom (22.46)
+CHI2_6_999_SQRT = math.sqrt(22.458)
 
 #: the names accepted for ``method`` -> OpenCV's flags
 METHODS = {"tsai": cv2.CALIB_HAND_EYE_TSAI, "park": cv2.CALIB_HAND_EYE_PARK,
@@ -246,9 +250,7 @@ def calibrate_eye_to_hand(tool_poses: Sequence[np.ndarray],
                           method: str = "park", refine: bool = True,
                           position_sigma: float = 0.001,
                           angle_sigma: float = math.radians(0.5),
-                          outlier_factor: float = 3.0, min_position: float = 0.002,
-                          min_angle_residual: float = math.radians(1.0),
-                          min_poses: int = 3) -> HandEyeResult:
+                          outlier_factor: float = 3.0, min_poses: int = 3) -> HandEyeResult:
     """Camera_link in the root frame from ``tool_poses`` (G_i: tool0 in the root frame, FK)
     and ``target_poses`` (C_i: the held target in camera_link, the detector's), one pair
     per posture. ``method``: one of :data:`METHODS`, the linear solution. ``refine``: then
@@ -256,12 +258,14 @@ def calibrate_eye_to_hand(tool_poses: Sequence[np.ndarray],
     ``target_covariances``, the detector's 6x6 covariances in camera_link, or else by
     ``position_sigma`` m and ``angle_sigma`` rad per axis); the linear methods alone leave
     several mm (their rotation error leaks into the translation: docs/perception.md).
-    Outliers: while the worst inlier's
-    position residual exceeds both ``outlier_factor`` x the inliers' median and
-    ``min_position`` (m), or its angle residual both ``outlier_factor`` x the median and
-    ``min_angle_residual`` (rad), it is dropped and the problem solved again; at least
-    ``min_poses`` diverse postures (:func:`check_pose_diversity`) must remain.
-    :class:`HandEyeError` when the data cannot give a calibration."""
+    Outliers: each posture's Mahalanobis distance m_i = |W_i r_i| (r_i: the residual
+    (dt, dtheta) in camera_link, W_i: the whitening above); while the worst inlier's
+    exceeds both ``outlier_factor`` x the inliers' median and 4.74 (sqrt of chi-square's
+    99.9 % point for 6 dof), it is dropped and the problem solved again; at least
+    ``min_poses`` diverse postures (:func:`check_pose_diversity`) must remain. Judging in
+    the whitened metric keeps postures whose error lies along the line of sight, where the
+    detector's depth is known to be weak. :class:`HandEyeError` when the data cannot give a
+    calibration."""
     if method not in METHODS:
         raise HandEyeError(f"method {method!r}: expected one of {', '.join(METHODS)}")
     G = _check_poses(tool_poses, "tool_poses")
@@ -294,14 +298,12 @@ def calibrate_eye_to_hand(tool_poses: Sequence[np.ndarray],
             X, Y = _refine(X, Y, [G[i] for i in idx], [C[i] for i in idx],
                            [W[i] for i in idx])
         pos, ang = _residuals(X, Y, G, C)    # every posture's, dropped ones too
-        pos_in, ang_in = pos[idx], ang[idx]
-        bad_p = pos_in / max(np.median(pos_in), 1e-12)
-        bad_a = ang_in / max(np.median(ang_in), 1e-12)
-        over = ((bad_p > outlier_factor) & (pos_in > min_position)) | \
-            ((bad_a > outlier_factor) & (ang_in > min_angle_residual))
+        m = np.linalg.norm(_whitened(X, Y, [G[i] for i in idx], [C[i] for i in idx],
+                                     [W[i] for i in idx]).reshape(-1, 6), axis=1)
+        over = (m > outlier_factor * np.median(m)) & (m > CHI2_6_999_SQRT)
         if not over.any():
             return HandEyeResult(X, Y, pos, ang, inliers, method)
-        worst = idx[int(np.argmax(np.where(over, np.maximum(bad_p, bad_a), -1.0)))]
+        worst = idx[int(np.argmax(np.where(over, m, -1.0)))]
         inliers[worst] = False
         if inliers.sum() < min_poses:
             raise HandEyeError(f"too many outliers: {int((~inliers).sum())} of {len(G)} "

@@ -228,6 +228,8 @@ def test_calibration_from_rendered_images(postures, seed):
     result = calibrate_eye_to_hand(G, C, covs)
     pos, ang = _error(result.camera_pose)
     assert pos < 0.002 and ang < math.radians(0.5), (pos, math.degrees(ang))
+    assert result.inliers.all()
+    assert pos < _error(calibrate_eye_to_hand(G, C, covs, refine=False).camera_pose)[0]
 
 
 def test_log_rotation_is_accurate_for_small_and_large_angles():
