@@ -35,13 +35,16 @@ def load_series(path: str | Path) -> dict:
     """Time series of a recording (times in s from the first message)."""
     states, commands, feedback, wrench, dets = [], [], [], [], []
     for topic, t, msg in read_recording(path):
-        name = topic.rsplit("/", 1)[-1] if "_action" not in topic else "feedback"
+        # the task's feedback: task_feedback (TaskFeedback), or in older recordings the
+        # action's feedback topic (the fields under .feedback)
+        name = ("feedback" if "_action" in topic or topic.endswith("/task_feedback")
+                else topic.rsplit("/", 1)[-1])
         if name == "joint_states":
             states.append((t, dict(zip(msg.name, msg.position))))
         elif name == "joint_command":
             commands.append((t, dict(zip(msg.name, msg.position))))
         elif name == "feedback":
-            fb = msg.feedback
+            fb = getattr(msg, "feedback", msg)
             feedback.append((t, fb.stage, fb.phase, fb.depth, fb.force,
                              (fb.waypoint.point.x, fb.waypoint.point.y, fb.waypoint.point.z)))
         elif name == "ee_wrench":

@@ -3,7 +3,10 @@
 :class:`McapRecorder` writes already-serialized (CDR) ROS 2 messages with the ``ros2msg``
 schema encoding (the concatenated ``.msg`` definitions, as rosbag2 writes them), built from
 the installed interface files by :func:`message_definition`. :func:`read_recording` reads a
-file back into plain Python objects with ``mcap-ros2-support``'s decoder.
+file back into plain Python objects with ``mcap-ros2-support``'s stock decoder (every
+recorded type has a valid .msg name: the task's feedback is recorded as
+``hyperarm_interfaces/msg/TaskFeedback``; recordings made before that, with the action's
+``RunTask_FeedbackMessage`` channel, are read with a renaming decoder).
 """
 from __future__ import annotations
 
@@ -13,7 +16,13 @@ from typing import Callable, Iterator
 
 from mcap.writer import CompressionType, Writer
 
-__all__ = ["message_definition", "McapRecorder", "read_recording", "RECORDED_TOPICS"]
+__all__ = ["message_definition", "McapRecorder", "read_recording", "RECORDED_TOPICS",
+           "TASK_FEEDBACK"]
+
+#: the task node's feedback on a plain topic (hyperarm_interfaces/msg/TaskFeedback): the
+#: action's own feedback topic has the type RunTask_FeedbackMessage, which stock MCAP
+#: readers refuse ("'RunTask_FeedbackMessage' is an invalid message name")
+TASK_FEEDBACK = "task_feedback"
 
 # topic (relative to the namespace) -> ROS type, as recorded for a task run
 RECORDED_TOPICS = {
@@ -22,7 +31,7 @@ RECORDED_TOPICS = {
     "hybrid_goal": "hyperarm_interfaces/msg/HybridGoal",
     "ee_wrench": "geometry_msgs/msg/WrenchStamped",
     "detections": "hyperarm_interfaces/msg/Detections",
-    "run_task/_action/feedback": "hyperarm_interfaces/action/RunTask_FeedbackMessage",
+    TASK_FEEDBACK: "hyperarm_interfaces/msg/TaskFeedback",
 }
 
 _PRIMITIVES = {"bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16",
@@ -128,9 +137,10 @@ class McapRecorder:
 
 
 def _decoder_factory():
-    """mcap-ros2-support's decoder, also for action message types: their names
-    (``RunTask_FeedbackMessage``) are not valid .msg names to its parser, so the schema is
-    decoded under a name without the underscores (the CDR layout does not depend on it)."""
+    """mcap-ros2-support's decoder, also for the action feedback channel of older
+    recordings: ``RunTask_FeedbackMessage`` is not a valid .msg name to its parser, so such a
+    schema is decoded under a name without the underscores (the CDR layout does not depend
+    on it). Every channel recorded now decodes with the stock decoder unchanged."""
     from mcap.records import Schema
     from mcap_ros2.decoder import DecoderFactory
 

@@ -18,6 +18,7 @@ from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from hyperarm_description import contract
 from hyperarm_description.params import ParamSpec, Range, declare_parameters
@@ -28,8 +29,10 @@ from hyperarm_ik.collision import CollisionModel
 from hyperarm_ik.kinematics import Kinematics
 from hyperarm_ik.solvers import solver_names
 from hyperarm_interfaces.action import RunTask
+from hyperarm_interfaces.msg import TaskFeedback
 
 from .errors import TaskError, TaskFileError, UnknownTaskError
+from .recording import TASK_FEEDBACK
 from .ros_robot import RosRobot, pose_to_matrix
 from .runner import Feedback, Runner, RunnerParams
 from .sequence import load_task, packaged_tasks_dir
@@ -88,6 +91,10 @@ class TaskNode(Node):
         self._diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
                                            qos_for(contract.DIAGNOSTICS))
         self._diag_counts: dict[str, int] = {}
+        # every feedback also on a plain topic, under a type stock MCAP readers decode
+        self._feedback = self.create_publisher(
+            TaskFeedback, TASK_FEEDBACK,
+            QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE))
         self.create_timer(DIAGNOSTICS_PERIOD, self._publish_diagnostics)
         self._lock = threading.Lock()
         self._busy: str | None = None
@@ -195,6 +202,13 @@ class TaskNode(Node):
             msg.waypoint.point.x, msg.waypoint.point.y, msg.waypoint.point.z = \
                 (float(v) for v in fb.waypoint)
             handle.publish_feedback(msg)
+            plain = TaskFeedback(task=name, stage=msg.stage, step_type=msg.step_type,
+                                 phase=msg.phase, stage_index=msg.stage_index,
+                                 stage_count=msg.stage_count, progress=msg.progress,
+                                 step_progress=msg.step_progress, waypoint=msg.waypoint,
+                                 force=msg.force, depth=msg.depth)
+            plain.goal_id.uuid = handle.goal_id.uuid
+            self._feedback.publish(plain)
 
         self.get_logger().info(f"task {name!r}: {len(task.steps)} steps from {task.source}")
         self._runner = Runner(self._robot, self._kin, task, self._params, feedback,

@@ -42,10 +42,21 @@ def test_two_cycles_there_and_back_recorded_and_plotted(executable, ros_domain, 
     for step in ("[8/12] insert (force_insert)", "[12/12] ready_end"):
         assert step in out
     assert still_running(logs) == []
-    from hyperarm_tasks.recording import read_recording
-    topics = {t for t, _, _ in read_recording(rec)}
+    # every channel decodes with mcap-ros2-support's stock decoder (issue 24, item 6: the
+    # action's RunTask_FeedbackMessage channel was refused as 'an invalid message name')
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    topics, stages = set(), set()
+    with open(rec, "rb") as fh:
+        for schema, channel, _m, msg in make_reader(
+                fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
+            topics.add(channel.topic)
+            if channel.topic == "/hyperarm/task_feedback":
+                assert schema.name == "hyperarm_interfaces/msg/TaskFeedback"
+                stages.add((msg.task, msg.stage))
     assert {"/hyperarm/joint_states", "/hyperarm/joint_command", "/hyperarm/detections",
-            "/hyperarm/run_task/_action/feedback"} <= topics
+            "/hyperarm/task_feedback"} <= topics
+    assert {("block_transfer", "insert"), ("block_transfer_back", "ready_end")} <= stages
     plots = subprocess.run([executable("hyperarm_tasks", "plot_task"), str(rec), "--out",
                             str(tmp_path / "png")], capture_output=True, text=True, timeout=120)
     assert plots.returncode == 0, plots.stderr
