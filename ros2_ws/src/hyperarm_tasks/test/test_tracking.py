@@ -123,6 +123,9 @@ def test_figure8_on_the_mock_reaches_the_waypoints(desc, kin):
     # 0.73 m at 5 cm/s, plus the ramps: ~15 s
     assert m["track_time"] == pytest.approx(0.7306 / 0.05 + 0.5, abs=0.3)
     assert any("1000/1000 waypoints" in msg or "999/1000" in msg for _, msg in robot.logs)
+    # unhindered, it keeps to its plan, and says nothing is slow
+    assert m["track_mean_speed"] == pytest.approx(m["track_planned_mean_speed"], rel=0.05)
+    assert not any("slower than planned" in msg for _, msg in robot.logs)
 
 
 def _run_file(desc, kin, tmp_path, step: str, hook=None, on_feedback=None, **imperfections):
@@ -184,6 +187,16 @@ def test_a_stalled_tick_slows_the_path_instead_of_jumping(desc, kin, tmp_path):
     nominal = 0.7306 / 0.10 + 0.10 / 0.1               # cruise + the two ramps
     assert result.metrics["track_time"] > nominal + 1.0   # it took longer instead
     assert result.metrics["track_reached"] >= 0.999 * 200
+    # and says so (issue 24, item 6: figure8 ran at 3.2-3.9 cm/s of its stated 5 cm/s,
+    # silently): the speed achieved beside the planned one, a warning
+    m = result.metrics
+    assert m["track_mean_speed"] == pytest.approx(m["track_length"] / m["track_time"])
+    assert m["track_planned_mean_speed"] == pytest.approx(
+        m["track_length"] / m["track_planned_time"])
+    assert m["track_mean_speed"] < 0.9 * m["track_planned_mean_speed"]
+    slow = [msg for lvl, msg in robot.logs if lvl == "warn" and "slower than planned" in msg]
+    assert slow and "stated 10 cm/s" in slow[0] and \
+        f"mean {m['track_mean_speed'] * 100:.2f} cm/s" in slow[0], robot.logs
 
 
 def test_a_stalled_driver_holds_the_path(desc, kin, tmp_path):
