@@ -20,5 +20,9 @@ setup(
     maintainer_email="dev@hyperarm.invalid",
     description="hyperarm perception: marker detector core and hand-eye calibration math",
     license="Apache-2.0",
-    entry_points={"console_scripts": []},
+    entry_points={
+        "console_scripts": [
+            "marker_detector = hyperarm_perception.marker_detector_node:main",
+        ],
+    },
 )

@@ -16,7 +16,7 @@ import pytest
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
 PACKAGES = ("hyperarm_bringup", "hyperarm_description", "hyperarm_driver", "hyperarm_ik",
-            "hyperarm_tasks")
+            "hyperarm_perception", "hyperarm_tasks")
 
 
 def installed_executables() -> list[Path]:
