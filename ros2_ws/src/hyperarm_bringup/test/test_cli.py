@@ -137,6 +137,11 @@ def test_ros_commands_against_the_mock(executable, launch, wait_for):
     assert r.returncode == 0, r.stderr
     names = [line.split()[0] for line in r.stdout.splitlines()[1:]]
     assert names[:9] == [f"joint{i}" for i in range(1, 10)] and "gripper" in names
+    # the arm mock has no rail: waiting for the rail_arm variant names it, exit 1, and the
+    # table of what was heard is still printed
+    r = hyperarm(executable, "state", "--once", "--variant", "rail_arm", "--timeout", "3")
+    assert r.returncode == 1 and "no joint_states for rail within 3 s" in r.stderr, r.stderr
+    assert [line.split()[0] for line in r.stdout.splitlines()[1:]] == names
     r = hyperarm(executable, "diag", "--timeout", "3")
     assert r.returncode == 0 and "mock_driver" in r.stdout, r.stdout + r.stderr
     for args in (("torque", "off"), ("torque", "on"), ("hold",), ("reboot",)):
