@@ -35,7 +35,7 @@ from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import EXECUTORS, declare_robot_description, run_node
 
 from .errors import IKError
-from .host import (AccelerationEstimator, CompensationConfig, CompensationLoop, Compensator,
+from .host import (MOUNT_POSE_CUTOFF, MOUNT_TWIST_CUTOFF, AccelerationEstimator, CompensationConfig, CompensationLoop, Compensator,
                    DelayEstimator, HostAccelerationEstimator, HostPoseTracker, HostState,
                    LatestWrench, RailHost, ReactionModel)
 from .host.inputs import joint_state_problem, pose_problem
@@ -76,6 +76,12 @@ PARAMETERS: ParamSpec = {
     "contact_wrench_timeout": (0.2, "s: the force node's ee_wrench_base (the wrench the tool "
                                "applies, base_link) enters the reaction while at most this "
                                "old (by arrival); 0 = never", Range(0.0, 10.0)),
+    "host_pose_cutoff": (MOUNT_POSE_CUTOFF, "Hz: host_pose's mount-mode filter: the pose "
+                         "low-passed at this cutoff, advanced by its time constant at the "
+                         "twist low-passed at host_twist_cutoff, so a passive mount's 4-8 Hz "
+                         "modes are not fed (docs/host.md); 0 = off", Range(0.0, 100.0)),
+    "host_twist_cutoff": (MOUNT_TWIST_CUTOFF, "Hz: the twist's cutoff in that filter (> 0 "
+                          "with host_pose_cutoff)", Range(0.0, 100.0)),
     "max_message_age": (0.5, "s: a host_pose or joint_states stamped longer ago than this (by "
                         "the node's clock) is rejected, as is one older than the newest used",
                         Range(0.01, 10.0)),
@@ -135,7 +141,11 @@ class HostCompensationNode(Node):
         self._state_gate = StampGate(contract.JOINT_STATES, p["max_message_age"],
                                      allow_unstamped=True)
         self._malformed: dict[str, int] = {}     # "<stream> <kind>" -> messages rejected
-        self._tracker = HostPoseTracker()
+        try:
+            self._tracker = HostPoseTracker(pose_cutoff=p["host_pose_cutoff"],
+                                            twist_cutoff=p["host_twist_cutoff"])
+        except IKError as exc:
+            raise SystemExit(f"host_compensation: {exc}") from exc
         self._host_time: float | None = None     # arrival (node clock) of the newest host_pose
         self._accel = AccelerationEstimator()
         self._fd = p["reaction_acceleration"] == "finite_difference"
@@ -220,9 +230,9 @@ class HostCompensationNode(Node):
         if not any(n in self._arm_set for n in msg.name) or not c.has(self._arm):
             return
         q = np.array([c.position[n] for n in self._arm])
-        host = self._host_state()
+        host, raw = self._host_state(), self._host_state(raw=True)
         command, log = self._loop.on_state(now, _seconds(msg.header.stamp), q, host,
-                                           self._tracker.stamp, self._host_time)
+                                           self._tracker.stamp, self._host_time, raw)
         if command is not None:      # the command first: it is what the loop waits for
             cmd = JointState()
             cmd.header.stamp = msg.header.stamp
@@ -230,16 +240,18 @@ class HostCompensationNode(Node):
             cmd.position = command.tolist()
             self._cmd.publish(cmd)
         self._log(log)
-        self._publish_reaction(now, q, host, msg.header.stamp)
+        self._publish_reaction(now, q, raw, msg.header.stamp)
         self._compute = time.perf_counter() - t0
 
-    def _host_state(self) -> HostState | None:
+    def _host_state(self, raw: bool = False) -> HostState | None:
+        """The host state: for the compensation (host_pose mount-mode filtered) or, with
+        ``raw``, as measured (the reaction, the measured tool, the goal at enable)."""
         if self._rail is not None:
             if self._rail_name not in self._cache.position:
                 return None
             return self._rail.state(self._cache.position[self._rail_name],
                                     self._cache.velocity.get(self._rail_name, 0.0))
-        return self._tracker.state
+        return self._tracker.raw if raw else self._tracker.state
 
     def _on_goal(self, msg: PoseStamped) -> None:
         if not self._loop.enabled:
@@ -277,7 +289,8 @@ class HostCompensationNode(Node):
             return res
         q = (np.array([self._cache.position[n] for n in self._arm])
              if self._cache.has(self._arm) else None)
-        ok, message, goal = self._loop.enable(self._now(), q, self._host_state(), self._source)
+        ok, message, goal = self._loop.enable(self._now(), q, self._host_state(raw=True),
+                                              self._source)
         res.success = ok
         if not ok:
             res.message = message

@@ -307,14 +307,23 @@ def test_tool_stays_in_the_world_while_the_rail_moves(launch, rclpy_context, exe
     _check_clean(mock, comp)
 
 
-@pytest.mark.parametrize("motion, seconds", [("uav_sway", 4.2), ("uav_sway_passive", 8.2)])
-def test_tool_stays_in_the_world_under_a_6d_sway(motion, seconds, launch, rclpy_context,
+# an ordinary posture (test_host_loop_sim's seed 0, the first): tool0 0.43 m from the base's
+# axis; on the passive mount the previous node went 3.76 mm RMS, 15.9 mm max there (issue 24
+# item 4: the mount's modes fed by the compensation; now the host pose's mount-mode filter)
+Q_OTHER = [0.5, -0.84, -1.68, -1.77, 1.15, 1.51, 0.39, 0.84, 0.16]
+
+
+@pytest.mark.parametrize("motion, seconds, q0", [("uav_sway", 4.2, Q0),
+                                                 ("uav_sway_passive", 8.2, Q0),
+                                                 ("uav_sway_passive", 8.2, Q_OTHER)],
+                         ids=["uav_sway", "uav_sway_passive", "uav_sway_passive_other"])
+def test_tool_stays_in_the_world_under_a_6d_sway(motion, seconds, q0, launch, rclpy_context,
                                                  executor, wait_for):
     mock, comp, probe = _start(launch, (rclpy_context, executor), "arm", wait_for,
                                host_motion=motion)
     kin = Kinematics(variant="arm")
     wait_for(lambda: len(probe.hosts) > 0, 10.0, what="host_pose")
-    _to_q0(probe, wait_for, rail=False)
+    _to_q0(probe, wait_for, rail=False, q0=q0)
     with probe.lock:
         first_state = len(probe.states)
         rest = probe.hosts[max(probe.hosts)]      # the host at rest: its newest pose

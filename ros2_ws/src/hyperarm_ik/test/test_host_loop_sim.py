@@ -85,6 +85,63 @@ def test_uav_sway_on_the_passive_mount_meets_the_bounds_and_does_not_grow():
         assert swing[0] <= 1.1 * swing[1] + 1e-5, (axis, swing)
 
 
+@pytest.mark.slow
+def test_the_passive_mount_holds_from_other_postures():
+    """Issue 24 item 4: ``uav_sway_passive`` from 3 random ordinary postures (seed 0), 8 s
+    (the mount's oscillation grew for about 6 s, then saturated): each within 3 mm RMS,
+    8 mm max, 2 deg by the mock's truth, the mount's motion not growing over the last 2 s.
+    Without the mount-mode filter of the host pose (the previous node) the same postures
+    went 3.8-5.1 mm RMS, 15.7-15.9 mm max. The issue asks for 10 postures x 3 seeds: that
+    takes minutes here: ``host_benchmark --only mount``; docs/host.md gives its figures."""
+    from hyperarm_ik.benchmark.host_sim import ordinary_postures, sway
+
+    for q0 in ordinary_postures(0, 3):
+        run = sway("uav_sway_passive", duration=8.0, q0=q0)
+        p = run["truth_position_error"]
+        rms, worst = float(np.sqrt(np.mean(p ** 2))), float(p.max())
+        deg = math.degrees(float(run["truth_orientation_error"].max()))
+        mount, t = run["mount"], run["t"]
+        late, before = t > t[-1] - 2.0, (t > t[-1] - 4.0) & (t <= t[-1] - 2.0)
+        grow = max(np.ptp(mount[late, a]) / max(np.ptp(mount[before, a]), 1e-6)
+                   for a in range(3))
+        summary = (f"q0 {np.round(q0, 2).tolist()}: RMS {rms * 1e3:.2f} mm, max "
+                   f"{worst * 1e3:.2f} mm, {deg:.2f} deg, mount swing last/previous 2 s "
+                   f"{grow:.2f}")
+        print(summary)
+        assert rms < 3e-3 and worst < 8e-3 and deg < 2.0, summary
+        assert grow < 1.25, summary
+
+
+def test_the_mount_mode_filter_passes_a_ramp_and_attenuates_the_mounts_modes():
+    """HostPoseTracker's mount-mode filter (3 / 2 Hz): a host moving at constant velocity
+    is followed without lag (the advance undoes the low-pass's), a 0.5 Hz sway within 4 %
+    of its amplitude, while at 6 Hz (between the mount's 4 and 8 Hz modes) the twist that
+    carries the prediction over the horizon comes out below 40 % of the raw one (the pose
+    itself at ~88 %, 19 deg behind); unfiltered (cutoff 0) everything passes whole."""
+    from hyperarm_ik.host import HostPoseTracker
+
+    def run(signal, cutoff, seconds=4.0, dt=0.01):
+        tracker = HostPoseTracker(pose_cutoff=cutoff, twist_cutoff=2.0 if cutoff else 0.0)
+        out = []
+        for k in range(int(seconds / dt)):
+            pose = np.eye(4)
+            pose[0, 3] = signal(k * dt)
+            state = tracker.update(k * dt, pose)
+            out.append((signal(k * dt), state.pose[0, 3], tracker.raw.linear[0],
+                        state.linear[0]))
+        return np.array(out[len(out) // 2:])          # after the transient
+
+    ramp = run(lambda t: 0.05 * t, 3.0)
+    assert np.abs(ramp[:, 1] - ramp[:, 0]).max() < 2e-4, np.abs(ramp[:, 1] - ramp[:, 0]).max()
+    slow = run(lambda t: 0.02 * math.sin(2 * math.pi * 0.5 * t), 3.0, seconds=8.0)
+    assert np.abs(slow[:, 1] - slow[:, 0]).max() < 0.04 * 0.02
+    fast = run(lambda t: 0.001 * math.sin(2 * math.pi * 6.0 * t), 3.0)
+    assert np.ptp(fast[:, 3]) < 0.4 * np.ptp(fast[:, 2]), (np.ptp(fast[:, 3]), np.ptp(fast[:, 2]))
+    whole = run(lambda t: 0.001 * math.sin(2 * math.pi * 6.0 * t), 0.0)
+    np.testing.assert_allclose(whole[:, 1], whole[:, 0])
+    np.testing.assert_allclose(whole[:, 3], whole[:, 2])
+
+
 def test_host_pose_tracker_twist_ignores_bursts_of_equal_stamps():
     """Poses published in a burst (a driver catching up: 10 ms of motion apart, stamps
     microseconds apart) do not make the twist spike; it is the motion over the baseline."""

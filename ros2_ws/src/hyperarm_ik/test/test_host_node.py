@@ -137,7 +137,8 @@ def test_reaction_takes_the_force_nodes_contact_wrench_and_the_hosts_acceleratio
     from hyperarm_ik.host_compensation_node import HostCompensationNode
 
     node = HostCompensationNode(context=rclpy_context, parameter_overrides=[
-        Parameter("stale_timeout", value=5.0), Parameter("contact_wrench_timeout", value=2.0)])
+        Parameter("stale_timeout", value=5.0), Parameter("contact_wrench_timeout", value=2.0),
+        Parameter("max_message_age", value=5.0)])
     probe = Node("host_wrench_probe", namespace=contract.DEFAULT_NAMESPACE,
                  context=rclpy_context)
     executor.add_node(node)
@@ -190,14 +191,16 @@ def test_reaction_takes_the_force_nodes_contact_wrench_and_the_hosts_acceleratio
                  what="the contact wrench in the reaction")
         time.sleep(2.1)                                      # older than the timeout
         np.testing.assert_allclose(reaction(), weight, atol=1e-9)
-        # the host accelerates at 2 m/s² along x (each pose stamped when it is taken: the
-        # acceleration comes from the stamps, whatever the gaps between publications)
-        a, t0 = 2.0, probe.get_clock().now()
+        # the host accelerates at 2 m/s² along x, its poses stamped 10 ms apart from now on
+        # the node's clock (the acceleration comes from the stamps, whatever the gaps
+        # between publications; max_message_age 5 s: a loaded machine's publications may
+        # fall behind the stamps)
+        a, t0 = 2.0, probe.get_clock().now().nanoseconds
         for i in range(30):
-            now = probe.get_clock().now()
-            t = (now - t0).nanoseconds * 1e-9
+            t = 0.01 * i
             msg = _pose(contract.WORLD_FRAME, x=0.5 * a * t * t)
-            msg.header.stamp = now.to_msg()
+            ns = t0 + 10_000_000 * i
+            msg.header.stamp.sec, msg.header.stamp.nanosec = ns // 10**9, ns % 10**9
             host.publish(msg)
             time.sleep(0.005)
             send_state()

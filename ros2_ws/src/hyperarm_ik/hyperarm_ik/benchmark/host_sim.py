@@ -38,7 +38,7 @@ from ..kinematics import Kinematics, rotation_angle
 if TYPE_CHECKING:
     from hyperarm_driver.mock.host_motion import HostMotionSpec
 
-__all__ = ["rail_sweep", "rail_reach", "sway", "figure8_task", "Q0", "Q_REACH", "Q_AHEAD_40",
+__all__ = ["rail_sweep", "rail_reach", "sway", "ordinary_postures", "mount_study", "figure8_task", "Q0", "Q_REACH", "Q_AHEAD_40",
            "DT"]
 
 ARM = [f"joint{i}" for i in range(1, 10)]
@@ -155,7 +155,7 @@ def rail_sweep(lead: bool = True, duration: float = 5.2,
 
 def sway(motion: str | Path | HostMotionSpec = "uav_sway", duration: float = 4.2,
          lead: bool = True, delay_steps: int = 1, config: CompensationConfig | None = None,
-         q0=None) -> dict[str, np.ndarray]:
+         q0=None, cutoffs: tuple[float, float] | None = None) -> dict[str, np.ndarray]:
     """The mock's host motion ``motion`` (a shipped name such as ``uav_sway`` or
     ``uav_sway_passive``, a path, or a ``HostMotionSpec``) on the fixed
     arm, compensated by :class:`CompensationLoop` on the host pose the mock publishes
@@ -164,7 +164,8 @@ def sway(motion: str | Path | HostMotionSpec = "uav_sway", duration: float = 4.2
     truth (``truth_position_error``, ``truth_orientation_error``), ``wrench`` (the
     reaction the node publishes), ``host`` ((n, 4, 4) host poses). Commands reach the
     simulation ``delay_steps`` steps after the state they answer. ``q0``: the arm's start
-    posture (default :data:`Q0`)."""
+    posture (default :data:`Q0`). ``cutoffs``: (pose, twist) Hz of the host pose's
+    mount-mode filter (default host_compensation's; (0, 0): none)."""
     from hyperarm_driver.mock.host_motion import HostMotion, load_host_motion
 
     desc = load_description(variant="arm")
@@ -178,9 +179,10 @@ def sway(motion: str | Path | HostMotionSpec = "uav_sway", duration: float = 4.2
     cfg = config if config is not None else CompensationConfig(profile_lead=lead)
     loop = CompensationLoop(Compensator(arm, cfg), DelayEstimator(0.04), 0.1,
                             host_from_states=False)
-    from ..host import HostPoseTracker
+    from ..host import MOUNT_POSE_CUTOFF, MOUNT_TWIST_CUTOFF, HostPoseTracker
 
-    tracker = HostPoseTracker()
+    pc, tc = (MOUNT_POSE_CUTOFF, MOUNT_TWIST_CUTOFF) if cutoffs is None else cutoffs
+    tracker = HostPoseTracker(pose_cutoff=pc, twist_cutoff=tc)
     model, accel = ReactionModel(arm), AccelerationEstimator()
     idx = [sim.names.index(n) for n in ARM]
 
@@ -190,8 +192,8 @@ def sway(motion: str | Path | HostMotionSpec = "uav_sway", duration: float = 4.2
         return s, s.position[idx]
 
     s, q = measured()
-    loop.on_state(sim.time, s.stamp, q, tracker.state, tracker.stamp, sim.time)
-    ok, why, goal = loop.enable(sim.time, q, tracker.state, "host_pose")
+    loop.on_state(sim.time, s.stamp, q, tracker.state, tracker.stamp, sim.time, tracker.raw)
+    ok, why, goal = loop.enable(sim.time, q, tracker.raw, "host_pose")
     if not ok:
         raise RuntimeError(why)
     goal_truth = sim.tool_pose().copy()
@@ -208,7 +210,7 @@ def sway(motion: str | Path | HostMotionSpec = "uav_sway", duration: float = 4.2
         sim.step(DT)
         s, q = measured()
         command, _log = loop.on_state(sim.time, s.stamp, q, tracker.state, tracker.stamp,
-                                      sim.time)
+                                      sim.time, tracker.raw)
         if command is None:
             raise RuntimeError(f"compensation stopped: {loop.reason}")
         pending.append(command)
@@ -229,6 +231,36 @@ def sway(motion: str | Path | HostMotionSpec = "uav_sway", duration: float = 4.2
         mount = getattr(sim.host, "mount", None)
         out["mount"].append(np.zeros(6) if mount is None else mount.displacement.copy())
     return {k: np.array(v) for k, v in out.items()}
+
+
+def ordinary_postures(seed: int, n: int) -> list[np.ndarray]:
+    """``n`` random arm postures (rad, seeded: 0.7 x uniform within the limits) with tool0
+    0.2-0.6 m from the base's vertical axis and above z = -0.1 m: ordinary working
+    postures, not only the tests' :data:`Q0`."""
+    arm, rng, out = Kinematics(variant="arm"), np.random.default_rng(seed), []
+    while len(out) < n:
+        q = arm.random_configuration(rng) * 0.7
+        p = arm.forward(q)[:3, 3]
+        if p[2] > -0.1 and 0.2 < float(np.linalg.norm(p[:2])) < 0.6:
+            out.append(q)
+    return out
+
+
+def mount_study(seeds=(0, 1, 2), postures: int = 10, duration: float = 10.0,
+                cutoffs: tuple[float, float] | None = None) -> list[dict[str, object]]:
+    """``uav_sway_passive`` for ``duration`` s from :func:`ordinary_postures` of each seed
+    (issue 24 item 4): per run the seed, posture, the truth's RMS and max position error
+    (m), max orientation error (rad) and the mount's largest translation (m)."""
+    out = []
+    for seed in seeds:
+        for q0 in ordinary_postures(seed, postures):
+            run = sway("uav_sway_passive", duration=duration, q0=q0, cutoffs=cutoffs)
+            p = run["truth_position_error"]
+            out.append({"seed": seed, "q0": q0, "rms": float(np.sqrt(np.mean(p ** 2))),
+                        "max": float(p.max()),
+                        "deg": math.degrees(float(run["truth_orientation_error"].max())),
+                        "mount": float(np.abs(run["mount"][:, :3]).max())})
+    return out
 
 
 def figure8_task(redundancy: str | None = None) -> dict[str, object]:

@@ -10,7 +10,7 @@
 - ``redundancy``: IK that uses the three free joints to keep the centre of mass over the
   mount, lowering the base moment (:class:`ReactionMinimizer`).
 """
-from .compensation import (CompensationConfig, Compensator, CompensationStep, DelayEstimator,
+from .compensation import (MOUNT_POSE_CUTOFF, MOUNT_TWIST_CUTOFF, CompensationConfig, Compensator, CompensationStep, DelayEstimator,
                            HostPoseTracker, HostState, RailHost, Status)
 from .errors import (HostConfigError, HostError, HostGoalError, HostStateError,
                      NotStartedError)
@@ -19,7 +19,7 @@ from .reaction import (AccelerationEstimator, HostAccelerationEstimator, LatestW
                        ReactionModel)
 from .redundancy import OBJECTIVES, ReactionMinimizer, RedundancyConfig
 
-__all__ = ["CompensationConfig", "Compensator", "CompensationStep", "DelayEstimator",
+__all__ = ["MOUNT_POSE_CUTOFF", "MOUNT_TWIST_CUTOFF", "CompensationConfig", "Compensator", "CompensationStep", "DelayEstimator",
            "HostState", "HostPoseTracker", "RailHost", "AccelerationEstimator",
            "ReactionMinimizer", "RedundancyConfig", "OBJECTIVES", "CompensationLoop",
            "Status", "HostConfigError", "HostError", "HostGoalError", "HostStateError",

@@ -47,10 +47,14 @@ from hyperarm_description.pinocchio_model import build_model
 from ..kinematics import Kinematics, rotation_angle
 from .errors import HostConfigError, HostGoalError, HostStateError, NotStartedError
 
-__all__ = ["HostState", "RailHost", "HostPoseTracker", "CompensationConfig", "Status",
+__all__ = ["MOUNT_POSE_CUTOFF", "MOUNT_TWIST_CUTOFF", "HostState", "RailHost", "HostPoseTracker", "CompensationConfig", "Status",
            "CompensationStep", "Compensator", "DelayEstimator", "check_pose", "rigid_inverse"]
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+#: Hz, host_compensation's default mount-mode filter of host_pose (:class:`HostPoseTracker`)
+MOUNT_POSE_CUTOFF = 3.0
+MOUNT_TWIST_CUTOFF = 2.0
 
 
 def check_pose(t, what: str, error: type[Exception] = HostStateError) -> np.ndarray:
@@ -152,24 +156,45 @@ class HostPoseTracker:
     it spike, and noise is averaged over the baseline. A pose whose stamp is not after the
     previous one replaces it. :attr:`stamp` is the newest pose's stamp (s): the host state
     is that old, so a prediction's horizon counts from it; the twist is the one of
-    ``baseline / 2`` s before it (a lag the prediction's horizon does not include)."""
+    ``baseline / 2`` s before it (a lag the prediction's horizon does not include).
 
-    def __init__(self, baseline: float = 0.02, max_gap: float = 0.5) -> None:
+    Mount-mode filter (``pose_cutoff`` Hz > 0, issue 24 item 4): :attr:`state` is then the
+    pose low-passed (first order, cutoff ``pose_cutoff``) and advanced by its time constant
+    T = 1 / (2 pi pose_cutoff) at the twist low-passed at ``twist_cutoff`` Hz, with that
+    twist: p_f + T v_f, the rotation likewise (T: the sampled filter's lag on a ramp,
+    dt (1 - a) / a for its last step, about T - dt / 2). Slow host motion passes (the advance
+    undoes the low-pass's lag: a ramp exactly, a 0.5 Hz sway within about 1 %), while at a
+    passive mount's 4-8 Hz modes the twist, which carries the prediction over the horizon,
+    is cut to about a third and the pose lags 15-21 deg: the compensation no longer
+    predicts the mount's own oscillation, which, with the loop's delay and the servos' lag,
+    fed those modes (issue 24 item 4; a horizon shorter for every frequency helped too but
+    cost accuracy on the slow sway). The unfiltered state stays in :attr:`raw` (for the
+    reaction and for judging the measured tool)."""
+
+    def __init__(self, baseline: float = 0.02, max_gap: float = 0.5, pose_cutoff: float = 0.0,
+                 twist_cutoff: float = 0.0) -> None:
         for name, v, lo, hi in (("baseline", baseline, 1e-3, 1.0), ("max_gap", max_gap,
-                                                                       1e-3, 10.0)):
+                                                                       1e-3, 10.0),
+                                ("pose_cutoff", pose_cutoff, 0.0, 100.0),
+                                ("twist_cutoff", twist_cutoff, 0.0, 100.0)):
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
                     or not lo <= v <= hi:
                 raise HostConfigError(f"host pose tracker {name} must be in {lo:g}..{hi:g}, "
                                       f"got {v!r}")
         self.baseline, self.max_gap = float(baseline), float(max_gap)
+        if pose_cutoff > 0.0 and twist_cutoff <= 0.0:
+            raise HostConfigError("host pose tracker: a pose_cutoff needs a twist_cutoff > 0")
+        self.pose_cutoff, self.twist_cutoff = float(pose_cutoff), float(twist_cutoff)
+        self._filtered: list | None = None      # [p, R, v, w, stamp] of the filter
         self._history: list[tuple[float, np.ndarray]] = []
         self.state: HostState | None = None
+        self.raw: HostState | None = None       # the unfiltered state
         self.stamp: float | None = None
         self.twist_full = False      # the twist is a difference over a whole baseline
 
     def reset(self) -> None:
         self._history.clear()
-        self.state = self.stamp = None
+        self.state = self.stamp = self.raw = self._filtered = None
         self.twist_full = False
 
     def update(self, stamp: float, pose) -> HostState:
@@ -183,6 +208,7 @@ class HostPoseTracker:
             h.pop()
         if h and stamp - h[-1][0] > self.max_gap:
             h.clear()                            # after a gap: no twist from unrelated poses
+            self._filtered = None
         h.append((float(stamp), pose))
         while len(h) > 2 and h[1][0] <= stamp - self.baseline:
             h.pop(0)                             # keep one pose at least baseline s older
@@ -193,11 +219,36 @@ class HostPoseTracker:
             dt = stamp - t0
             lin = (pose[:3, 3] - p0[:3, 3]) / dt
             ang = pin.log3(pose[:3, :3] @ p0[:3, :3].T) / dt
-        elif self.state is not None and len(h) > 1:
-            lin, ang = self.state.linear, self.state.angular   # too short yet: keep it
-        self.state = HostState.trusted(pose, lin, ang)
+        elif self.raw is not None and len(h) > 1:
+            lin, ang = self.raw.linear, self.raw.angular   # too short yet: keep it
+        self.raw = HostState.trusted(pose, lin, ang)
+        self.state = self._filter(stamp, self.raw) if self.pose_cutoff > 0.0 else self.raw
         self.stamp = float(stamp)
         return self.state
+
+    def _filter(self, stamp: float, raw: HostState) -> HostState:
+        """The mount-mode filter (class doc) updated with ``raw`` at ``stamp`` (s)."""
+        f = self._filtered
+        if f is None or stamp <= f[4]:
+            if f is None:
+                f = self._filtered = [raw.pose[:3, 3].copy(), raw.pose[:3, :3].copy(),
+                                      raw.linear.copy(), raw.angular.copy(), float(stamp),
+                                      1.0 / (2.0 * math.pi * self.pose_cutoff)]
+        else:
+            dt = stamp - f[4]
+            a1 = 1.0 - math.exp(-2.0 * math.pi * self.pose_cutoff * dt)
+            f[5] = dt * (1.0 - a1) / a1      # the sampled filter's lag on a ramp (-> T)
+            a2 = 1.0 - math.exp(-2.0 * math.pi * self.twist_cutoff * dt)
+            f[0] = f[0] + a1 * (raw.pose[:3, 3] - f[0])
+            f[1] = f[1] @ pin.exp3(a1 * pin.log3(f[1].T @ raw.pose[:3, :3]))
+            f[2] = f[2] + a2 * (raw.linear - f[2])
+            f[3] = f[3] + a2 * (raw.angular - f[3])
+            f[4] = float(stamp)
+        lead = f[5]
+        pose = np.eye(4)
+        pose[:3, 3] = f[0] + lead * f[2]
+        pose[:3, :3] = pin.exp3(lead * f[3]) @ f[1]
+        return HostState.trusted(pose, f[2].copy(), f[3].copy())
 
 
 @dataclass(frozen=True)

@@ -60,10 +60,12 @@ class CompensationLoop:
         self.last_stamp = 0.0              # s, header stamp of the last joint state
 
     def on_state(self, now: float, stamp: float, q: np.ndarray, host: HostState | None,
-                 host_stamp: float | None, host_arrival: float | None
-                 ) -> tuple[np.ndarray | None, Log]:
+                 host_stamp: float | None, host_arrival: float | None,
+                 measured_host: HostState | None = None) -> tuple[np.ndarray | None, Log]:
         """A joint state (arm joints ``q`` rad, header ``stamp`` s, 0 = unknown) arrived at
-        ``now``: the command to send (None: none) and the log lines."""
+        ``now``: the command to send (None: none) and the log lines. ``measured_host``: the
+        host state that judges the measured tool (default ``host``; the unfiltered one
+        where ``host`` is filtered)."""
         age = min(max(now - stamp, 0.0), 0.5) if stamp > 0.0 else 0.0
         command, log = None, []
         # this process not run for stale_timeout s (a loaded machine's scheduling): the
@@ -83,7 +85,8 @@ class CompensationLoop:
                     dt = stamp - self.last_stamp
                 else:
                     dt = now - self.last_state if self.last_state is not None else 0.01
-                measured = self._measured(q, host, stamp, host_stamp)
+                measured = self._measured(q, host if measured_host is None else measured_host,
+                                          stamp, host_stamp)
                 command, log = self._cycle(now, age, host, host_stamp, dt, q, measured)
                 self.delay.measured(now - age, q)      # when the joints were there
         self.latency += 0.1 * (age - self.latency)
