@@ -25,6 +25,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
 from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
@@ -184,9 +185,14 @@ class RosRobot:
         self._cmd.publish(msg)
 
     def _call(self, client, request, what: str) -> str | None:
-        if not client.wait_for_service(timeout_sec=SERVICE_TIMEOUT):
-            return f"{what}: service {client.srv_name} not available"
-        future = client.call_async(request)
+        try:
+            if not self.node.context.ok():
+                return f"{what}: the node is shutting down"
+            if not client.wait_for_service(timeout_sec=SERVICE_TIMEOUT):
+                return f"{what}: service {client.srv_name} not available"
+            future = client.call_async(request)
+        except InvalidHandle:     # the node was destroyed under the call (its shutdown)
+            return f"{what}: the node is shutting down"
         deadline = time.monotonic() + SERVICE_TIMEOUT
         while not future.done():
             if time.monotonic() > deadline or not self.node.context.ok():

@@ -153,6 +153,7 @@ class Runner:
         # the last joint_command sent, per joint: the step limiter's reference (forgotten
         # when something else moves the arm: a hold, force control)
         self.last_sent: dict[str, float] = {}
+        self.commanded = False              # any joint_command or force control yet
         self._limits = {j.name: (j.lower, j.upper, j.velocity) for j in self.desc.joints}
         if self.desc.rail is not None:
             r = self.desc.rail
@@ -261,6 +262,45 @@ class Runner:
         out[:3, :3] = DOWN if spec.orientation == "down" else self.tool_reference()[:3, :3]
         return out
 
+    def check_targets(self) -> None:
+        """Before the first motion: every step's target that is known now (relative to the
+        root frame, a task frame, a given object or one the camera sees now; not the
+        tool-relative ones, which depend on the run) must lie within the arm's reach bound
+        (hyperarm_ik's ``reach_excess``: a certain refusal, with the distance beyond it) and
+        have an IK solution (two seeds).
+        StepFailed("unreachable") names the step, its target and the point (m)."""
+        seeds = [self.q_measured(), np.zeros(len(self.chain))]
+        for step in self.task.steps:
+            spec = getattr(step, "target", None)
+            if not isinstance(spec, PoseSpec) or spec.relative_to == "tool":
+                continue
+            try:
+                target = self.resolve(spec)
+            except StepFailed as exc:        # an object not seen yet: checked when reached
+                self.robot.log("info", f"target of {step.name} ({spec.describe()}) not "
+                                       f"checked before the start: {exc}")
+                continue
+            p = target[:3, 3]
+            where = (f"target of step '{step.name}' ({spec.describe()}) at "
+                     f"({', '.join(f'{v:.3f}' for v in p)}) m")
+            excess = self.kin.reach_excess(p)
+            if excess > 0.0:
+                raise StepFailed("unreachable", f"{where} is {excess:.3f} m beyond the arm's "
+                                 f"workspace (reach {self.kin.reach:.3f} m from the shoulder)")
+            res = None
+            for seed in seeds:
+                if self.robot.cancel_requested():
+                    raise Cancelled(f"cancelled before {self.task.steps[0].name}")
+                # collisions are not asked here: the capsules flag the shipped task's own
+                # postures (docs/tasks.md); each planned path is checked before it is sent
+                res = self.solver.solve(p, target[:3, :3], seed, position_tolerance=1e-4,
+                                        orientation_tolerance=1e-3, timeout=0.3)
+                if res.success:
+                    break
+            if not res.success:
+                raise StepFailed("unreachable", f"{where}: no IK solution within the workspace "
+                                 f"({-excess:.3f} m inside the reach bound): {res.message}")
+
     # --- IK and motion ---------------------------------------------------------------------
     def ik(self, pose: np.ndarray, seed: np.ndarray):
         mode = "avoid" if self.collisions is not None else "ignore"
@@ -358,6 +398,7 @@ class Runner:
             sent.update(zip(arm, limit_step(q, prev, lim[:, 2], self.period, lim[:, 0],
                                             lim[:, 1]).tolist()))
         self.robot.command(sent, efforts)
+        self.commanded = True
         self.last_sent.update(sent)
         return sent
 
@@ -486,6 +527,16 @@ class Runner:
             self.robot.sleep(self.period)
         retries: dict[int, int] = {}
         i = 0
+        try:
+            if not self.robot.cancel_requested():
+                self.check_targets()
+        except StepFailed as exc:
+            self.safe_stop()
+            result.message = f"refused before any motion: {exc}"
+            result.failure_kind = exc.kind
+            i = len(steps) + 1          # no step runs (and no success)
+        except Cancelled:
+            i = 0                       # the loop's first look reports it
         while i < len(steps):
             step = steps[i]
             if self.robot.cancel_requested():
@@ -519,6 +570,10 @@ class Runner:
                 result.step_names.append(step.name)
                 result.step_durations.append(self.robot.now() - t0)
                 result.message = f"step '{step.name}' ({step.type}) failed: {exc}"
+                if self.holding is not None:    # say where the grasped object is left
+                    p = self.tool_measured()[:3, 3]
+                    result.message += (f"; the grasped object is left in the gripper, tool0 "
+                                       f"at ({', '.join(f'{v:.3f}' for v in p)}) m (holding)")
                 result.failure_kind = exc.kind
                 break
             except Cancelled:
@@ -533,6 +588,10 @@ class Runner:
             result.step_durations.append(self.robot.now() - t0)
             i += 1
         else:
+            if i > len(steps):          # refused before any motion
+                result.total_time = self.robot.now() - t_task
+                result.metrics = dict(self.metrics)
+                return result
             result.success = True
             result.message = f"task {self.task.name!r} done"
             self.fb.index, self.fb.step = len(steps) - 1, steps[-1].name
@@ -543,8 +602,12 @@ class Runner:
         return result
 
     def safe_stop(self) -> None:
-        """Force control off, then hold where the arm is."""
+        """Force control off, then hold where the arm is (nothing to do before the first
+        command: the drivers hold their own positions; at start-up their hold service may
+        not even be discovered yet, and waiting for it delayed a Ctrl-C by seconds)."""
         self.force_off()
+        if not self.commanded:
+            return
         reason = self.robot.hold()
         self.last_sent.clear()      # the drivers hold the measured position now
         if reason:

@@ -64,8 +64,8 @@ def test_two_cycles_there_and_back_recorded_and_plotted(executable, ros_domain, 
         assert (tmp_path / "png" / name).stat().st_size > 10_000
 
 
-def test_unreachable_destination_fails_with_the_waypoint(executable, ros_domain, tmp_path,
-                                                         still_running):
+def test_unreachable_destination_is_refused_before_any_motion(executable, ros_domain, tmp_path,
+                                                               still_running):
     from ament_index_python.packages import get_package_share_directory
     cell = yaml.safe_load(open(Path(get_package_share_directory("hyperarm_driver"))
                                / "config" / "workcell.yaml"))
@@ -78,8 +78,11 @@ def test_unreachable_destination_fails_with_the_waypoint(executable, ros_domain,
                                       "block_transfer"], ros_domain, 120)
     out = done.stdout + done.stderr
     assert done.returncode == 1, out
-    assert "step 'above_destination' (move_to) failed: IK failed for above_destination" in out
-    assert "waypoint" in out
+    # issue 24, item 6: found before the block is picked, named with its distance beyond
+    assert ("run_task: failed: refused before any motion: target of step 'above_destination' "
+            "(destination_peg + (+0.000, +0.000, +0.035) m) at (0.9") in out, out
+    assert "m beyond the arm's workspace" in out
+    assert "[2/12]" not in out and "[1/12]" not in out          # no step ran
     assert still_running(logs) == []
 
 

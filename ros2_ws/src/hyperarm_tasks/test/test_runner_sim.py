@@ -56,11 +56,48 @@ def test_camera_dropout_is_stale_detections(desc, kin):
     assert "detections of 'source_peg' are stale" in result.message
 
 
-def test_unreachable_destination_names_the_waypoint(desc, kin):
-    result, sim, _ = run(desc, kin, cell(5, destination=(0.9, -0.6)))
-    assert not result.success and result.failure_kind == "ik"
-    assert "above_destination" in result.message and "IK failed" in result.message
-    assert "waypoint" in result.message
+@pytest.mark.parametrize("xy", [(0.9, -0.6), (-0.3, -1.0), (1.3, 0.1)])
+def test_unreachable_destination_is_refused_before_any_motion(desc, kin, xy):
+    """Issue 24, item 6: a destination beyond reach failed only after the block was picked,
+    naming an intermediate waypoint. Now every target known at the start is checked first:
+    the task fails before any command, naming the target and its distance beyond reach."""
+    import re
+
+    result, sim, robot = run(desc, kin, cell(5, destination=xy))
+    assert not result.success and result.failure_kind == "unreachable", result.message
+    assert result.message.startswith("refused before any motion: target of step "
+                                     "'above_destination' (destination_peg + "), result.message
+    assert robot.commands == [] and result.step_names == []
+    m = re.search(r"at \(([-\d.]+), ([-\d.]+), ([-\d.]+)\) m is ([\d.]+) m beyond the arm's "
+                  r"workspace", result.message)
+    assert m, result.message
+    p = np.array([float(v) for v in m.groups()[:3]])
+    assert np.linalg.norm(p[:2] - np.array(xy)) < 0.02        # the peg the camera saw
+    assert float(m.group(4)) == pytest.approx(kin.reach_excess(p), abs=1e-3)
+    assert float(m.group(4)) > 0.0
+
+
+def test_a_target_lost_mid_task_says_where_the_block_is_left(desc, kin):
+    """The destination's detections jump out of reach after the block is grasped (the
+    camera saw it move): the failing step says the block is left in the gripper, where."""
+    sim = JointSim(desc, cell(9))
+    robot = SimRobot(sim)
+    real = robot.detections.add
+    runner = Runner(robot, kin, load_task("block_transfer", desc))
+
+    def add(stamp, names, poses):
+        if runner.holding is not None:           # grasped: the peg "moves" 1.2 m away
+            poses = [p.copy() for p in poses]
+            for n, p in zip(names, poses):
+                if n == "destination_peg":
+                    p[:3, 3] += robot._inv_cam[:3, :3] @ np.array([1.2, 0.0, 0.0])
+        real(stamp, names, poses)
+    robot.detections.add = add
+    result = runner.run()
+    assert not result.success
+    assert result.message.startswith("step 'above_destination' (move_to) failed"), result.message
+    assert "the grasped object is left in the gripper, tool0 at (" in result.message
+    assert robot.held >= 1
 
 
 def test_tiny_clearance_fails_the_insertion_with_best_depth(desc, kin):
