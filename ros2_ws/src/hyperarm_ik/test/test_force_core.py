@@ -327,7 +327,8 @@ def test_estimate_covariance_matches_monte_carlo(kin):
     """The covariance from the effort noise matches the spread of the raw estimates."""
     rng = np.random.default_rng(9)
     sigma = 0.03
-    est = WrenchEstimator(9, EstimatorConfig(filter=1.0, effort_noise=sigma))
+    est = WrenchEstimator(9, EstimatorConfig(filter=1.0, effort_noise=sigma,
+                                             friction_noise=0.0))
     q = _configs(kin, 1)[0]
     j = kin.jacobian(q)
     raws = np.array([est.update(j, rng.normal(0.0, sigma, 9), np.zeros(9)).raw

@@ -320,9 +320,11 @@ def test_pressing_on_a_peg_top_with_the_mock(launch, rclpy_context, executor, wa
     t_start = time.monotonic()
     results = []
     for k, fd in ((200.0, 0.0), (1000.0, 0.0), (400.0, -1.0)):
+        t_goal = time.monotonic()
         probe.send_goal(x0, rot, [800.0, 800.0, k, 20.0, 20.0, 20.0],
                         (False, False, True, False, False, False), (0, 0, fd, 0, 0, 0))
         f, xs, waited = _settled(probe, arm, wait_for, 8.0)
+        xy_all = _window(probe, arm, t_goal)[1][:, :2]     # the whole press, contact included
         f_true = abs(float(f[2]))        # the force-controlled axis: the normal force
         since = time.monotonic() - 0.6
         with probe.lock:
@@ -330,10 +332,18 @@ def test_pressing_on_a_peg_top_with_the_mock(launch, rclpy_context, executor, wa
             est_before = mean_force(before, since)
         # the estimates (what the tool applies) against the truth (-(force on the block))
         est_error = float(np.linalg.norm(est + f) / np.linalg.norm(f))
+        # its parts normal to the peg's top (z) and tangential (x, y: mostly friction)
+        est_normal = float(abs(est[2] + f[2]) / np.linalg.norm(f))
+        est_tangential = float(np.linalg.norm(est[:2] + f[:2]) / np.linalg.norm(f))
+        with probe.lock:
+            std = probe.statuses[-1][1].get("wrench_std_tool", "") if probe.statuses else ""
         before_error = float(np.linalg.norm(est_before + f) / np.linalg.norm(f))
         expected = abs(k * (x0[2] - xs[:, 2].mean()) + fd)
         results.append(dict(K=k, F_d=fd, true=round(f_true, 3), expected=round(expected, 3),
                             est_error=round(est_error, 3),
+                            est_normal=round(est_normal, 3),
+                            est_tangential=round(est_tangential, 3), est_std_tool=std,
+                            xy_max_mm=round(float(np.abs(xy_all - x0[:2]).max()) * 1e3, 2),
                             uncalibrated_error=round(before_error, 3),
                             settled_s=round(waited, 1)))
         assert probe.block_state == "held"

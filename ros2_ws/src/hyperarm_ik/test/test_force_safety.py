@@ -348,9 +348,42 @@ def test_commanded_efforts_stay_within_the_margin_after_calibration(kin):
                                   [False, False, True, False, False, False], [0.0] * 6)
         assert goal is not None, event
         peak = 0.0
+        measured = list(np.linspace(-0.5, 0.5, 9))
         for _ in range(300):
             now += 0.01
-            out, _ = ctl.control(now, q, np.zeros(9), [0.0] * 9)
+            out, _ = ctl.control(now, q, np.zeros(9), measured)
             peak = max(peak, float(np.max(np.abs(out.efforts) / law.limit)))
+            # the estimate gets the measured efforts, never the commanded ones
+            assert list(out.effort) == measured
         print(f"{output}: largest |effort| / (stall x margin) {peak:.3f}")
         assert peak <= 1.0 + 1e-9, (output, peak)
+
+
+# -- the estimate's covariance counts the friction left after calibration -------------------
+
+def test_estimate_covariance_counts_the_friction_the_filter_does_not_remove(kin):
+    """Each joint's effort off by a friction bias (std friction_noise, constant over a
+    press: a creeping joint's Coulomb friction) plus white noise: the filtered estimate's
+    spread over 400 draws of the biases matches the covariance (diagonal within 20 %). The
+    old covariance, the noise alone times the filter's variance gain, was 10 x too small in
+    variance (3 x in std) with these figures: it fails the comparison."""
+    from hyperarm_ik.force import EstimatorConfig, WrenchEstimator
+
+    rng = np.random.default_rng(4)
+    cfg = EstimatorConfig(filter=0.2, effort_noise=0.02, friction_noise=0.02)
+    q = Q_SAFE_EST
+    j = kin.jacobian(q)[:, :9]
+    finals = []
+    for _ in range(400):
+        est = WrenchEstimator(9, cfg)
+        bias = rng.normal(0.0, cfg.friction_noise, 9)
+        for _ in range(60):                              # the filter settled (0.8^60)
+            out = est.update(j, bias + rng.normal(0.0, cfg.effort_noise, 9), np.zeros(9))
+        finals.append(out.wrench)
+    spread = np.diag(np.cov(np.array(finals).T))
+    np.testing.assert_allclose(spread, np.diag(out.covariance), rtol=0.2)
+    noise_only = cfg.effort_noise ** 2 * (0.2 / 1.8) * np.diag(out.pinv_t @ out.pinv_t.T)
+    assert np.all(spread > 3.0 * noise_only)
+
+
+Q_SAFE_EST = np.array([0.0, 0.5, 0.0, 0.6, 0.0, 0.5, 0.0, -1.0, 0.0])

@@ -340,9 +340,9 @@ class ForceController:
                 efforts = np.minimum(np.maximum(tau, -limit), limit).tolist()
             else:
                 positions = cmd.q_cmd.tolist()
-                effort = cmd.effort_limit if exact else cal.command(self.arm_names,
-                                                                    cmd.effort_limit)
-                efforts = np.minimum(effort, limit).tolist()
+                current = cmd.effort_limit if exact else cal.command(self.arm_names,
+                                                                     cmd.effort_limit)
+                efforts = np.minimum(current, limit).tolist()
         return Output(self.arm_names, positions, efforts, command=cmd, q=q, dq=dq,
                       effort=effort), event
 

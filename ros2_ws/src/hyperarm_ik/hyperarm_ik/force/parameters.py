@@ -104,6 +104,9 @@ PARAMETERS: ParamSpec = {
                       Range(1e-4, 1.0)),
     "effort_noise": (_E.effort_noise, "N·m, std of a measured effort (the covariance)",
                      Range(0.0, 10.0)),
+    "friction_noise": (_E.friction_noise, "N·m, std of the friction left in a measured "
+                       "effort after calibration (the covariance; not filtered)",
+                       Range(0.0, 10.0)),
     "diagnostics_period": (1.0, "s between /diagnostics messages", Range(0.1, 10.0)),
 }
 DYNAMIC = ("payload_mass", "payload_com")

@@ -4,7 +4,7 @@
 
 on the arm joints (the rail is position-controlled and left out), damped near singularities
 (``l`` = ``singular_damping``), low-pass filtered (first order, ``filter`` per cycle), with a
-covariance propagated from the effort noise. F is the wrench the arm applies to its
+covariance propagated from the effort noise and the friction left after calibration. F is the wrench the arm applies to its
 environment at tool0's origin (the F_int of eq. 6): pressing down gives F_z < 0 in the
 root frame. ``tare`` takes the present residual as the bias (a known wrench, e.g. zero,
 being applied). Torques can first be corrected by a :class:`~.calibration.TorqueCalibration`.
@@ -25,14 +25,20 @@ __all__ = ["EstimatorConfig", "WrenchEstimate", "WrenchEstimator", "to_tool"]
 @dataclass(frozen=True)
 class EstimatorConfig:
     """filter: 0..1 per cycle (1 = no filtering); effort_noise: std of one joint's
-    measured effort (N·m); singular_damping: l (m)."""
+    measured effort (N·m, white: the filter reduces it); friction_noise: std of the
+    friction left in one joint's effort after the calibration's compensation (N·m: a
+    creeping or stuck joint's Coulomb friction is a slowly changing bias, which the filter
+    does not reduce; it makes the estimate's error mostly tangential in a press);
+    singular_damping: l (m)."""
 
     filter: float = 0.2
     effort_noise: float = 0.02
+    friction_noise: float = 0.02
     singular_damping: float = 0.005
 
     def __post_init__(self) -> None:
         for name, lo, hi in (("filter", 1e-4, 1.0), ("effort_noise", 0.0, 10.0),
+                             ("friction_noise", 0.0, 10.0),
                              ("singular_damping", 1e-6, 1.0)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
@@ -43,12 +49,13 @@ class EstimatorConfig:
 @dataclass(frozen=True)
 class WrenchEstimate:
     """Filtered wrench (6,), root axes; ``raw`` is unfiltered. ``covariance`` (6, 6) is
-    computed when asked for: (J^T)^+ sigma^2 ((J^T)^+)^T times the filter's variance gain."""
+    computed when asked for: (J^T)^+ sigma^2 ((J^T)^+)^T, sigma^2 the effort noise's
+    variance times the filter's variance gain plus the friction's (not filtered)."""
 
     wrench: np.ndarray
     raw: np.ndarray
     pinv_t: np.ndarray              # (J^T)^+, 6 x n
-    sigma2: float                   # N·m², effort noise variance x the filter's gain
+    sigma2: float                   # N·m², per joint (noise x filter gain + friction)
 
     @property
     def covariance(self) -> np.ndarray:
@@ -83,7 +90,8 @@ class WrenchEstimator:
         a = self.config.filter
         # variance of a first-order filter's output over its input's (white noise)
         self._var_gain = a / (2.0 - a)
-        self._sigma2 = self.config.effort_noise ** 2 * self._var_gain
+        self._sigma2 = (self.config.effort_noise ** 2 * self._var_gain
+                        + self.config.friction_noise ** 2)
         self._damp6 = self.config.singular_damping ** 2 * np.eye(6)
 
     def reset(self) -> None:
