@@ -47,6 +47,11 @@ def cmd_state(a: argparse.Namespace) -> int:
 
     from .ros_client import MissingJoints
 
+    known = _variant_joints("rail_arm")
+    if (unknown := [n for n in a.joints if n not in known]):
+        print(f"hyperarm state: no such joint: {', '.join(unknown)} (joints: "
+              f"{', '.join(known)})", file=sys.stderr)
+        return 2
     required = tuple(a.joints) or _variant_joints(a.variant)
     with _client() as c:
         while True:

@@ -48,6 +48,15 @@ def test_ik_counts_its_numbers_and_q_is_optional(capsys):
 
 
 @pytest.mark.core
+def test_state_names_an_unknown_joint_before_any_ros(capsys):
+    from hyperarm_bringup.cli import main
+
+    assert main(["state", "--once", "--joints", "rail", "joint10"]) == 2
+    err = capsys.readouterr().err
+    assert "no such joint: joint10" in err and "rail" not in err.split("(")[0]
+
+
+@pytest.mark.core
 def test_move_rejects_the_whole_command_and_names_every_problem():
     limits = load_description(None, "arm").limits_by_name()
     assert parse_assignments(["joint1=0.5", "gripper=0.2"], limits) == {"joint1": 0.5,
