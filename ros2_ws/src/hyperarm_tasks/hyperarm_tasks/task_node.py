@@ -211,6 +211,13 @@ class TaskNode(Node):
             self._feedback.publish(plain)
 
         self.get_logger().info(f"task {name!r}: {len(task.steps)} steps from {task.source}")
+        if handle.is_cancel_requested:   # cancelled while loading: nothing was started
+            result.success, result.failure_kind = False, "cancelled"
+            result.message = f"cancelled before {task.steps[0].name}" if task.steps else \
+                "cancelled"
+            self.get_logger().warn(f"task {name!r}: {result.message} (nothing started)")
+            handle.canceled()
+            return result
         self._runner = Runner(self._robot, self._kin, task, self._params, feedback,
                               collisions=self._collisions)
         out = self._runner.run()
