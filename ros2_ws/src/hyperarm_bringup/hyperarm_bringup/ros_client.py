@@ -266,8 +266,10 @@ class HyperarmClient:
                     f"within {timeout:g} s: is its driver running ({_where()})? nothing sent")
 
             def matched() -> bool:
-                graph = len(self.node.get_subscriptions_info_by_topic(
-                    self._full(contract.JOINT_COMMAND)))
+                # every reader our (volatile) writer can match: not a transient-local one
+                graph = sum(1 for e in self.node.get_subscriptions_info_by_topic(
+                    self._full(contract.JOINT_COMMAND))
+                    if e.qos_profile.durability != DurabilityPolicy.TRANSIENT_LOCAL)
                 return pub.get_subscription_count() >= max(1, graph, owners[0])
             if not self._spin_until(matched, left()):
                 raise ClientError(

@@ -138,8 +138,18 @@ def test_calibrate_writes_zero_offsets_into_a_copy(executable, tmp_path):
 
 @pytest.mark.e2e
 @pytest.mark.slow
-def test_ros_commands_against_the_mock(executable, launch, wait_for):
+def test_ros_commands_against_the_mock(executable, launch, wait_for, rclpy_context, executor):
+    import rclpy
+    from rclpy.qos import DurabilityPolicy, QoSProfile
+    from sensor_msgs.msg import JointState
+
     launch("hyperarm_driver", "mock_driver")
+    # a reader of joint_command our volatile writer can never match (transient local, QoS
+    # incompatible): `move` must not wait for it
+    reader = rclpy.create_node("latched_reader", namespace="/hyperarm", context=rclpy_context)
+    reader.create_subscription(JointState, "joint_command", lambda m: None,
+                               QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    executor.add_node(reader)
     launch("hyperarm_ik", "ik_service")
     launch("hyperarm_tasks", "task_node")
     r = hyperarm(executable, "state", "--once", "--timeout", "30")
