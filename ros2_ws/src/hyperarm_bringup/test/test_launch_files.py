@@ -6,10 +6,10 @@ ros2/launch_ros, branch jazzy), to every <arg>, <node>, <param> and <include> of
 launch file, and checks each node's resolved parameters against what the node declares
 (its --help parameter table: names and types):
 
-- Substitution syntax: ``launch/share/launch/frontend/grammar.lark``, copied unchanged into
-  ``jazzy_launch_grammar.lark`` beside this file and parsed with lark as
-  ``launch/frontend/parse_substitution.py`` does (its ExtractSubstitution transformer:
-  quoted templates, backslash escapes).
+- Substitution syntax: ``$(name arg ...)`` as the launch frontend's design article states
+  it (arguments one space apart, bare or wholly quoted with ' or ", nested substitutions,
+  backslash escapes), in a grammar of our own (``launch_substitutions.lark`` beside this
+  file) parsed with lark, the parser launch itself uses.
 - ``<arg default>`` and ``<include><arg value>`` are text with substitutions, never typed
   (``launch/actions/declare_launch_argument.py``, ``include_launch_description.py``); a
   declared argument that nobody sets and that has no default is an error.
@@ -61,7 +61,7 @@ PKG = Path(__file__).resolve().parents[1]
 SRC = PKG.parent
 LAUNCH = sorted((PKG / "launch").glob("*.launch.xml"))
 VARIANTS = ("arm", "rail_arm")
-GRAMMAR = Path(__file__).with_name("jazzy_launch_grammar.lark")
+GRAMMAR = Path(__file__).with_name("launch_substitutions.lark")
 
 #: Packages a launch file may start that are not in this workspace: apt packages on the
 #: robot (ros-jazzy-*), not on PyPI. Their parameters and types are the ones their
@@ -104,35 +104,19 @@ def parse_substitution(text: str) -> list:
     def unescape(s: str) -> str:
         return re.sub(r"\\(.)", r"\1", s)
 
-    class Extract(Transformer):  # launch's ExtractSubstitution, Text kept as str
-        def part(self, content):
-            c = content[0]
-            return unescape(c.value) if isinstance(c, Token) else c
-        single_quoted_part = double_quoted_part = part
+    def fragment(item):
+        return unescape(item.value) if isinstance(item, Token) else item
 
-        def value(self, parts):
-            return parts[0] if len(parts) == 1 and isinstance(parts[0], list) else parts
-        single_quoted_value = double_quoted_value = value
+    class Extract(Transformer):  # text and each argument: lists of str / Sub fragments
+        def text(self, items):
+            return [fragment(i) for i in items]
+        arg = text
 
-        def arguments(self, values):
-            return [*values[0], values[1]] if len(values) > 1 else values
-        single_quoted_arguments = double_quoted_arguments = arguments
-
-        def substitution(self, args):
-            return Sub(str(args[0]), list(args[1]) if len(args) > 1 else [])
-        single_quoted_substitution = double_quoted_substitution = substitution
-
-        def fragment(self, content):
-            c = content[0]
-            return unescape(c.value) if isinstance(c, Token) else c
-        single_quoted_fragment = double_quoted_fragment = fragment
-
-        def template(self, fragments):
-            return fragments
-        single_quoted_template = double_quoted_template = template
+        def sub(self, items):
+            return Sub(str(items[0]), list(items[1:]))
 
     if _parser is None:
-        _parser = Lark(GRAMMAR.read_text(), start="template")
+        _parser = Lark(GRAMMAR.read_text(), start="text")
     return Extract().transform(_parser.parse(text))
 
 
@@ -506,6 +490,30 @@ def test_a_yaml_hostile_urdf_comment_needs_the_typed_parameter(tmp_path):
     assert node.params[0][2] != plain and "\n" not in node.params[0][2]
     node, = load_launch(_rsp_launch(tmp_path, plain, 'type="str"'), {})
     assert node.params[0][2] == plain
+
+
+@pytest.mark.parametrize("text, want", [
+    ("plain text", ["plain text"]),
+    ("$(var a)", [Sub("var", [["a"]])]),
+    ("x=$(var a)/y", ["x=", Sub("var", [["a"]]), "/y"]),
+    ("$(var a b)", [Sub("var", [["a"], ["b"]])]),
+    ("$(command 'cat $(find-pkg-share p)/u.urdf')",
+     [Sub("command", [["cat ", Sub("find-pkg-share", [["p"]]), "/u.urdf"]])]),
+    ('$(var n "two words")', [Sub("var", [["n"], ["two words"]])]),
+    ("$(var n '')", [Sub("var", [["n"], []])]),
+    ("cost: 5$ \\$(var a)", ["cost: 5$ $(var a)"]),       # "$" without "(" and an escape
+    ("$(eval '1 + 2')", [Sub("eval", [["1 + 2"]])]),
+])
+def test_substitution_syntax(text, want):
+    """The documented substitution syntax: nesting, quoting, escapes, a lone '$'."""
+    assert parse_substitution(text) == want
+
+
+@pytest.mark.parametrize("text", ["$(var a", "$(var  a)", "$(var 'a'b)", "$()"])
+def test_substitution_syntax_errors_are_refused(text):
+    from lark.exceptions import LarkError
+    with pytest.raises(LarkError):
+        parse_substitution(text)
 
 
 @pytest.mark.parametrize("raw,type_attr,want", [
