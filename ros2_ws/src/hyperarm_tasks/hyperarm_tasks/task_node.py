@@ -27,7 +27,7 @@ from hyperarm_description.ros_main import declare_robot_description, run_node
 from hyperarm_description.world import load_world
 from hyperarm_ik.collision import CollisionModel
 from hyperarm_ik.kinematics import Kinematics
-from hyperarm_ik.solvers import solver_names
+from hyperarm_ik.solvers import make_solver, solver_names
 from hyperarm_interfaces.action import RunTask
 from hyperarm_interfaces.msg import TaskFeedback
 
@@ -80,6 +80,9 @@ class TaskNode(Node):
         states_max_age = p.pop("joint_states_max_age")
         self._params = RunnerParams(**p)
         self._kin = Kinematics(self._desc)
+        # the solver's first construction takes about 1 s (2-3 s at load 16): once here, so
+        # that a goal (and a cancel right after it) does not wait for it
+        make_solver(self._params.solver, self._kin)
         self._collisions = None
         if check:
             try:
