@@ -87,15 +87,16 @@ def test_uav_sway_on_the_passive_mount_meets_the_bounds_and_does_not_grow():
 
 @pytest.mark.slow
 def test_the_passive_mount_holds_from_other_postures():
-    """Issue 24 item 4: ``uav_sway_passive`` from 3 random ordinary postures (seed 0), 8 s
-    (the mount's oscillation grew for about 6 s, then saturated): each within 3 mm RMS,
-    8 mm max, 2 deg by the mock's truth, the mount's motion not growing over the last 2 s.
-    Without the mount-mode filter of the host pose (the previous node) the same postures
-    went 3.8-5.1 mm RMS, 15.7-15.9 mm max. The issue asks for 10 postures x 3 seeds: that
+    """Issue 24 item 4: ``uav_sway_passive`` from the random ordinary postures (seed 0) that
+    the previous node did not hold, the first and third, 8 s (the mount's oscillation grew
+    for about 6 s, then saturated): each within 3 mm RMS, 8 mm max, 2 deg by the mock's
+    truth, the mount's motion not growing over the last 2 s. Without the mount-mode filter
+    of the host pose they went 3.76 / 4.76 mm RMS, 15.9 / 15.8 mm max, growing 1.5 x (the
+    second held at 0.22 mm either way; left out for time). The issue asks for 10 postures x 3 seeds: that
     takes minutes here: ``host_benchmark --only mount``; docs/host.md gives its figures."""
     from hyperarm_ik.benchmark.host_sim import ordinary_postures, sway
 
-    for q0 in ordinary_postures(0, 3):
+    for q0 in ordinary_postures(0, 3)[::2]:
         run = sway("uav_sway_passive", duration=8.0, q0=q0)
         p = run["truth_position_error"]
         rms, worst = float(np.sqrt(np.mean(p ** 2))), float(p.max())
