@@ -73,10 +73,19 @@ if ! python3 -c "import hyperarm_tasks" >/dev/null 2>&1; then
     exit 2
   fi
 fi
+# The install prefixes of the packages it runs, looked up once (one Python start, not one
+# per executable: each took 0.1-0.3 s of the start-up).
+prefixes="$(python3 -c "
+from ament_index_python.packages import get_package_prefix as g
+for p in ('hyperarm_driver', 'hyperarm_ik', 'hyperarm_tasks'):
+    try:
+        print(p, g(p))
+    except (LookupError, ValueError):
+        pass" 2>/dev/null)"
 exe() {  # path of an installed executable, as `ros2 run` finds it
   local prefix
-  prefix="$(python3 -c "from ament_index_python.packages import get_package_prefix as g; print(g('$1'))" 2>/dev/null)" \
-    || { echo "run_task.sh: package $1 not found (make setup)" >&2; exit 2; }
+  prefix="$(awk -v p="$1" '$1 == p { print $2 }' <<< "$prefixes")"
+  [ -n "$prefix" ] || { echo "run_task.sh: package $1 not found (make setup)" >&2; exit 2; }
   echo "$prefix/lib/$1/$2"
 }
 
@@ -133,7 +142,7 @@ if [ -n "$hardware" ]; then
 else
   mock=("${ros[@]}")
   # the mock's work cell: the task node checks its paths against the same table and pegs
-  workcell="${workcell:-$(python3 -c "from ament_index_python.packages import get_package_share_directory as g; print(g('hyperarm_driver'))")/config/workcell.yaml}"
+  workcell="${workcell:-$(dirname "$(dirname "$(dirname "$(exe hyperarm_driver mock_driver)")")")/share/hyperarm_driver/config/workcell.yaml}"
   if [ -n "$seed" ]; then
     src="$workcell"
     workcell="$logs/workcell-seed$seed.yaml"
