@@ -61,12 +61,64 @@ def _next_domain() -> int:
     return _DOMAIN_LO + (_DOMAIN_START + _domain_counter[0]) % span
 
 
+_TERMINAL_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Every process a test starts gets the signal state of a person's terminal. A runner
+    (CI) may start pytest with SIGTERM ignored or blocked; children inherit that through
+    exec, and then `kill $pid` in a shell block or a driver's SIGTERM does nothing (it did
+    in CI: a pasted block's background job outlived its `kill`)."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, _TERMINAL_SIGNALS)
+    for sig in _TERMINAL_SIGNALS[1:]:      # SIGINT keeps pytest's own handler
+        if signal.getsignal(sig) == signal.SIG_IGN:
+            signal.signal(sig, signal.SIG_DFL)
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def processes_on_domain(domain: int) -> list[tuple[int, str]]:
+    """(pid, command line) of every live process started with ROS_DOMAIN_ID=``domain``
+    (this process excepted): what a test started on its own domain."""
+    found = []
+    needle = f"\0ROS_DOMAIN_ID={domain}\0".encode()
+    for env_file in Path("/proc").glob("[0-9]*/environ"):
+        pid = int(env_file.parent.name)
+        if pid == os.getpid():
+            continue
+        try:
+            if needle not in b"\0" + env_file.read_bytes():
+                continue
+            cmd = (env_file.parent / "cmdline").read_bytes().replace(b"\0", b" ").strip()
+            state = (env_file.parent / "stat").read_text().rsplit(")", 1)[1].split()[0]
+        except (OSError, IndexError):
+            continue                       # gone meanwhile, or not ours to read
+        if cmd and state != "Z":
+            found.append((pid, cmd.decode(errors="replace")))
+    return found
+
+
 @pytest.fixture
 def ros_domain(monkeypatch: pytest.MonkeyPatch) -> int:
+    """A ROS domain of the test's own. Afterwards, nothing the test started may still run
+    on it (3 s of grace): a process that outlives its test is killed and fails the test.
+    Orphans of one test (run_task.sh's nodes once) otherwise run on into later tests that
+    reuse the domain."""
     dom = _next_domain()
     monkeypatch.setenv("ROS_DOMAIN_ID", str(dom))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    return dom
+    yield dom
+    deadline = time.monotonic() + 3.0
+    while (left := processes_on_domain(dom)) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    for pid, _ in left:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+    if left:
+        pytest.fail("left running after the test (now killed):\n"
+                    + "\n".join(f"  {pid} {cmd[:200]}" for pid, cmd in left))
 
 
 @pytest.fixture

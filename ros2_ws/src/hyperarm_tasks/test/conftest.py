@@ -9,6 +9,8 @@ from typing import Callable
 
 import pytest
 
+from hyperarm_tasks.testing import run_stoppable
+
 
 @pytest.fixture(scope="module")
 def desc():
@@ -72,12 +74,12 @@ def still_running() -> Callable[[Path], list[str]]:
 @pytest.fixture
 def run_task_sh(executable, ros_domain) -> Callable[..., subprocess.CompletedProcess]:
     """``run_task_sh(*args, timeout=s)``: the installed run_task.sh on the test's domain,
-    output captured (text)."""
+    output captured (text); at ``timeout`` stopped with its nodes
+    (:func:`hyperarm_tasks.testing.run_stoppable`)."""
     script = os.path.join(os.path.dirname(executable("hyperarm_tasks", "run_task")),
                           "run_task.sh")
 
     def run(*args: str, timeout: float) -> subprocess.CompletedProcess:
         env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain), PYTHONUNBUFFERED="1")
-        return subprocess.run([script, *args], env=env, capture_output=True, text=True,
-                              timeout=timeout)
+        return run_stoppable([script, *args], env=env, timeout=timeout)
     return run

@@ -17,6 +17,7 @@ from sensor_msgs.msg import JointState
 
 from hyperarm_description import contract
 from hyperarm_description.qos import qos_for
+from hyperarm_tasks.testing import run_stoppable
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
@@ -27,8 +28,7 @@ def _script(executable) -> str:
 
 def _run(script, args, ros_domain, timeout):
     env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain), PYTHONUNBUFFERED="1")
-    return subprocess.run([script, *args], env=env, capture_output=True, text=True,
-                          timeout=timeout)
+    return run_stoppable([script, *args], env=env, timeout=timeout)
 
 
 def test_two_cycles_there_and_back_recorded_and_plotted(executable, ros_domain, tmp_path,
