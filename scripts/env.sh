@@ -22,4 +22,7 @@ source "$_hyperarm_root/ros2_ws/install/local_setup.bash"
 # the `hyperarm` command-line tool (hyperarm_bringup) on PATH
 export PATH="$_hyperarm_root/ros2_ws/install/hyperarm_bringup/lib/hyperarm_bringup:$PATH"
 export RMW_IMPLEMENTATION="${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"
+# Fast DDS: participants re-announce every 0.5 s, so a one-shot `hyperarm` command finds the
+# running drivers in about 0.1-0.5 s, not up to 3.6 s (hyperarm_bringup/config/fastdds.xml)
+export FASTRTPS_DEFAULT_PROFILES_FILE="${FASTRTPS_DEFAULT_PROFILES_FILE:-$_hyperarm_root/ros2_ws/install/hyperarm_bringup/share/hyperarm_bringup/config/fastdds.xml}"
 unset _hyperarm_root _hyperarm_venv

@@ -9,7 +9,7 @@ from typing import Callable
 
 import pytest
 
-from hyperarm_tasks.testing import run_stoppable
+from hyperarm_tasks.process_group import run_stoppable
 
 
 @pytest.fixture(scope="module")

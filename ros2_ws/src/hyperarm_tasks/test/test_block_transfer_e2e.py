@@ -17,7 +17,7 @@ from sensor_msgs.msg import JointState
 
 from hyperarm_description import contract
 from hyperarm_description.qos import qos_for
-from hyperarm_tasks.testing import run_stoppable
+from hyperarm_tasks.process_group import run_stoppable
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 

@@ -62,13 +62,13 @@ def interrupt_at(cmd: list[str], delay: float, after: str | None = "logs in",
         try:
             rest, _ = proc.communicate(timeout=15.0)
         except subprocess.TimeoutExpired:
-            proc.kill()
+            os.killpg(proc.pid, signal.SIGKILL)     # the script and every node it started
             rest, _ = proc.communicate()
-            rest += "\n(still running 15 s after the signal: killed)"
+            rest += "\n(still running 15 s after the signal: its process group killed)"
         return proc.returncode, time.monotonic() - sent, "".join(lines) + rest, wall
     finally:
         if proc.poll() is None:
-            proc.kill()
+            os.killpg(proc.pid, signal.SIGKILL)
             proc.communicate()
 
 
