@@ -1,5 +1,5 @@
-"""Every installed executable answers --help with its own usage and exit 0, without starting
-ROS (issue 25 item 6: `ready.sh --help` printed run_task's usage, `run_sequence.sh --help`
+"""Every installed executable answers --help and -h with its own usage (the same text for
+both) and exit 0, without starting ROS (issue 25 item 6: `ready.sh --help` printed run_task's usage, `run_sequence.sh --help`
 took --help for a task name). A probe node on this test's own ROS domain watches the graph
 meanwhile: no executable may bring a node up to print its help."""
 from __future__ import annotations
@@ -17,6 +17,19 @@ pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
 PACKAGES = ("hyperarm_bringup", "hyperarm_description", "hyperarm_driver", "hyperarm_ik",
             "hyperarm_perception", "hyperarm_tasks")
+
+
+#: hyperarm_tasks' executables, each with the start of its own usage text
+TASKS_USAGE = {
+    "run_task": "usage: run_task",
+    "task_node": "usage: ros2 run <package> task_node",
+    "task_recorder": "usage: ros2 run <package> task_recorder",
+    "plot_task": "usage: plot_task",
+    "soak_block_transfer": "usage: soak_block_transfer",
+    "run_task.sh": "run_task.sh: start the hyperarm stack",
+    "ready.sh": "ready.sh: move the arm to the ready pose",
+    "run_sequence.sh": "run_sequence.sh: run several tasks in order",
+}
 
 
 def installed_executables() -> list[Path]:
@@ -49,13 +62,14 @@ def test_every_installed_executable_answers_help_with_its_own_usage(rclpy_contex
     watcher = threading.Thread(target=watch, daemon=True)
     watcher.start()
 
-    def run(exe: Path) -> tuple[Path, subprocess.CompletedProcess]:
-        return exe, subprocess.run([str(exe), "--help"], capture_output=True, text=True,
+    def run(exe: Path, flag: str) -> tuple[Path, subprocess.CompletedProcess]:
+        return exe, subprocess.run([str(exe), flag], capture_output=True, text=True,
                                    timeout=60, stdin=subprocess.DEVNULL,
                                    env=dict(os.environ, ROS_DOMAIN_ID=str(ros_domain)))
     try:
         with ThreadPoolExecutor(max_workers=4) as pool:
-            results = list(pool.map(run, exes))
+            results = list(pool.map(run, exes, ["--help"] * len(exes)))
+            short = list(pool.map(run, exes, ["-h"] * len(exes)))
     finally:
         stop.set()
         watcher.join(timeout=5)
@@ -70,5 +84,15 @@ def test_every_installed_executable_answers_help_with_its_own_usage(rclpy_contex
         elif not re.search(rf"(^|\s){re.escape(exe.name)} [\[A-Z-]", text, re.M):
             problems.append(f"{exe.name}: --help has no synopsis ('{exe.name} [OPTIONS|ARG]"
                             f"...'): {text[:200]!r}")
+    for (exe, r), (_, h) in zip(results, short):
+        if (h.returncode, h.stdout, h.stderr) != (r.returncode, r.stdout, r.stderr):
+            problems.append(f"{exe.name}: -h (exit {h.returncode}) differs from --help: "
+                            f"{(h.stdout + h.stderr)[:300]!r}")
+        if exe.parent.name == "hyperarm_tasks":
+            if not r.stdout.lstrip().startswith(TASKS_USAGE.get(exe.name, "(unknown)")):
+                problems.append(f"{exe.name}: --help does not start with "
+                                f"{TASKS_USAGE.get(exe.name)!r}: {r.stdout[:200]!r}")
+    tasks = {e.name for e in exes if e.parent.name == "hyperarm_tasks"}
+    assert tasks == set(TASKS_USAGE), f"hyperarm_tasks installs {sorted(tasks)}"
     assert not problems, "\n".join(problems)
     assert not seen, f"--help started ROS nodes: {sorted(seen)}"

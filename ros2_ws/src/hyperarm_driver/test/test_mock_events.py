@@ -178,7 +178,9 @@ def test_core_tour_provokes_every_event_kind_twice(variant, tmp_path):
 
 @pytest.mark.e2e
 @pytest.mark.slow
-@pytest.mark.parametrize("variant", VARIANTS)
+# rail_arm's tour is arm's and the rail's events besides (_expected); the arm variant's
+# node is the one every block-transfer e2e test runs
+@pytest.mark.parametrize("variant", ["rail_arm"])
 def test_node_keeps_publishing_through_every_event_kind(variant, launch, rclpy_context,
                                                          executor, wait_for, tmp_path):
     import rclpy

@@ -548,9 +548,11 @@ class Runner:
                 break
             self.step, self.attempt = step, retries.get(i, 0)
             self.fb.step, self.fb.index = step.name, i
-            self.feedback("start", 0.0)
+            # logged before the feedback goes out: a client reacting to the feedback (a
+            # Ctrl-C on "[1/12]") acts after the step's logged start, never before it
             self.robot.log("info", f"step {i + 1}/{len(steps)} {step.name} ({step.type})"
                            + (f", retry {self.attempt}" if self.attempt else ""))
+            self.feedback("start", 0.0)
             t0 = self.robot.now()
             try:
                 STEP_TYPES[step.type].run(step, self)

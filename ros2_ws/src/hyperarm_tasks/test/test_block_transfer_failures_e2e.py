@@ -1,8 +1,10 @@
 """End-to-end through run_task.sh (installed executables, real DDS): the block transfer
 fails with the right reason, and leaves no process behind, when the block is absent (the
 mock's no-block work cell) and when the camera stops (a dropout for good while the task
-runs). The runner's reasons themselves are covered in test_runner_sim.py; this checks that
-they reach the user of the shell script."""
+runs). The runner's reasons themselves are covered in test_runner_sim.py (there also the
+insertion that fails with its best depth under a 0.05 mm clearance: its end-to-end twin ran
+35-46 s of the suite and said nothing more about the path to the user than these do);
+this checks that they reach the user of the shell script."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -46,38 +48,5 @@ def test_camera_dropout_fails_with_stale_detections(run_task_sh, tmp_path, still
     assert rc == 1, out
     assert "run_task: failed: step '" in out and "are stale" in out, out
     assert "not seen by the camera" not in out, out
-    assert "Traceback" not in out
-    assert still_running(logs) == []
-
-
-def test_tight_clearance_fails_the_insertion_with_best_depth(run_task_sh, tmp_path,
-                                                              still_running):
-    """0.05 mm of radial clearance, smaller than any alignment the arm achieves (the hole
-    accepts the peg only within 3.3 mrad of tilt over the block's 3 cm, docs/mock.md): the
-    insertion, under force control, fails with its reason and best depth. The user's copy of
-    block_transfer (``--tasks-dir``) has the insertion's timeout cut to 8 s and no retry,
-    to keep the suite short: the packaged task's 2 x 30 s is covered in
-    test_runner_sim.py."""
-    cell = yaml.safe_load((_share("hyperarm_driver") / "config" / "workcell.yaml").read_text())
-    cell["world"]["block"]["hole_radius"] = 0.00805
-    cell["imperfections"]["seed"] = 5
-    cell["camera"]["seed"] = 5
-    path = tmp_path / "tight.yaml"
-    path.write_text(yaml.safe_dump(cell))
-    task = yaml.safe_load((_share("hyperarm_tasks") / "tasks" / "block_transfer.yaml")
-                          .read_text())
-    (insert,) = [s for s in task["steps"] if s["name"] == "insert"]
-    insert["timeout"] = "8 s"
-    del insert["retry"]
-    tasks = tmp_path / "tasks"
-    tasks.mkdir()
-    (tasks / "block_transfer_tight.yaml").write_text(yaml.safe_dump(task, sort_keys=False))
-    logs = tmp_path / "logs"
-    done = run_task_sh("--workcell", str(path), "--tasks-dir", str(tasks), "--logs", str(logs),
-                       "block_transfer_tight", timeout=150)
-    out = done.stdout + done.stderr
-    assert done.returncode == 1, out
-    assert ("run_task: failed: step 'insert' (force_insert) failed: insertion not achieved "
-            "in 8 s (best depth") in out, out
     assert "Traceback" not in out
     assert still_running(logs) == []
