@@ -98,20 +98,6 @@ def processes_on_domain(domain: int) -> list[tuple[int, str]]:
     return found
 
 
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Files of end-to-end tests first, then node tests, then the rest (a stable sort,
-    each file's own order kept). ``make test``'s xdist workers take whole files in this
-    order, so the long files start first and the short core ones fill in at the end,
-    instead of one worker running the last long file alone."""
-    def tier(item: pytest.Item) -> int:
-        return 0 if item.get_closest_marker("e2e") else 1 if item.get_closest_marker("node") else 2
-    first: dict[str, int] = {}
-    for item in items:
-        path = str(item.path)
-        first[path] = min(first.get(path, 3), tier(item))
-    items.sort(key=lambda item: first[str(item.path)])
-
-
 @pytest.fixture
 def ros_domain(monkeypatch: pytest.MonkeyPatch) -> int:
     """A ROS domain of the test's own. Afterwards, nothing the test started may still run

@@ -317,11 +317,18 @@ class Runner:
         a, b = start[:3, 3], target[:3, 3]
         n = max(1, int(math.ceil(float(np.linalg.norm(b - a)) / spacing)))
         qs = [q.copy()]
-        turn = pin.log3(target[:3, :3] @ start[:3, :3].T)   # orientation: slerp on the way
+        # orientation: slerp on the way, eased in and out (smoothstep 3s^2 - 2s^3: no turn
+        # rate at either end). From the stretched, singular ready pose a turn about the arm's
+        # own axis (ready -> "down" is a half turn about x) is outside the Jacobian's range:
+        # it needs the arm bent first. At a uniform rate the first waypoints' 6-D IK failed
+        # (0.15 mm over tolerance) and every block transfer's first move fell back to joint
+        # space (issue 24 item 6); eased, all 79 are solved and the line is straight.
+        turn = pin.log3(target[:3, :3] @ start[:3, :3].T)
         for k in range(1, n + 1):
             pose = target.copy()
             pose[:3, 3] = a + (b - a) * k / n
-            pose[:3, :3] = pin.exp3(turn * k / n) @ start[:3, :3]
+            s = k / n
+            pose[:3, :3] = pin.exp3(turn * (s * s * (3.0 - 2.0 * s))) @ start[:3, :3]
             res = self.ik(pose, qs[-1])
             if not res.success:
                 final = self.ik(target, qs[-1] if k == n else q)
