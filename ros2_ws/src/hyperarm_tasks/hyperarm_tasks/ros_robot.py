@@ -16,6 +16,7 @@ the caches from the action's execute thread.
 """
 from __future__ import annotations
 
+import functools
 import math
 import threading
 import time
@@ -25,6 +26,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
 from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -41,6 +43,11 @@ from hyperarm_interfaces.msg import Detections, HybridGoal
 from .inputs import DetectionFeed, StateFeed
 from .perception import DetectionBuffer, camera_pose, matrix_to_quat, quat_to_matrix
 from .runner import HybridCommand
+
+#: event callbacks that create no QoS event handlers (see RosRobot.__init__)
+NO_SUB_EVENTS = SubscriptionEventCallbacks(use_default_callbacks=False)
+NO_PUB_EVENTS = PublisherEventCallbacks(use_default_callbacks=False)
+WRENCH_IDLE = 2.0   # s without a wrench() call before ee_wrench is unsubscribed
 
 __all__ = ["RosRobot", "pose_to_matrix"]
 
@@ -78,19 +85,25 @@ class RosRobot:
         self.goal_handle = None
         self.given: dict[str, np.ndarray] = {}
         group = ReentrantCallbackGroup()
-        sub = node.create_subscription
+        # No QoS event handlers (rclpy's default ones only log incompatible QoS): each
+        # pub/sub's two handlers are waitables that rclpy's Python executor re-adds to its
+        # wait set on every wake (100s per second here), most of this node's CPU (issue 28;
+        # every topic's QoS is fixed by the contract, checked by the tests).
+        sub = functools.partial(node.create_subscription, event_callbacks=NO_SUB_EVENTS)
+        pub = functools.partial(node.create_publisher, event_callbacks=NO_PUB_EVENTS)
         sub(JointState, contract.JOINT_STATES, self._on_states, qos_for(contract.JOINT_STATES),
             callback_group=group)
         sub(Detections, contract.DETECTIONS, self._on_detections, qos_for(contract.DETECTIONS),
             callback_group=group)
-        sub(WrenchStamped, contract.EE_WRENCH, self._on_wrench, qos_for(contract.EE_WRENCH),
-            callback_group=group)
+        # ee_wrench (100 Hz from hybrid_force) only while someone asks for it (wrench()):
+        # subscribed all the time it was a third of this node's CPU (issue 28)
+        self._sub, self._group = sub, group
+        self._wrench_sub = None
+        self._wrench_wanted = -math.inf
         sub(DiagnosticArray, contract.DIAGNOSTICS, self._on_diagnostics,
             qos_for(contract.DIAGNOSTICS), callback_group=group)
-        self._cmd = node.create_publisher(JointState, contract.JOINT_COMMAND,
-                                          qos_for(contract.JOINT_COMMAND))
-        self._hybrid = node.create_publisher(HybridGoal, contract.HYBRID_GOAL,
-                                             qos_for(contract.HYBRID_GOAL))
+        self._cmd = pub(JointState, contract.JOINT_COMMAND, qos_for(contract.JOINT_COMMAND))
+        self._hybrid = pub(HybridGoal, contract.HYBRID_GOAL, qos_for(contract.HYBRID_GOAL))
         cli = node.create_client
         self._hold = cli(Trigger, contract.HOLD, callback_group=group)
         self._rail_hold = cli(Trigger, contract.RAIL_HOLD, callback_group=group)
@@ -225,10 +238,28 @@ class RosRobot:
         return self.given.get(name)
 
     def wrench(self):
+        """The newest ee_wrench if fresh (0.5 s), else None. The first call subscribes
+        (None until the first message); :meth:`drop_idle_inputs` unsubscribes once no call
+        came for ``WRENCH_IDLE`` s."""
         with self._lock:
+            self._wrench_wanted = time.monotonic()
+            if self._wrench_sub is None:
+                self._wrench_sub = self._sub(WrenchStamped, contract.EE_WRENCH, self._on_wrench,
+                                             qos_for(contract.EE_WRENCH),
+                                             callback_group=self._group)
             if self._wrench is None or time.monotonic() - self._wrench_time > 0.5:
                 return None
             return self._wrench.copy()
+
+    def drop_idle_inputs(self) -> None:
+        """Unsubscribe ee_wrench when :meth:`wrench` was not called for ``WRENCH_IDLE`` s
+        (the node's diagnostics timer calls this)."""
+        with self._lock:
+            sub = self._wrench_sub
+            if sub is None or time.monotonic() - self._wrench_wanted < WRENCH_IDLE:
+                return
+            self._wrench_sub, self._wrench = None, None
+        self.node.destroy_subscription(sub)
 
     def force_available(self) -> bool:
         return self._force.service_is_ready()

@@ -186,7 +186,9 @@ class Runner:
         fb.progress = (fb.index + fb.step_progress) / max(fb.count, 1)
         if waypoint is not None:
             fb.waypoint = np.asarray(waypoint, dtype=float)[:3].copy()
-        w = self.robot.wrench()
+        # the contact force while force control runs (asking for it otherwise costs the
+        # task node a 100 Hz subscription: RosRobot.wrench)
+        w = self.robot.wrench() if self.force_on else None
         fb.force = float(w[2]) if w is not None else 0.0
         fb.depth = depth
         self.on_feedback(fb)

@@ -33,7 +33,7 @@ from hyperarm_interfaces.msg import TaskFeedback
 
 from .errors import TaskError, TaskFileError, UnknownTaskError
 from .recording import TASK_FEEDBACK
-from .ros_robot import RosRobot, pose_to_matrix
+from .ros_robot import NO_PUB_EVENTS, RosRobot, pose_to_matrix
 from .runner import Feedback, Runner, RunnerParams
 from .sequence import load_task, packaged_tasks_dir
 
@@ -92,12 +92,14 @@ class TaskNode(Node):
             self._collisions = CollisionModel(self._kin, world)
         self._robot = RosRobot(self, self._desc, states_max_age, p["detection_max_age"])
         self._diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
-                                           qos_for(contract.DIAGNOSTICS))
+                                           qos_for(contract.DIAGNOSTICS),
+                                           event_callbacks=NO_PUB_EVENTS)
         self._diag_counts: dict[str, int] = {}
         # every feedback also on a plain topic, under a type stock MCAP readers decode
         self._feedback = self.create_publisher(
             TaskFeedback, TASK_FEEDBACK,
-            QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE))
+            QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE),
+            event_callbacks=NO_PUB_EVENTS)
         self.create_timer(DIAGNOSTICS_PERIOD, self._publish_diagnostics)
         self._lock = threading.Lock()
         self._busy: str | None = None
@@ -114,6 +116,7 @@ class TaskNode(Node):
     def _publish_diagnostics(self) -> None:
         """'task_node: inputs': joint_states and detections accepted and rejected by reason
         (totals); WARN while messages are being rejected."""
+        self._robot.drop_idle_inputs()
         counts = self._robot.input_counts()
         new = {k: v - self._diag_counts.get(k, 0) for k, v in counts.items()
                if "_rejected_" in k and v > self._diag_counts.get(k, 0)}
@@ -223,12 +226,17 @@ class TaskNode(Node):
             return result
         self._runner = Runner(self._robot, self._kin, task, self._params, feedback,
                               collisions=self._collisions)
+        cpu0, wall0 = time.process_time(), time.monotonic()
         out = self._runner.run()
+        cpu, wall = time.process_time() - cpu0, time.monotonic() - wall0
         result.success, result.message, result.failure_kind = (out.success, out.message,
                                                                out.failure_kind)
         result.stage_names, result.stage_durations = out.step_names, out.step_durations
         result.total_time = out.total_time
         metrics = {k: v for k, v in out.metrics.items() if not k.endswith("_logged")}
+        # this process's CPU (every thread: the runner's and the executor's) over the task,
+        # as a fraction of one core (issue 28: the soak prints it per cycle)
+        metrics["task_node_cpu"] = cpu / wall if wall > 0.0 else 0.0
         result.metric_names, result.metric_values = list(metrics), list(metrics.values())
         if out.success:
             self.get_logger().info(f"{out.message} in {out.total_time:.2f} s")

@@ -191,7 +191,8 @@ def main(argv: list[str] | None = None) -> int:
                 f"task {r['time']:.1f} s (wall {r['wall']:.0f} s), insertion "
                 f"{m.get('insertion_time', float('nan')):.2f} s, dither turns "
                 f"{m.get('dither_turns', float('nan')):.1f}, attempts "
-                f"{m.get('insertion_attempts', float('nan')):.0f}"
+                f"{m.get('insertion_attempts', float('nan')):.0f}, task_node CPU "
+                f"{100 * m.get('task_node_cpu', float('nan')):.0f} %"
                 + ("" if r["ok"] else f": {r['message']}"))
 
     _cycles(args, logs, options, "block_transfer", results, line)
@@ -201,6 +202,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"insertion time (s): {_stats([r['metrics'].get('insertion_time', np.nan) for r in ok])}")
     print(f"dither turns: {_stats([r['metrics'].get('dither_turns', np.nan) for r in ok])}")
     print(f"insertion attempts: {_stats([r['metrics'].get('insertion_attempts', np.nan) for r in ok])}")
+    print(f"task_node CPU (fraction of one core over the task): "
+          f"{_stats([r['metrics'].get('task_node_cpu', np.nan) for r in ok])}")
     print(f"logs: {logs}")
     if len(results) < args.cycles:
         return 130
