@@ -88,7 +88,8 @@ class RosRobot:
         # No QoS event handlers (rclpy's default ones only log incompatible QoS): each
         # pub/sub's two handlers are waitables that rclpy's Python executor re-adds to its
         # wait set on every wake (100s per second here), most of this node's CPU (issue 28;
-        # every topic's QoS is fixed by the contract, checked by the tests).
+        # every topic's QoS is fixed by the contract, checked by the tests; the drivers keep
+        # theirs on joint_states and joint_command, so an incompatible peer is still named).
         sub = functools.partial(node.create_subscription, event_callbacks=NO_SUB_EVENTS)
         pub = functools.partial(node.create_publisher, event_callbacks=NO_PUB_EVENTS)
         sub(JointState, contract.JOINT_STATES, self._on_states, qos_for(contract.JOINT_STATES),

@@ -152,6 +152,11 @@ def _main(argv: list[str], state: dict) -> int:
                                                                res.metric_values))
             extra += f" ({figures})" if figures else ""
         print(f"run_task: {outcome.name.lower()}: {client.message}{extra}", flush=True)
+        if res is not None and len(res.stage_names):
+            # every step run, in order (a retried one again), with its duration
+            print("run_task: time per step (s): " + ", ".join(
+                f"{n} {d:.2f}" for n, d in zip(res.stage_names, res.stage_durations)),
+                flush=True)
         code = 0 if outcome is TaskResult.SUCCEEDED else 1
     except _Interrupted as exc:
         if client is None or not client.sent():

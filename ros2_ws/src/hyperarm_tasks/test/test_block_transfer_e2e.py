@@ -39,6 +39,8 @@ def test_two_cycles_there_and_back_recorded_and_plotted(executable, ros_domain, 
     out = done.stdout + done.stderr
     assert done.returncode == 0, out + node_logs(logs)
     assert out.count("run_task: succeeded") == 2, out
+    # and where the time went, step by step (issue 28: the soak's per-step table)
+    assert out.count("run_task: time per step (s): ready ") == 2, out
     for step in ("[8/12] insert (force_insert)", "[12/12] ready_end"):
         assert step in out
     assert still_running(logs) == []

@@ -29,6 +29,7 @@ import numpy as np
 _RESULT = re.compile(r"run_task: (\w+): (.*)")
 STOP_WAIT = 60.0   # s for run_task.sh to stop its stack (its client, then each node)
 _DONE = re.compile(r"done in ([0-9.]+) s \((.*)\)")
+_STEPS = "run_task: time per step (s): "
 
 
 def _script() -> str:
@@ -141,8 +142,16 @@ def run_cycle(seed: int, logs: Path, task: str = "block_transfer",
     rc, stdout, stderr = _run([_script(), "--seed", str(seed), "--logs", str(where),
                                *(options or []), task], timeout=600, pids=where / "pids")
     out = {"seed": seed, "ok": rc == 0, "wall": time.monotonic() - t0,
-           "message": "", "metrics": {}, "time": float("nan")}
+           "message": "", "metrics": {}, "time": float("nan"), "steps": {}}
     for line in (stdout + stderr).splitlines():
+        if line.startswith(_STEPS):     # a step run twice (a retry) counts both times
+            for item in line[len(_STEPS):].split(", "):
+                name, _, value = item.rpartition(" ")
+                try:
+                    out["steps"][name] = out["steps"].get(name, 0.0) + float(value)
+                except ValueError:
+                    pass
+            continue
         m = _RESULT.search(line)
         if m:
             out["message"] = m.group(2)
@@ -158,6 +167,23 @@ def run_cycle(seed: int, logs: Path, task: str = "block_transfer",
     if not out["message"]:
         out["message"] = (stderr or stdout).strip().splitlines()[-1:] or ["no output"]
     return out
+
+
+def step_table(results: list[dict]) -> str:
+    """Where the cycle time goes: per step (in the order the tasks ran them), its mean and
+    max time over ``results`` (s; a retried step's runs summed per cycle) and share of the
+    mean cycle, as a markdown table."""
+    names: list[str] = []
+    for r in results:
+        names += [n for n in r.get("steps", {}) if n not in names]
+    if not names:
+        return "time per step: n/a (run_task printed none)"
+    total = float(np.mean([r["time"] for r in results]))
+    rows = ["| step | mean s | max s | share of the cycle |", "|---|---|---|---|"]
+    for n in names:
+        v = np.array([r["steps"].get(n, 0.0) for r in results])
+        rows.append(f"| {n} | {v.mean():.2f} | {v.max():.2f} | {100 * v.mean() / total:.0f} % |")
+    return "time per step:\n" + "\n".join(rows)
 
 
 def _stats(values, fmt: str = ".2f") -> str:
@@ -204,6 +230,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"insertion attempts: {_stats([r['metrics'].get('insertion_attempts', np.nan) for r in ok])}")
     print(f"task_node CPU (fraction of one core over the task): "
           f"{_stats([r['metrics'].get('task_node_cpu', np.nan) for r in ok])}")
+    print(step_table(ok))
     print(f"logs: {logs}")
     if len(results) < args.cycles:
         return 130
@@ -228,6 +255,7 @@ def _soak_task(args, logs: Path, options: list[str]) -> int:
     for name in dict.fromkeys(n for r in ok for n in r["metrics"]):
         print(f"{name}: min {_min(ok, name)}, "
               f"{_stats([r['metrics'].get(name, np.nan) for r in ok], '.4g')}")
+    print(step_table(ok))
     print(f"logs: {logs}")
     if len(results) < args.cycles:
         return 130
