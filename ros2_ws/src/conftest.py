@@ -64,17 +64,31 @@ def _next_domain() -> int:
 _TERMINAL_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
 
 
-def pytest_configure(config: pytest.Config) -> None:
+def _terminal_signal_state() -> None:
     """Every process a test starts gets the signal state of a person's terminal. A runner
     (CI) may start pytest with SIGTERM ignored or blocked; children inherit that through
     exec, and then `kill $pid` in a shell block or a driver's SIGTERM does nothing (it did
-    in CI: a pasted block's background job outlived its `kill`)."""
+    in CI: a pasted block's background job outlived its `kill`). Code run in-process by a
+    test (run_node after a signal, the soak's spawning) may leave them ignored too."""
+    if threading.current_thread() is not threading.main_thread():
+        return
     signal.pthread_sigmask(signal.SIG_UNBLOCK, _TERMINAL_SIGNALS)
     for sig in _TERMINAL_SIGNALS[1:]:      # SIGINT keeps pytest's own handler
         if signal.getsignal(sig) == signal.SIG_IGN:
             signal.signal(sig, signal.SIG_DFL)
     if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
         signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    _terminal_signal_state()
+
+
+@pytest.fixture(autouse=True)
+def _terminal_signals() -> None:
+    """Before each test: :func:`_terminal_signal_state` (an earlier test of the same worker
+    may have left SIGTERM ignored; the CI run's doc-block test then hung on `kill`)."""
+    _terminal_signal_state()
 
 
 def processes_on_domain(domain: int) -> list[tuple[int, str]]:

@@ -46,10 +46,12 @@ def _parse(argv: list[str]) -> argparse.Namespace:
     return ap.parse_args(args_no_ros)
 
 
-def _wait_ready(node, client, timeout: float, force: bool = False) -> str | None:
+def _wait_ready(node, client, timeout: float, force: bool = False,
+                spin=None) -> str | None:
     """Wait for joint_states and the action server (and, with ``force``, the force node's
     enable service); None when all are there, else what is missing."""
     import rclpy
+    spin = spin or (lambda n, t: rclpy.spin_once(n, timeout_sec=t))
     from sensor_msgs.msg import JointState
     from std_srvs.srv import SetBool
 
@@ -63,7 +65,7 @@ def _wait_ready(node, client, timeout: float, force: bool = False) -> str | None
     deadline = time.monotonic() + timeout
     try:
         while time.monotonic() < deadline:
-            rclpy.spin_once(node, timeout_sec=0.05)
+            spin(node, 0.05)
             if seen and client.server_ready() and (enable is None or enable.service_is_ready()):
                 return None
         return ("no joint_states from a driver" if not seen
@@ -83,7 +85,13 @@ def main(argv: list[str] | None = None) -> int:
     def on_signal(signum, _frame):
         state["interrupts"] += 1
         if state["interrupts"] == 1:
-            raise _Interrupted(signal.Signals(signum).name)
+            state["signal"] = signal.Signals(signum).name
+            if state.get("in_rclpy"):
+                # raised inside rclpy's C++ calls it came out as a TypeError from pybind
+                # (seen: take_feedback); spin() below raises it once spin_once returned
+                return
+            state["raised"] = True
+            raise _Interrupted(state["signal"])
         print("run_task: already cancelling, please wait", file=sys.stderr, flush=True)
 
     # First of all (rclpy's import and init take a second): from here on a signal stops us.
@@ -108,13 +116,25 @@ def _main(argv: list[str], state: dict) -> int:
     if state["interrupts"]:   # a library swallowed the exception during its import
         raise _Interrupted("signal")
     rclpy.init(args=["run_task", *argv], signal_handler_options=SignalHandlerOptions.NO)
+
+    def spin(node, timeout: float) -> None:
+        """rclpy.spin_once with a Ctrl-C held off until it returns (at most ``timeout``)."""
+        state["in_rclpy"] = True
+        try:
+            rclpy.spin_once(node, timeout_sec=timeout)
+        finally:
+            state["in_rclpy"] = False
+        if state["interrupts"] and not state.get("raised"):
+            state["raised"] = True
+            raise _Interrupted(state["signal"])
+
     node = client = None
     code = 1
     try:
         node = rclpy.create_node("run_task_client", namespace=args.namespace)
-        client = TaskClient(node)
+        client = TaskClient(node, spin=spin)
         if args.wait_ready > 0.0:
-            reason = _wait_ready(node, client, args.wait_ready, args.wait_force)
+            reason = _wait_ready(node, client, args.wait_ready, args.wait_force, spin)
             if reason:
                 print(f"run_task: not ready after {args.wait_ready:g} s: {reason}",
                       file=sys.stderr)

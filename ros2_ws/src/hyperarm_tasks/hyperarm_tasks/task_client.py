@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import time
 from enum import Enum
+from typing import Callable
 
 import rclpy
 from action_msgs.msg import GoalStatus
@@ -35,8 +36,12 @@ class TaskResult(Enum):
 
 
 class TaskClient:
-    def __init__(self, node: Node, action_name: str = contract.RUN_TASK) -> None:
+    def __init__(self, node: Node, action_name: str = contract.RUN_TASK,
+                 spin: Callable[[Node, float], None] | None = None) -> None:
+        """``spin(node, timeout)``: how to spin the node once (default rclpy.spin_once);
+        run_task passes one that holds off its Ctrl-C exception while rclpy is inside."""
         self._node = node
+        self._spin_once = spin or (lambda n, t: rclpy.spin_once(n, timeout_sec=t))
         self._client = ActionClient(node, RunTask, action_name)
         self._goal_handle = None
         self._send_future = None
@@ -47,7 +52,7 @@ class TaskClient:
         self.message = ""
 
     def _spin(self, timeout: float = 0.05) -> None:
-        rclpy.spin_once(self._node, timeout_sec=timeout)
+        self._spin_once(self._node, timeout)
 
     def server_ready(self) -> bool:
         return self._client.server_is_ready()
