@@ -5,6 +5,7 @@ takes tens of seconds."""
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import time
@@ -85,8 +86,13 @@ def test_unreachable_destination_is_refused_before_any_motion(executable, ros_do
     out = done.stdout + done.stderr
     assert done.returncode == 1, out
     # issue 24, item 6: found before the block is picked, named with its distance beyond
-    assert ("run_task: failed: refused before any motion: target of step 'above_destination' "
-            "(destination_peg + (+0.000, +0.000, +0.035) m) at (0.9") in out, out
+    # the peg as the camera sees it (noisy, unseeded): within 1 cm of where it was put (the
+    # text prefix "(0.9" checked this before, one-sided: 0.899 failed it)
+    found = re.search(r"run_task: failed: refused before any motion: target of step "
+                      r"'above_destination' \(destination_peg \+ \(\+0\.000, \+0\.000, "
+                      r"\+0\.035\) m\) at \((-?[0-9.]+), (-?[0-9.]+), ", out)
+    assert found, out
+    assert abs(float(found.group(1)) - 0.9) <= 0.01 and abs(float(found.group(2)) + 0.6) <= 0.01, out
     assert "m beyond the arm's workspace" in out
     assert "[2/12]" not in out and "[1/12]" not in out          # no step ran
     assert still_running(logs) == []
