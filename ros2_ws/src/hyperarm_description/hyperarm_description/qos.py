@@ -1,11 +1,21 @@
 """rclpy QoS profiles for the contract's topics (imports rclpy: for nodes only)."""
 from __future__ import annotations
 
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from .contract import QOS
 
-__all__ = ["qos_for"]
+__all__ = ["qos_for", "NO_PUB_EVENTS", "NO_SUB_EVENTS"]
+
+#: ``event_callbacks`` for a publisher / subscription with no QoS event handlers. rclpy's
+#: default handlers only log an incompatible peer's QoS, and each is a waitable that the
+#: Python executors re-add to their wait set on every wake: per message on a busy node
+#: (the task node spent most of its CPU there, issue 28). For topics whose QoS the contract
+#: fixes; the drivers keep the handlers on joint_states and joint_command, so an
+#: incompatible peer is still named.
+NO_PUB_EVENTS = PublisherEventCallbacks(use_default_callbacks=False)
+NO_SUB_EVENTS = SubscriptionEventCallbacks(use_default_callbacks=False)
 
 _REL = {"reliable": ReliabilityPolicy.RELIABLE, "best_effort": ReliabilityPolicy.BEST_EFFORT}
 _DUR = {"volatile": DurabilityPolicy.VOLATILE, "transient_local": DurabilityPolicy.TRANSIENT_LOCAL}

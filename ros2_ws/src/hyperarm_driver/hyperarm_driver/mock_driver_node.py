@@ -23,7 +23,6 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Pose, PoseStamped, WrenchStamped
 from rclpy.clock import Clock, ClockType
-from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -33,7 +32,7 @@ from std_srvs.srv import SetBool, Trigger
 from hyperarm_description import contract
 from hyperarm_description.joints import JointStateError, velocity_problem
 from hyperarm_description.log_throttle import ReasonThrottle
-from hyperarm_description.qos import qos_for
+from hyperarm_description.qos import NO_PUB_EVENTS, qos_for
 from hyperarm_description.ros_main import declare_robot_description, run_node
 from hyperarm_interfaces.msg import Detections
 from hyperarm_interfaces.srv import Reboot
@@ -155,33 +154,35 @@ class MockDriver(Node):
                                           qos_for(contract.JOINT_STATES))
         # No QoS-event handlers on the low-rate outputs: each one costs every executor
         # wake-up (joint_states / joint_command keep them, for incompatible-QoS warnings).
-        quiet = PublisherEventCallbacks(use_default_callbacks=False)
         self._diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
-                                           qos_for(contract.DIAGNOSTICS), event_callbacks=quiet)
+                                           qos_for(contract.DIAGNOSTICS),
+                                           event_callbacks=NO_PUB_EVENTS)
         self._det = self.create_publisher(Detections, contract.DETECTIONS,
-                                          qos_for(contract.DETECTIONS), event_callbacks=quiet)
+                                          qos_for(contract.DETECTIONS),
+                                          event_callbacks=NO_PUB_EVENTS)
         self._truth = self.create_publisher(Detections, contract.DETECTIONS_TRUTH,
                                             qos_for(contract.DETECTIONS_TRUTH),
-                                            event_callbacks=quiet)
+                                            event_callbacks=NO_PUB_EVENTS)
         self._wrench = self.create_publisher(WrenchStamped, contract.TOOL_WRENCH_TRUTH,
                                              qos_for(contract.TOOL_WRENCH_TRUTH),
-                                             event_callbacks=quiet)
+                                             event_callbacks=NO_PUB_EVENTS)
         self._tool_frame = desc.tool_frame
         self._contacts = self.create_publisher(DiagnosticArray, contract.CONTACTS_TRUTH,
                                                qos_for(contract.CONTACTS_TRUTH),
-                                               event_callbacks=quiet)
+                                               event_callbacks=NO_PUB_EVENTS)
         self._touching = False
         self._tool_truth = self.create_publisher(PoseStamped, contract.TOOL_POSE_TRUTH,
                                                  qos_for(contract.TOOL_POSE_TRUTH),
-                                                 event_callbacks=quiet)
+                                                 event_callbacks=NO_PUB_EVENTS)
         self._host_pub = None if self._sim.host is None else self.create_publisher(
-            PoseStamped, contract.HOST_POSE, qos_for(contract.HOST_POSE), event_callbacks=quiet)
+            PoseStamped, contract.HOST_POSE, qos_for(contract.HOST_POSE),
+            event_callbacks=NO_PUB_EVENTS)
         self.create_service(SetBool, contract.HOST_MOTION_ENABLE, self._on_host_motion)
         self._clock_pub = None
         if self._speed > 0.0:
             self._clock_pub = self.create_publisher(ClockMsg, contract.CLOCK, QoSProfile(
                 depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,
-                durability=DurabilityPolicy.VOLATILE), event_callbacks=quiet)
+                durability=DurabilityPolicy.VOLATILE), event_callbacks=NO_PUB_EVENTS)
         self.create_subscription(JointState, contract.JOINT_COMMAND, self._on_command,
                                  qos_for(contract.JOINT_COMMAND))
         # One owner per service (docs/architecture.md): set_torque, hold, reboot act on the

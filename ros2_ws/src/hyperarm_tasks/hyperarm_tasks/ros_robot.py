@@ -26,7 +26,6 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -37,16 +36,13 @@ from hyperarm_description.log_throttle import ReasonThrottle
 from hyperarm_description import contract
 from hyperarm_description.joints import JointStateCache
 from hyperarm_description.model import RobotDescription
-from hyperarm_description.qos import qos_for
+from hyperarm_description.qos import NO_PUB_EVENTS, NO_SUB_EVENTS, qos_for
 from hyperarm_interfaces.msg import Detections, HybridGoal
 
 from .inputs import DetectionFeed, StateFeed
 from .perception import DetectionBuffer, camera_pose, matrix_to_quat, quat_to_matrix
 from .runner import HybridCommand
 
-#: event callbacks that create no QoS event handlers (see RosRobot.__init__)
-NO_SUB_EVENTS = SubscriptionEventCallbacks(use_default_callbacks=False)
-NO_PUB_EVENTS = PublisherEventCallbacks(use_default_callbacks=False)
 WRENCH_IDLE = 2.0   # s without a wrench() call before ee_wrench is unsubscribed
 
 __all__ = ["RosRobot", "pose_to_matrix"]
@@ -85,11 +81,7 @@ class RosRobot:
         self.goal_handle = None
         self.given: dict[str, np.ndarray] = {}
         group = ReentrantCallbackGroup()
-        # No QoS event handlers (rclpy's default ones only log incompatible QoS): each
-        # pub/sub's two handlers are waitables that rclpy's Python executor re-adds to its
-        # wait set on every wake (100s per second here), most of this node's CPU (issue 28;
-        # every topic's QoS is fixed by the contract, checked by the tests; the drivers keep
-        # theirs on joint_states and joint_command, so an incompatible peer is still named).
+        # no QoS event handlers: they were most of this node's CPU (hyperarm_description.qos)
         sub = functools.partial(node.create_subscription, event_callbacks=NO_SUB_EVENTS)
         pub = functools.partial(node.create_publisher, event_callbacks=NO_PUB_EVENTS)
         sub(JointState, contract.JOINT_STATES, self._on_states, qos_for(contract.JOINT_STATES),

@@ -22,7 +22,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from hyperarm_description import contract
 from hyperarm_description.params import ParamSpec, Range, declare_parameters
-from hyperarm_description.qos import qos_for
+from hyperarm_description.qos import NO_PUB_EVENTS, qos_for
 from hyperarm_description.ros_main import declare_robot_description, run_node
 from hyperarm_description.world import load_world
 from hyperarm_ik.collision import CollisionModel
@@ -33,7 +33,7 @@ from hyperarm_interfaces.msg import TaskFeedback
 
 from .errors import TaskError, TaskFileError, UnknownTaskError
 from .recording import TASK_FEEDBACK
-from .ros_robot import NO_PUB_EVENTS, RosRobot, pose_to_matrix
+from .ros_robot import RosRobot, pose_to_matrix
 from .runner import Feedback, Runner, RunnerParams
 from .sequence import load_task, packaged_tasks_dir
 
