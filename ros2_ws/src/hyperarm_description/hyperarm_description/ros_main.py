@@ -21,6 +21,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from typing import TYPE_CHECKING, Any, Callable
 
 import rclpy
@@ -47,6 +48,9 @@ ROBOT_PARAMETERS: ParamSpec = {
 }
 
 _SPIN_PERIOD = 0.1  # s: how often the spin loop looks at the stop flag
+
+#: s: a clean-up that takes longer prints its phases' durations on stderr
+SLOW_SHUTDOWN = 1.0
 
 #: Executors :func:`run_node` can build by name: ``single`` (rclpy's
 #: SingleThreadedExecutor, the default) and ``events`` (rclpy.experimental.EventsExecutor:
@@ -208,16 +212,24 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None,
     finally:
         stop.building = False
         stop.event.set()  # from here on, signals are ignored
+        phases = _Phases()
         if spinner is not None:
             if wake is not None:
                 wake()
             spinner.join(timeout=2.0)
+            phases.done("spin thread")
         if ex is not None:
             ex.shutdown(timeout_sec=2.0)
             _wait_callbacks_in_flight(ex, timeout=2.0)
+            phases.done("executor")
+        name = None
         if node is not None:
+            name = node.get_name()
             node.destroy_node()
+            phases.done("node")
         rclpy.try_shutdown()
+        phases.done("rclpy")
+        phases.report(name)
         if stop.signalled:
             stop.ignore()  # the process is on its way out
         else:
@@ -226,14 +238,34 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None,
         raise failure[0]
 
 
+class _Phases:
+    """Durations of the clean-up's phases; :meth:`report` prints them on stderr when the
+    whole took longer than :data:`SLOW_SHUTDOWN` (a stop that keeps a script waiting says
+    where the time went)."""
+
+    def __init__(self) -> None:
+        self._t0 = self._last = time.monotonic()
+        self._parts: list[tuple[str, float]] = []
+
+    def done(self, what: str) -> None:
+        now = time.monotonic()
+        self._parts.append((what, now - self._last))
+        self._last = now
+
+    def report(self, name: str | None) -> None:
+        total = self._last - self._t0
+        if total > SLOW_SHUTDOWN:
+            parts = ", ".join(f"{what} {dt:.2f} s" for what, dt in self._parts)
+            print(f"[{name or 'node'}] shutdown took {total:.2f} s ({parts})", file=sys.stderr,
+                  flush=True)
+
+
 def _wait_callbacks_in_flight(ex: Executor, timeout: float) -> None:
     """Wait for callbacks a MultiThreadedExecutor handed to its thread pool, and collect their
     exceptions, before the node is destroyed. rclpy Jazzy's ``Executor.shutdown`` does not
     wait for them (it tests ``_is_shutdown`` right after setting it), so a callback still
     running would use a destroyed entity and print "exception never retrieved: cannot use
     Destroyable"."""
-    import time
-
     pending = list(getattr(ex, "_futures", []))
     deadline = time.monotonic() + timeout
     for task in pending:

@@ -112,3 +112,30 @@ def test_constructor_systemexit_propagates_after_cleanup(ros_domain):
     with pytest.raises(SystemExit, match="bad parameter"):
         run_node(factory, [])
     assert not rclpy.ok()
+
+
+class _SlowToDestroy(Node):
+    """A node whose destruction takes 1.3 s (e.g. a driver's shutdown policy on a slow
+    bus); it asks to stop itself once up."""
+
+    def __init__(self) -> None:
+        super().__init__("slow_to_destroy")
+        self.create_timer(0.05, lambda: os.kill(os.getpid(), signal.SIGTERM))
+
+    def destroy_node(self) -> None:
+        import time
+        time.sleep(1.3)
+        super().destroy_node()
+
+
+def test_a_slow_shutdown_says_where_its_time_went(ros_domain, capfd):
+    """A clean-up longer than SLOW_SHUTDOWN prints its phases on stderr (a script waiting
+    for the node, e.g. run_task.sh, then shows which phase held it); a fast one prints
+    nothing (test_named_executor_serves_and_stops_on_signals' nodes)."""
+    run_node(_SlowToDestroy, [], robot_description=False)
+    err = capfd.readouterr().err
+    line = [x for x in err.splitlines() if "shutdown took" in x]
+    assert len(line) == 1, err
+    assert line[0].startswith("[slow_to_destroy] shutdown took 1.")
+    node_s = float(line[0].split("node ")[1].split(" s")[0])
+    assert 1.3 <= node_s < 2.0, line[0]

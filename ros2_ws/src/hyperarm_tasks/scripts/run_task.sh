@@ -99,7 +99,12 @@ client=""
 interrupted=0
 # The client gets SIGTERM for either: it starts (a background job) with SIGINT ignored until
 # its handler is set, while SIGTERM ends it at once before that (nothing sent yet).
-forward() { interrupted=1; [ -z "$client" ] || kill -TERM "$client" 2>/dev/null; }
+signalled_at=""
+forward() {
+  interrupted=1
+  [ -n "$signalled_at" ] || signalled_at=${EPOCHREALTIME/./}
+  [ -z "$client" ] || kill -TERM "$client" 2>/dev/null
+}
 trap 'forward INT' INT
 trap 'forward TERM' TERM
 stop_if_interrupted() { [ "$interrupted" = 0 ] || exit 130; }
@@ -110,6 +115,7 @@ cleanup() {
   local i pid
   # SIGTERM: a node stops on it as on SIGINT (its shutdown policy runs), and one still in
   # Python's start-up (before any handler; nothing opened yet) ends at once, quietly.
+  local t0=${EPOCHREALTIME/./} took
   for pid in "${pids[@]}"; do kill -TERM "$pid" 2>/dev/null; done
   for i in "${!pids[@]}"; do
     pid="${pids[$i]}"
@@ -118,6 +124,12 @@ cleanup() {
       kill -KILL "$pid" 2>/dev/null
     fi
     wait "$pid" 2>/dev/null
+    # a slow stop is said, with the node's own account of it (run_node prints its phases)
+    took=$(( (${EPOCHREALTIME/./} - t0) / 1000 ))
+    if [ "$took" -gt 1000 ]; then
+      echo "run_task.sh: ${names[$i]} stopped ${took} ms after SIGTERM" >&2
+      grep -h "shutdown took" "$logs/${names[$i]}.log" >&2 2>/dev/null
+    fi
   done
 }
 trap cleanup EXIT
@@ -194,6 +206,10 @@ for task in "${tasks[@]}"; do
     kill -0 "$client" 2>/dev/null || break   # wait returns early when a trap ran
   done
   client=""
+  if [ -n "$signalled_at" ]; then   # a slow stop is said (where the time went)
+    took=$(( (${EPOCHREALTIME/./} - signalled_at) / 1000 ))
+    [ "$took" -le 1000 ] || echo "run_task.sh: run_task stopped ${took} ms after the signal" >&2
+  fi
   [ "$rc" -eq 0 ] && [ "$interrupted" = 0 ] || break
 done
 [ "$interrupted" = 0 ] || rc=130
