@@ -10,7 +10,9 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import signal
 import sys
+import threading
 from typing import Any, Callable
 
 from hyperarm_description import contract
@@ -358,11 +360,23 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    interrupted: list[int] = []
+
+    def on_sigint(signum: int, frame: Any) -> None:
+        interrupted.append(signum)
+        signal.default_int_handler(signum, frame)   # KeyboardInterrupt, as before
+
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, on_sigint) if main_thread else None
     try:
         return args.fn(args)
     except KeyboardInterrupt:
         return 130
     except Exception as exc:  # one clear line, never a traceback, for the errors we know
+        if interrupted:
+            # a Ctrl-C inside a library's C code comes out as that library's error (seen:
+            # rclpy's import during a Ctrl-C raised ImportError "initialization failed")
+            return 130
         from .dxl_tools import BusToolError
         known: tuple[type, ...] = (BusToolError, OSError, ValueError)
         try:
@@ -379,6 +393,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"hyperarm {args.command}: {exc}", file=sys.stderr)
             return 1
         raise
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGINT, previous)
 
 
 if __name__ == "__main__":

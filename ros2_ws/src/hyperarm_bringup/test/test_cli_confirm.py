@@ -81,3 +81,31 @@ def test_missing_joints_in_order():
         seen = rng.sample(required, rng.randint(0, len(required)))
         assert missing_joints(required, seen) == [n for n in required if n not in seen]
     assert missing_joints(required, ["rail"]) == list(required[:-1])
+
+
+def _fails_as_a_library_does(interrupt: bool):
+    """A command that, like rclpy's import during a Ctrl-C, turns the KeyboardInterrupt it
+    gets inside C code into an error of its own (ImportError "initialization failed")."""
+    import os
+    import signal
+
+    def cmd(_args) -> int:
+        try:
+            if interrupt:
+                os.kill(os.getpid(), signal.SIGINT)
+            raise ImportError("initialization failed")
+        except KeyboardInterrupt:
+            raise ImportError("initialization failed") from None
+    return cmd
+
+
+def test_a_ctrl_c_that_a_library_turned_into_its_error_ends_with_130(monkeypatch):
+    """`hyperarm run` interrupted while rclpy's C extension loads: exit 130 (it was a
+    traceback and exit 1); the same error without a Ctrl-C is still raised (a real bug)."""
+    from hyperarm_bringup import cli
+
+    monkeypatch.setattr(cli, "cmd_run", _fails_as_a_library_does(True))
+    assert cli.main(["run", "block_transfer"]) == 130
+    monkeypatch.setattr(cli, "cmd_run", _fails_as_a_library_does(False))
+    with pytest.raises(ImportError, match="initialization failed"):
+        cli.main(["run", "block_transfer"])

@@ -7,7 +7,9 @@ The ros2/demos pattern, written once, with what a node on a robot needs around i
 - Signals: the first SIGINT or SIGTERM asks the node to stop; the spin loop ends, the node is
   destroyed (its shutdown policy runs: torque policy, rail stop...) and rclpy shuts down.
   Further SIGINT/SIGTERM during that clean-up are ignored (one line on stderr), so a second
-  quick Ctrl-C cannot skip the shutdown policy or crash the process. Exit code 0.
+  quick Ctrl-C cannot skip the shutdown policy or crash the process. Exit code 0, at once
+  after the clean-up when run from the command line (``args`` None): the interpreter's
+  finalization is skipped (:func:`_exit_now`). A clean-up over 1 s prints its phases.
   rclpy's own signal handlers are not installed: they shut the context down under the
   node's feet, so clean-up code could not publish, log to /rosout or call services.
 - A node constructor that raises SystemExit (bad parameters, bad description) ends the
@@ -236,6 +238,23 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None,
             stop.restore()
     if failure:
         raise failure[0]
+    if args is None and stop.signalled:
+        _exit_now()
+
+
+def _exit_now() -> None:
+    """End a node process stopped by a signal as soon as its clean-up is done: stdout and
+    stderr flushed, then ``os._exit(0)``. The interpreter's own finalization (module
+    teardown and the DDS library's static destructors, 0.15-0.2 s of CPU per process after
+    rclpy has shut down) would only delay a script waiting for the node: it kept
+    run_task.sh's Ctrl-C waiting 3.4 s once, on a loaded machine. Nothing of ours runs at
+    exit (no atexit handlers): the node's shutdown policy ran in destroy_node."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):   # closed or broken pipe: nothing more to say
+            pass
+    os._exit(0)
 
 
 class _Phases:
