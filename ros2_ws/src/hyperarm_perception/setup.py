@@ -23,6 +23,7 @@ setup(
     entry_points={
         "console_scripts": [
             "marker_detector = hyperarm_perception.marker_detector_node:main",
+            "usb_camera = hyperarm_perception.usb_camera_node:main",
         ],
     },
 )

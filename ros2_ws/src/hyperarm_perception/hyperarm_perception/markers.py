@@ -268,21 +268,26 @@ def default_marker_map_path() -> Path:
     return Path(__file__).resolve().parent / "config" / "markers.yaml"
 
 
-def load_marker_map(path: str | Path | None = None) -> MarkerMap:
-    """Read and check a marker map YAML (default: the packaged one)."""
-    path = Path(path) if path is not None else default_marker_map_path()
+def read_yaml_file(path: Path, error: type[PerceptionError]) -> Any:
+    """The parsed YAML of ``path``; ``error`` (a :class:`PerceptionError` subclass) naming
+    the file, and the line of a syntax error, if it cannot be read or parsed."""
     try:
         text = path.read_text()
     except OSError as exc:
-        raise MarkerMapError(f"{path.name}: cannot read: {exc.strerror or exc}") from None
+        raise error(f"{path.name}: cannot read: {exc.strerror or exc}") from None
     try:
-        data = yaml.safe_load(text)
+        return yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         at = f" line {mark.line + 1}" if mark is not None else ""
-        raise MarkerMapError(f"{path.name}:{at}: not valid YAML: "
-                             f"{getattr(exc, 'problem', None) or exc}") from None
-    return parse_marker_map(data, path.name)
+        raise error(f"{path.name}:{at}: not valid YAML: "
+                    f"{getattr(exc, 'problem', None) or exc}") from None
+
+
+def load_marker_map(path: str | Path | None = None) -> MarkerMap:
+    """Read and check a marker map YAML (default: the packaged one)."""
+    path = Path(path) if path is not None else default_marker_map_path()
+    return parse_marker_map(read_yaml_file(path, MarkerMapError), path.name)
 
 
 @dataclass(frozen=True)
