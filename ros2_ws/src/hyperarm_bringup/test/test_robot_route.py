@@ -70,7 +70,7 @@ ROSDEP_OF = {"numpy": "python3-numpy", "yaml": "python3-yaml", "pinocchio": "pin
              "hypothesis": "python3-hypothesis", "launch": "launch",
              "launch_ros": "launch_ros", "jsonschema": "python3-jsonschema",
              "matplotlib": "python3-matplotlib", "PIL": "python3-pil",
-             "lark": "python3-lark-parser"}
+             "lark": "python3-lark-parser", "scipy": "python3-scipy"}
 PIP_OF = {"dls_pmaclib": "dls-pmaclib", "mcap": "mcap", "mcap_ros2": "mcap-ros2-support",
           "viser": "viser", "selenium": "selenium", "mujoco": "mujoco",
           "cv2": "opencv-python-headless"}

@@ -1,0 +1,1 @@
+"""hyperarm controllers: ROS-free cores (numpy, SI units) and, later, their thin nodes."""

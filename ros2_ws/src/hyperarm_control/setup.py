@@ -1,0 +1,20 @@
+from setuptools import find_packages, setup
+
+package_name = "hyperarm_control"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=False,
+    maintainer="hyperarm developers",
+    maintainer_email="dev@hyperarm.invalid",
+    description="hyperarm controllers: the joint trajectory core (issue 26)",
+    license="Apache-2.0",
+    entry_points={"console_scripts": []},
+)

@@ -1,0 +1,323 @@
+"""Core tier (no ROS): the joint trajectory core. Goals checked with the action's error
+codes, splines through the points from the present state, and the follower's tolerances,
+cancel, preemption and stale states; its invariant (no command step beyond velocity limit x
+period, never outside the limits) over random goals, states and event sequences."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from hyperarm_control.trajectory import (Follower, GoalToleranceViolated, InvalidGoal,
+                                         InvalidJoints, JointLimits, OldHeaderTimestamp,
+                                         PathToleranceViolated, Tolerances, TrajectoryError,
+                                         build_trajectory, resolve_tolerance, start_time)
+from hyperarm_description.model import load_description
+
+pytestmark = pytest.mark.core
+
+LIM = JointLimits.from_description(load_description(None, "arm"))
+N = len(LIM.names)
+PERIOD = 0.01
+DEFAULTS = Tolerances(np.full(N, 0.1), np.full(N, 0.01), np.full(N, math.inf), 0.5)
+
+
+def _random_goal(rng, q0, points=4, kind="cubic", slack=1.6):
+    """A goal within the limits from q0: random waypoints, times slow enough for the limits
+    (``slack`` x the fastest straight move)."""
+    lo, hi = LIM.lower + 0.3, LIM.upper - 0.3
+    p = rng.uniform(lo, hi, (points, N))
+    t, prev, times = 0.0, q0, []
+    for k in range(points):
+        need = np.max(np.abs(p[k] - prev) / LIM.velocity)
+        need = max(need, math.sqrt(np.max(np.abs(p[k] - prev) / LIM.acceleration)) * 2.5)
+        t += slack * max(need, 0.2) + 0.3
+        times.append(t)
+        prev = p[k]
+    v = a = None
+    if kind in ("hermite", "quintic"):   # as a planner gives them: the neighbours' slopes
+        knots = np.concatenate([[0.0], times])
+        pts = np.vstack([q0, p])
+        slope = np.diff(pts, axis=0) / np.diff(knots)[:, None]
+        v = np.zeros((points, N))
+        v[:-1] = 0.5 * (slope[:-1] + slope[1:])
+    if kind == "quintic":
+        a = np.zeros((points, N))
+        a[:-1] = rng.uniform(-0.05, 0.05, (points - 1, N)) * LIM.acceleration
+    return list(LIM.names), times, p, v, a
+
+
+def _build(names, times, p, v=None, a=None, q0=None, v0=None, **kw):
+    return build_trajectory(LIM, names, times, p.tolist(),
+                            None if v is None else v.tolist(),
+                            None if a is None else a.tolist(),
+                            start_position=np.zeros(N) if q0 is None else q0,
+                            start_velocity=v0, **kw)
+
+
+def test_limits_from_the_description():
+    assert LIM.names == tuple(f"joint{i}" for i in range(1, 10))
+    rail = JointLimits.from_description(load_description(None, "rail_arm"))
+    assert rail.names[0] == "rail" and rail.names[1:] == LIM.names
+    assert rail.velocity[0] == load_description(None, "rail_arm").rail.velocity
+
+
+@pytest.mark.parametrize("kind", ["cubic", "hermite", "quintic"])
+@pytest.mark.parametrize("seed", range(3))
+def test_the_spline_passes_every_point_from_the_present_state(kind, seed):
+    rng = np.random.default_rng(seed)
+    q0 = rng.uniform(LIM.lower + 0.5, LIM.upper - 0.5)
+    names, times, p, v, a = _random_goal(rng, q0, kind=kind, slack=3.0)
+    traj = _build(names, times, p, v, a, q0=q0)
+    assert traj.kind == kind
+    q, dq, _ = traj.sample(0.0)
+    assert np.allclose(q, q0, atol=1e-12) and np.allclose(dq, 0.0, atol=1e-12)
+    for k, t in enumerate(times):
+        q, dq, ddq = traj.sample(t - 1e-12)
+        assert np.allclose(q, p[k], atol=1e-9)
+        if v is not None:
+            assert np.allclose(dq, v[k], atol=1e-6)
+        if a is not None:
+            assert np.allclose(ddq, a[k], atol=1e-4)
+    q, dq, ddq = traj.sample(times[-1] + 5.0)     # held after the end
+    assert np.array_equal(q, p[-1]) and not dq.any() and not ddq.any()
+    # continuity across the interior knots: position and velocity always; acceleration
+    # for the C2 kinds (cubic spline, quintic)
+    for t in times[:-1]:
+        left, right = traj.sample(t - 1e-7), traj.sample(t + 1e-7)
+        assert np.allclose(left[0], right[0], atol=1e-5)
+        assert np.allclose(left[1], right[1], atol=1e-4)
+        if kind != "hermite":
+            assert np.allclose(left[2], right[2], atol=1e-3 * LIM.acceleration.max())
+
+
+def test_the_messages_joint_order_is_mapped_onto_the_controllers():
+    rng = np.random.default_rng(5)
+    names, times, p, _, _ = _random_goal(rng, np.zeros(N), points=2)
+    perm = rng.permutation(N)
+    traj = _build([names[i] for i in perm], times, p[:, perm])
+    assert np.allclose(traj.sample(times[-1])[0], p[-1])
+
+
+def test_a_first_point_at_t0_is_the_start_state_and_causes_no_jump():
+    q0 = np.full(N, 0.2)
+    p = np.vstack([q0 + 0.01, np.full(N, 0.5)])
+    traj = _build(list(LIM.names), [0.0, 2.0], p, q0=q0)
+    assert np.allclose(traj.sample(0.0)[0], q0)          # from where the arm is
+    with pytest.raises(InvalidGoal, match=r"point 0 at t = 0 puts joint1 at 0\.7000, "
+                                          r"0\.5000 from where it is"):
+        _build(list(LIM.names), [0.0, 2.0], np.vstack([q0 + 0.5, q0]), q0=q0)
+
+
+def _bad(**change):
+    names = list(LIM.names)
+    times = [1.0, 2.0]
+    p = np.array([np.full(N, 0.1), np.full(N, 0.2)])
+    args = {"names": names, "times": times, "p": p, "v": None, "a": None}
+    args.update(change)
+    return args
+
+
+@pytest.mark.parametrize("change,error,text", [
+    ({"names": list(LIM.names[:-1])}, InvalidJoints, "missing joint9"),
+    ({"names": list(LIM.names[:-1]) + ["elbow"]}, InvalidJoints, "unknown elbow"),
+    ({"names": list(LIM.names[:-1]) + ["joint1"]}, InvalidJoints, "repeated joint1"),
+    ({"times": [2.0, 1.0]}, InvalidGoal, "point 1 at 1 s is not after point 0"),
+    ({"times": [1.0, 1.0]}, InvalidGoal, "times must increase strictly"),
+    ({"times": [-1.0, 1.0]}, InvalidGoal, "before the start"),
+    ({"times": [1.0, math.nan]}, InvalidGoal, "point 1 is not finite"),
+    ({"times": [1.0]}, InvalidGoal, "1 times for 2 points"),
+    ({"p": np.array([np.full(N, 0.1), [0.2] * (N - 1) + [math.nan]])}, InvalidGoal,
+     "positions: point 1 has nan"),
+    ({"p": np.array([np.full(N, 0.1), [9.0] + [0.2] * (N - 1)])}, InvalidGoal,
+     "positions: point 1, joint1 = 9 is outside"),
+    ({"v": np.array([np.full(N, 0.1), np.full(N, 99.0)])}, InvalidGoal,
+     "velocities: point 1, joint1 = 99"),
+    ({"v": np.zeros((2, N)), "a": np.array([np.zeros(N), np.full(N, 1e3)])}, InvalidGoal,
+     "accelerations: point 1, joint1 = 1000"),
+    ({"a": np.zeros((2, N))}, InvalidGoal, "accelerations without velocities"),
+    ({"times": [0.05, 0.1], "p": np.array([np.full(N, 1.0), np.full(N, 1.0)])}, InvalidGoal,
+     "the trajectory needs joint"),
+])
+def test_each_bad_goal_is_refused_with_its_code(change, error, text):
+    args = _bad(**change)
+    with pytest.raises(error, match=text.replace("(", r"\(")) as err:
+        _build(args["names"], args["times"], args["p"], args["v"], args["a"])
+    assert err.value.code == (-2 if error is InvalidJoints else -1)
+
+
+def test_ragged_and_empty_points_are_refused():
+    with pytest.raises(InvalidGoal, match="point 1 has 8 values, expected 9"):
+        build_trajectory(LIM, LIM.names, [1.0, 2.0], [[0.1] * N, [0.1] * (N - 1)],
+                         start_position=np.zeros(N))
+    with pytest.raises(InvalidGoal, match="velocities: point 0 has 3 values"):
+        build_trajectory(LIM, LIM.names, [1.0, 2.0], [[0.1] * N, [0.1] * N],
+                         [[0.0] * 3, [0.0] * N], start_position=np.zeros(N))
+    with pytest.raises(InvalidGoal, match="empty"):
+        build_trajectory(LIM, LIM.names, [], [], start_position=np.zeros(N))
+
+
+def test_a_spline_that_overshoots_a_limit_between_points_is_refused():
+    """Points inside the limits, but the cubic between them swings past joint1's upper
+    limit: refused before it runs."""
+    hi = LIM.upper[0]
+    p = np.zeros((3, N))
+    p[:, 0] = [hi - 0.01, hi - 0.01, -1.0]
+    with pytest.raises(InvalidGoal, match=r"joint1 position .* beyond its limit"):
+        _build(list(LIM.names), [2.0, 2.2, 4.0], p, q0=np.zeros(N),
+               v0=np.zeros(N))
+
+
+def test_old_header_stamps():
+    assert start_time(0.0, 3.0, 100.0) == 100.0
+    assert start_time(101.0, 3.0, 100.0) == 101.0          # a start in the future
+    assert start_time(98.0, 3.0, 100.0) == 98.0            # late, but not over
+    with pytest.raises(OldHeaderTimestamp, match="would be over") as err:
+        start_time(90.0, 3.0, 100.0)
+    assert err.value.code == -3
+
+
+def test_tolerance_semantics_of_joint_tolerance():
+    assert resolve_tolerance(0.2, 0.1) == 0.2
+    assert resolve_tolerance(0.0, 0.1) == 0.1
+    assert resolve_tolerance(-1.0, 0.1) == math.inf
+    tol = Tolerances.resolve(LIM.names, DEFAULTS, path={"joint3": 0.05, "joint4": -1.0},
+                             goal_time=0.0)
+    assert tol.path[2] == 0.05 and tol.path[3] == math.inf and tol.path[0] == 0.1
+    assert tol.goal_time == DEFAULTS.goal_time
+    with pytest.raises(TrajectoryError, match="'elbow': not a joint"):
+        Tolerances.resolve(LIM.names, DEFAULTS, goal={"elbow": 0.1})
+
+
+def _run(follower, traj, tol, q_of, t_end, t0=0.0, stamp_lag=0.0):
+    follower.start(traj, tol, t0)
+    out = []
+    t = t0
+    while t <= t_end:
+        cyc = follower.step(t, q_of(t, out), t - stamp_lag)
+        out.append(cyc)
+        if cyc.status != "running":
+            break
+        t += PERIOD
+    return out
+
+
+def test_a_tracked_trajectory_succeeds_and_holds_its_goal():
+    rng = np.random.default_rng(2)
+    f = Follower(LIM, PERIOD)
+    names, times, p, v, a = _random_goal(rng, np.zeros(N), kind="quintic")
+    traj = _build(names, times, p, v, a)
+    out = _run(f, traj, DEFAULTS, lambda t, out: out[-1].command if out else np.zeros(N),
+               times[-1] + 2.0)
+    assert out[-1].status == "succeeded" and out[-1].failure is None
+    assert np.allclose(out[-1].command, p[-1], atol=0.01)
+    assert max(np.abs(c.error).max() for c in out) < DEFAULTS.path[0]
+
+
+def test_a_joint_held_back_aborts_on_its_path_tolerance_and_the_arm_holds_there():
+    f = Follower(LIM, PERIOD)
+    traj = _build(list(LIM.names), [3.0], np.full((1, N), 0.6))
+
+    def stuck(t, out):     # joint5 does not move; the others follow
+        q = out[-1].command.copy() if out else np.zeros(N)
+        q[4] = 0.0
+        return q
+    out = _run(f, traj, DEFAULTS, stuck, 5.0)
+    assert out[-1].status == "aborted"
+    assert isinstance(out[-1].failure, PathToleranceViolated)
+    assert out[-1].failure.code == -4
+    assert "joint5 is 0.1" in str(out[-1].failure) and "path tolerance 0.1" in str(
+        out[-1].failure)
+    at = out[-1].actual
+    for _ in range(200):     # held where the arm was at the abort
+        cyc = f.step(10.0, at, 10.0)
+    assert cyc.status == "aborted" and np.allclose(cyc.command, at)
+
+
+def test_a_goal_not_reached_aborts_after_the_goal_time_tolerance():
+    f = Follower(LIM, PERIOD)
+    traj = _build(list(LIM.names), [1.0], np.full((1, N), 0.2))
+    tol = Tolerances(np.full(N, math.inf), np.full(N, 0.01), np.full(N, math.inf), 0.3)
+
+    def short(t, out):       # stops 0.05 rad short on joint2
+        q = out[-1].command.copy() if out else np.zeros(N)
+        q[1] = min(q[1], 0.15)
+        return q
+    out = _run(f, traj, tol, short, 3.0)
+    assert out[-1].status == "aborted" and isinstance(out[-1].failure, GoalToleranceViolated)
+    assert out[-1].failure.code == -5 and "joint2 is 0.0500 rad from its goal" in str(
+        out[-1].failure)
+    assert 1.3 <= out[-1].time <= 1.3 + 2 * PERIOD
+
+
+def test_a_stale_state_aborts_and_holds():
+    f = Follower(LIM, PERIOD, max_state_age=0.2)
+    traj = _build(list(LIM.names), [2.0], np.full((1, N), 0.3))
+    out = _run(f, traj, DEFAULTS, lambda t, out: out[-1].command if out else np.zeros(N),
+               3.0, stamp_lag=0.25)
+    assert out[-1].status == "aborted" and "joint_states are 0.250 s old" in str(
+        out[-1].failure)
+
+
+def test_cancel_holds_the_last_command_and_a_preemption_starts_from_it():
+    f = Follower(LIM, PERIOD)
+    traj = _build(list(LIM.names), [2.0], np.full((1, N), 0.5))
+    q = np.zeros(N)
+    f.start(traj, DEFAULTS, 0.0)
+    for k in range(100):
+        q = f.step(k * PERIOD, q, k * PERIOD).command
+    f.cancel()
+    held = [f.step(1.0 + k * PERIOD, q, 1.0 + k * PERIOD) for k in range(20)]
+    assert held[0].status == "cancelled"
+    assert all(np.array_equal(c.command, q) for c in held)
+    # a new goal from there: the first command is one step at most from the held one
+    new = _build(list(LIM.names), [2.0], np.full((1, N), -0.2), q0=q)
+    f.start(new, DEFAULTS, 2.0)
+    first = f.step(2.0, q, 2.0)
+    assert first.status == "running"
+    assert np.all(np.abs(first.command - q) <= LIM.velocity * PERIOD + 1e-12)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_invariant_no_command_step_beyond_the_velocity_limit_whatever_happens(seed):
+    """Random goals (all kinds), measured states that track, lag, jump or freeze, late
+    stamps, preemptions mid-way, cancels and stale states, in random order: every command is
+    inside the limits and within velocity limit x period of the previous one."""
+    rng = np.random.default_rng(100 + seed)
+    f = Follower(LIM, PERIOD, max_state_age=0.2)
+    step = LIM.velocity * PERIOD
+    q = rng.uniform(LIM.lower, LIM.upper)
+    last = None
+    t = 0.0
+    events = 0
+    for _ in range(3000):
+        r = rng.random()
+        if r < 0.01:
+            kind = rng.choice(["cubic", "hermite", "quintic"])
+            try:
+                names, times, p, v, a = _random_goal(rng, q, points=int(rng.integers(1, 5)),
+                                                     kind=kind, slack=rng.uniform(0.3, 3))
+                traj = _build(names, times, p, v, a,
+                              q0=np.clip(q, LIM.lower, LIM.upper))
+                f.start(traj, DEFAULTS, t)
+                events += 1
+            except InvalidGoal:
+                pass                 # too fast for the limits: refused, nothing changes
+        elif r < 0.015:
+            f.cancel()
+        # the measured state: follows the command, lags, jumps or freezes
+        mode = rng.random()
+        if last is not None and mode < 0.7:
+            q = last + rng.normal(0, 0.002, N)
+        elif mode < 0.75:
+            q = rng.uniform(LIM.lower, LIM.upper)
+        stamp = t - (rng.uniform(0.0, 0.5) if rng.random() < 0.02 else 0.0)
+        cyc = f.step(t, q, stamp)
+        cmd = cyc.command
+        assert np.all(cmd >= LIM.lower) and np.all(cmd <= LIM.upper)
+        if last is not None:
+            assert np.all(np.abs(cmd - last) <= step + 1e-12), (t, np.abs(cmd - last) / step)
+        last = cmd
+        t += PERIOD
+    assert events >= 10
