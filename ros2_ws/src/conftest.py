@@ -80,8 +80,15 @@ def _terminal_signal_state() -> None:
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+#: names this test session (the xdist workers inherit it from the controller): processes
+#: on a ROS domain that another session (another checkout's `make test`) also uses are
+#: not ours to judge or kill
+SESSION_VAR = "HYPERARM_TEST_SESSION"
+
+
 def pytest_configure(config: pytest.Config) -> None:
     _terminal_signal_state()
+    os.environ.setdefault(SESSION_VAR, f"{os.getpid()}-{time.time_ns()}")
 
 
 @pytest.fixture(autouse=True)
@@ -92,16 +99,19 @@ def _terminal_signals() -> None:
 
 
 def processes_on_domain(domain: int) -> list[tuple[int, str]]:
-    """(pid, command line) of every live process started with ROS_DOMAIN_ID=``domain``
-    (this process excepted): what a test started on its own domain."""
+    """(pid, command line) of every live process of this test session started with
+    ROS_DOMAIN_ID=``domain`` (this process excepted): what a test started on its own
+    domain."""
     found = []
     needle = f"\0ROS_DOMAIN_ID={domain}\0".encode()
+    ours = f"\0{SESSION_VAR}={os.environ.get(SESSION_VAR, '')}\0".encode()
     for env_file in Path("/proc").glob("[0-9]*/environ"):
         pid = int(env_file.parent.name)
         if pid == os.getpid():
             continue
         try:
-            if needle not in b"\0" + env_file.read_bytes():
+            env = b"\0" + env_file.read_bytes()
+            if needle not in env or ours not in env:
                 continue
             cmd = (env_file.parent / "cmdline").read_bytes().replace(b"\0", b" ").strip()
             state = (env_file.parent / "stat").read_text().rsplit(")", 1)[1].split()[0]

@@ -22,8 +22,8 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "marker_detector = hyperarm_perception.marker_detector_node:main",
-            "usb_camera = hyperarm_perception.usb_camera_node:main",
+            "marker_detector = hyperarm_perception.entry:marker_detector",
+            "usb_camera = hyperarm_perception.entry:usb_camera",
         ],
     },
 )

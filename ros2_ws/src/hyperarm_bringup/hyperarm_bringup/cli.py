@@ -376,6 +376,8 @@ def main(argv: list[str] | None = None) -> int:
         if interrupted:
             # a Ctrl-C inside a library's C code comes out as that library's error (seen:
             # rclpy's import during a Ctrl-C raised ImportError "initialization failed")
+            print(f"hyperarm {args.command}: interrupted ({type(exc).__name__}: {exc})",
+                  file=sys.stderr)
             return 130
         from .dxl_tools import BusToolError
         known: tuple[type, ...] = (BusToolError, OSError, ValueError)

@@ -99,13 +99,15 @@ def _fails_as_a_library_does(interrupt: bool):
     return cmd
 
 
-def test_a_ctrl_c_that_a_library_turned_into_its_error_ends_with_130(monkeypatch):
+def test_a_ctrl_c_that_a_library_turned_into_its_error_ends_with_130(monkeypatch, capsys):
     """`hyperarm run` interrupted while rclpy's C extension loads: exit 130 (it was a
     traceback and exit 1); the same error without a Ctrl-C is still raised (a real bug)."""
     from hyperarm_bringup import cli
 
     monkeypatch.setattr(cli, "cmd_run", _fails_as_a_library_does(True))
     assert cli.main(["run", "block_transfer"]) == 130
+    assert "hyperarm run: interrupted (ImportError: initialization failed)" in \
+        capsys.readouterr().err
     monkeypatch.setattr(cli, "cmd_run", _fails_as_a_library_does(False))
     with pytest.raises(ImportError, match="initialization failed"):
         cli.main(["run", "block_transfer"])

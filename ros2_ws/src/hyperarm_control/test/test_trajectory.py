@@ -20,7 +20,8 @@ pytestmark = pytest.mark.core
 LIM = JointLimits.from_description(load_description(None, "arm"))
 N = len(LIM.names)
 PERIOD = 0.01
-DEFAULTS = Tolerances(np.full(N, 0.1), np.full(N, 0.01), np.full(N, math.inf), 0.5)
+#: path 0.1 rad, path velocity and goal velocity not checked (0), goal 0.01 rad, 0.5 s
+DEFAULTS = Tolerances(np.full(N, 0.1), np.zeros(N), np.full(N, 0.01), np.zeros(N), 0.5)
 
 
 def _random_goal(rng, q0, points=4, kind="cubic", slack=1.6):
@@ -132,8 +133,8 @@ def _bad(**change):
      "positions: point 1 has nan"),
     ({"p": np.array([np.full(N, 0.1), [9.0] + [0.2] * (N - 1)])}, InvalidGoal,
      "positions: point 1, joint1 = 9 is outside"),
-    ({"v": np.array([np.full(N, 0.1), np.full(N, 99.0)])}, InvalidGoal,
-     "velocities: point 1, joint1 = 99"),
+    ({"v": np.array([np.full(N, 99.0), np.zeros(N)])}, InvalidGoal,
+     "velocities: point 0, joint1 = 99"),
     ({"v": np.zeros((2, N)), "a": np.array([np.zeros(N), np.full(N, 1e3)])}, InvalidGoal,
      "accelerations: point 1, joint1 = 1000"),
     ({"a": np.zeros((2, N))}, InvalidGoal, "accelerations without velocities"),
@@ -169,25 +170,77 @@ def test_a_spline_that_overshoots_a_limit_between_points_is_refused():
                v0=np.zeros(N))
 
 
-def test_old_header_stamps():
-    assert start_time(0.0, 3.0, 100.0) == 100.0
-    assert start_time(101.0, 3.0, 100.0) == 101.0          # a start in the future
-    assert start_time(98.0, 3.0, 100.0) == 98.0            # late, but not over
+def test_header_stamps_zero_future_late_and_old():
+    assert start_time(0.0, 3.0, 100.0) == (100.0, 0.0)
+    assert start_time(101.0, 3.0, 100.0) == (101.0, 0.0)       # starts then
+    assert start_time(98.0, 3.0, 100.0) == (100.0, 2.0)        # late: 2 s already due
     with pytest.raises(OldHeaderTimestamp, match="would be over") as err:
         start_time(90.0, 3.0, 100.0)
     assert err.value.code == -3
 
 
-def test_tolerance_semantics_of_joint_tolerance():
+def test_a_late_goal_starts_from_the_present_state_with_the_points_already_due_dropped():
+    """A stamp 1 s old on a 2-point goal (1 s and 3 s): the first point is dropped, the
+    spline runs from where the arm is now to the second point in the 2 s left; followed,
+    it neither jumps nor aborts (it aborted at once on a 0.5 rad path error before)."""
+    q0 = np.zeros(N)
+    p = np.array([np.full(N, 0.5), np.full(N, 0.6)])
+    start, elapsed = start_time(99.0, 3.0, 100.0)
+    traj = _build(list(LIM.names), [1.0, 3.0], p, q0=q0, elapsed=elapsed)
+    assert traj.duration == pytest.approx(2.0)
+    assert np.allclose(traj.sample(0.0)[0], q0) and np.allclose(traj.sample(2.0)[0], 0.6)
+    f = Follower(LIM, PERIOD)
+    out = _run(f, traj, DEFAULTS, lambda t, out: out[-1].command if out else q0, 104.0,
+               t0=start)
+    assert out[-1].status == "succeeded", out[-1].failure
+    with pytest.raises(OldHeaderTimestamp, match="every point was due"):
+        _build(list(LIM.names), [1.0, 3.0], p, q0=q0, elapsed=3.5)
+
+
+def test_a_goal_must_end_at_rest_and_not_last_for_hours():
+    v = np.array([np.full(N, 0.1), np.full(N, 0.05)])
+    p = np.array([np.full(N, 0.1), np.full(N, 0.2)])
+    with pytest.raises(InvalidGoal, match="the last point gives joint1 0.05 rad/s"):
+        _build(list(LIM.names), [1.0, 2.0], p, v)
+    with pytest.raises(InvalidGoal, match="beyond 3600 s"):
+        _build(list(LIM.names), [1.0, 1e7], p)
+
+
+def test_holding_here_while_moving_is_a_hold_not_a_refusal():
+    """Only the start state (t = 0) while the arm still moves: hold where it is (was refused
+    for needing -800 rad/s^2 to stop in 1 ms)."""
+    q0 = np.full(N, 0.3)
+    traj = _build(list(LIM.names), [0.0], q0[None, :], q0=q0, v0=np.full(N, 0.2))
+    assert traj.kind == "hold" and np.array_equal(traj.sample(0.0)[0], q0)
+
+
+def test_a_start_outside_the_limits_is_taken_as_the_nearest_limit():
+    q0 = np.zeros(N)
+    q0[0] = LIM.upper[0] + 0.3
+    traj = _build(list(LIM.names), [2.0], np.full((1, N), 0.1), q0=q0)
+    assert traj.sample(0.0)[0][0] == LIM.upper[0]
+
+
+def test_tolerance_semantics_of_joint_trajectory_controller():
     assert resolve_tolerance(0.2, 0.1) == 0.2
     assert resolve_tolerance(0.0, 0.1) == 0.1
     assert resolve_tolerance(-1.0, 0.1) == math.inf
-    tol = Tolerances.resolve(LIM.names, DEFAULTS, path={"joint3": 0.05, "joint4": -1.0},
+    with pytest.raises(InvalidGoal, match="-2"):
+        resolve_tolerance(-2.0, 0.1)
+    tol = Tolerances.resolve(LIM.names, DEFAULTS,
+                             path={"joint3": (0.05, 0.5), "joint4": (-1.0, 0.0)},
                              goal_time=0.0)
-    assert tol.path[2] == 0.05 and tol.path[3] == math.inf and tol.path[0] == 0.1
-    assert tol.goal_time == DEFAULTS.goal_time
-    with pytest.raises(TrajectoryError, match="'elbow': not a joint"):
-        Tolerances.resolve(LIM.names, DEFAULTS, goal={"elbow": 0.1})
+    assert tol.path[2] == 0.05 and tol.path_velocity[2] == 0.5
+    assert tol.path[3] == math.inf and tol.path[0] == 0.1
+    assert tol.path_velocity[0] == math.inf          # a default of 0: not checked
+    assert tol.goal_time == DEFAULTS.goal_time == 0.5
+    assert Tolerances.resolve(LIM.names, DEFAULTS, goal_time=-1.0).goal_time == math.inf
+    assert Tolerances(np.zeros(N), np.zeros(N), np.zeros(N), np.zeros(N), 0.0).goal_time \
+        == math.inf                                  # 0: wait for the goal without limit
+    with pytest.raises(InvalidGoal, match="'elbow': not a joint"):
+        Tolerances.resolve(LIM.names, DEFAULTS, goal={"elbow": (0.1, 0.0)})
+    with pytest.raises(InvalidGoal, match="goal_time_tolerance"):
+        Tolerances.resolve(LIM.names, DEFAULTS, goal_time=-3.0)
 
 
 def _run(follower, traj, tol, q_of, t_end, t0=0.0, stamp_lag=0.0):
@@ -238,7 +291,7 @@ def test_a_joint_held_back_aborts_on_its_path_tolerance_and_the_arm_holds_there(
 def test_a_goal_not_reached_aborts_after_the_goal_time_tolerance():
     f = Follower(LIM, PERIOD)
     traj = _build(list(LIM.names), [1.0], np.full((1, N), 0.2))
-    tol = Tolerances(np.full(N, math.inf), np.full(N, 0.01), np.full(N, math.inf), 0.3)
+    tol = Tolerances(np.zeros(N), np.zeros(N), np.full(N, 0.01), np.zeros(N), 0.3)
 
     def short(t, out):       # stops 0.05 rad short on joint2
         q = out[-1].command.copy() if out else np.zeros(N)
@@ -251,13 +304,39 @@ def test_a_goal_not_reached_aborts_after_the_goal_time_tolerance():
     assert 1.3 <= out[-1].time <= 1.3 + 2 * PERIOD
 
 
-def test_a_stale_state_aborts_and_holds():
+def test_a_stale_state_aborts_and_holds_the_last_command():
+    """States stop while joint1 moves fast: the goal aborts and the command stays where it
+    was (it was sent back 0.23 rad at -3 rad/s towards the old state before)."""
     f = Follower(LIM, PERIOD, max_state_age=0.2)
-    traj = _build(list(LIM.names), [2.0], np.full((1, N), 0.3))
-    out = _run(f, traj, DEFAULTS, lambda t, out: out[-1].command if out else np.zeros(N),
-               3.0, stamp_lag=0.25)
-    assert out[-1].status == "aborted" and "joint_states are 0.250 s old" in str(
-        out[-1].failure)
+    traj = _build(list(LIM.names), [2.0], np.full((1, N), 1.0))
+    unchecked = Tolerances(np.zeros(N), np.zeros(N), np.zeros(N), np.zeros(N), 0.0)
+    f.start(traj, unchecked, 0.0)
+    q, last_stamp = np.zeros(N), 0.0
+    for k in range(200):
+        t = k * PERIOD
+        if t < 1.0:                   # fresh states, then none after t = 1 s
+            last_stamp = t
+            q = f.step(t, q, last_stamp).command if k else f.step(t, q, t).command
+            continue
+        cyc = f.step(t, q, last_stamp)
+        if cyc.status == "aborted":
+            break
+    assert "joint_states are 0.2" in str(cyc.failure) and cyc.failure.code == -4
+    held = cyc.command
+    for k in range(50):
+        again = f.step(2.0 + k * PERIOD, q, last_stamp)
+        assert np.array_equal(again.command, held)
+    assert np.all(held >= q - 1e-12)          # not sent back towards the old state
+
+
+def test_non_finite_inputs_are_refused_not_commanded():
+    f = Follower(LIM, PERIOD)
+    f.start(_build(list(LIM.names), [2.0], np.full((1, N), 0.3)), DEFAULTS, 0.0)
+    f.step(0.0, np.zeros(N), 0.0)
+    for now, stamp, v in ((math.nan, 0.01, None), (0.01, math.nan, None),
+                          (0.01, 0.01, np.full(N, math.inf))):
+        with pytest.raises(TrajectoryError, match="finite"):
+            f.step(now, np.zeros(N), stamp, v)
 
 
 def test_cancel_holds_the_last_command_and_a_preemption_starts_from_it():
@@ -276,7 +355,8 @@ def test_cancel_holds_the_last_command_and_a_preemption_starts_from_it():
     f.start(new, DEFAULTS, 2.0)
     first = f.step(2.0, q, 2.0)
     assert first.status == "running"
-    assert np.all(np.abs(first.command - q) <= LIM.velocity * PERIOD + 1e-12)
+    assert np.allclose(first.desired, q)     # the new goal starts where the command was
+    assert np.array_equal(first.command, first.desired)
 
 
 @pytest.mark.parametrize("seed", range(6))

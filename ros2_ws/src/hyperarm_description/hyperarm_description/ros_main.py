@@ -249,11 +249,19 @@ def _exit_now() -> None:
     rclpy has shut down) would only delay a script waiting for the node: it kept
     run_task.sh's Ctrl-C waiting 3.4 s once, on a loaded machine. Nothing of ours runs at
     exit (no atexit handlers): the node's shutdown policy ran in destroy_node."""
+    import ctypes
+    import logging
+
+    logging.shutdown()                  # Python logging handlers, if any were set up
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
         except (OSError, ValueError):   # closed or broken pipe: nothing more to say
             pass
+    try:
+        ctypes.CDLL(None).fflush(None)  # C stdio: rcutils' console output to a pipe/file
+    except (OSError, AttributeError):
+        pass
     os._exit(0)
 
 

@@ -105,6 +105,8 @@ class FrameSource:
                 cap.set(cv2.CAP_PROP_FRAME_HEIGHT, cfg.height)
             if cfg.fps:
                 cap.set(cv2.CAP_PROP_FPS, cfg.fps)
+            # the newest frame, not one queued behind others: stamps at the read stay true
+            cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)
         if self._opened_once:
             self.counts["reopened"] += 1
         self._opened_once = True

@@ -79,6 +79,8 @@ class UsbCameraNode(Node):
         self._encoding = p["encoding"]
         self._frame_id = p["frame_id"]
         self._period = 1.0 / p["fps"] if p["fps"] > 0 else 0.0
+        from .capture import is_device
+        self._pace = bool(self._period) and not is_device(p["device"])
         self._throttle = ReasonThrottle(5.0)
         self._mismatch = ""
         self._size = (0, 0)
@@ -109,6 +111,8 @@ class UsbCameraNode(Node):
         next_at = time.monotonic()
         while not self._stop.is_set():
             frame = self._source.read()
+            if self._stop.is_set():        # stopping while the read blocked: publish nothing
+                break
             state = self._source.state
             if state != last_state:
                 if state == "open":
@@ -121,8 +125,13 @@ class UsbCameraNode(Node):
                     self._warn(self._source.problem, "no_camera")
                 self._stop.wait(min(0.1, self._source.config.reopen_period))
                 continue
-            self._publish(frame)
-            if self._period:
+            try:
+                self._publish(frame)
+            except Exception:       # the node destroyed under a publish: the stop, not a bug
+                if self._stop.is_set():
+                    break
+                raise
+            if self._pace:          # a recording: at fps (a device delivers at its own rate)
                 next_at = max(next_at + self._period, time.monotonic() - self._period)
                 self._stop.wait(max(0.0, next_at - time.monotonic()))
 
@@ -205,7 +214,13 @@ class UsbCameraNode(Node):
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(timeout=2.0)
-        self._source.close()
+        if self._thread.is_alive():
+            # still inside a blocking read of a stalled device: releasing the capture under
+            # it is undefined in OpenCV; the daemon thread ends with the process
+            self.get_logger().warn(f"usb_camera: {self._source.config.source} still blocks "
+                                   "a read; not released")
+        else:
+            self._source.close()
         super().destroy_node()
 
 

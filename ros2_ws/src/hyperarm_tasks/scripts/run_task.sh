@@ -102,7 +102,7 @@ interrupted=0
 signalled_at=""
 forward() {
   interrupted=1
-  [ -n "$signalled_at" ] || signalled_at=${EPOCHREALTIME/./}
+  [ -n "$signalled_at" ] || signalled_at=${EPOCHREALTIME//[!0-9]/}
   [ -z "$client" ] || kill -TERM "$client" 2>/dev/null
 }
 trap 'forward INT' INT
@@ -115,18 +115,21 @@ cleanup() {
   local i pid
   # SIGTERM: a node stops on it as on SIGINT (its shutdown policy runs), and one still in
   # Python's start-up (before any handler; nothing opened yet) ends at once, quietly.
-  local t0=${EPOCHREALTIME/./} took
+  local t0=${EPOCHREALTIME//[!0-9]/} took
   for pid in "${pids[@]}"; do kill -TERM "$pid" 2>/dev/null; done
+  local before
   for i in "${!pids[@]}"; do
     pid="${pids[$i]}"
+    before=${EPOCHREALTIME//[!0-9]/}
     if ! timeout 10 tail -s 0.02 --pid="$pid" -f /dev/null 2>/dev/null; then
       echo "run_task.sh: ${names[$i]} (pid $pid) did not stop on SIGTERM; killing it" >&2
       kill -KILL "$pid" 2>/dev/null
     fi
     wait "$pid" 2>/dev/null
     # a slow stop is said, with the node's own account of it (run_node prints its phases)
-    took=$(( (${EPOCHREALTIME/./} - t0) / 1000 ))
-    if [ "$took" -gt 1000 ]; then
+    # (reaped in turn: only a node this loop waited on is the slow one, not those after it)
+    took=$(( (${EPOCHREALTIME//[!0-9]/} - t0) / 1000 ))
+    if [ "$took" -gt 1000 ] && [ $(( (${EPOCHREALTIME//[!0-9]/} - before) / 1000 )) -gt 100 ]; then
       echo "run_task.sh: ${names[$i]} stopped ${took} ms after SIGTERM" >&2
       grep -h "shutdown took" "$logs/${names[$i]}.log" >&2 2>/dev/null
     fi
@@ -207,7 +210,7 @@ for task in "${tasks[@]}"; do
   done
   client=""
   if [ -n "$signalled_at" ]; then   # a slow stop is said (where the time went)
-    took=$(( (${EPOCHREALTIME/./} - signalled_at) / 1000 ))
+    took=$(( (${EPOCHREALTIME//[!0-9]/} - signalled_at) / 1000 ))
     [ "$took" -le 1000 ] || echo "run_task.sh: run_task stopped ${took} ms after the signal" >&2
   fi
   [ "$rc" -eq 0 ] && [ "$interrupted" = 0 ] || break

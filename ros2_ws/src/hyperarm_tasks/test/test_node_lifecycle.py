@@ -32,6 +32,8 @@ NODES = [
     ("hyperarm_tasks", "task_node", "task_node"),
     ("hyperarm_tasks", "task_recorder", "task_recorder"),
     ("hyperarm_bringup", "viewer", "viewer"),
+    ("hyperarm_perception", "marker_detector", "marker_detector"),
+    ("hyperarm_perception", "usb_camera", "usb_camera"),
 ]
 
 BAD_OUTPUT = ("Traceback", "Segmentation fault", "Failed to publish log message",
@@ -50,7 +52,9 @@ HELP_PARAMETERS = {
     "task_recorder": ["output"],
     "hybrid_force": ["output", "stale_timeout", "payload_mass"],
     "viewer": ["port", "host", "objects_topic", "workcell_file"],
-    "host_compensation": ["host_source", "initial_delay", "speed_scale"]}
+    "host_compensation": ["host_source", "initial_delay", "speed_scale"],
+    "marker_detector": ["marker_map", "max_age"],
+    "usb_camera": ["device", "camera_info_file", "reopen_period"]}
 
 
 def test_help_of_every_node(executable, tmp_path):
@@ -72,6 +76,18 @@ def test_help_of_every_node(executable, tmp_path):
         for param in HELP_PARAMETERS[name]:      # the same usage text for both flags
             assert re.search(rf"^  {param} \(", out.stdout, re.M), \
                 f"{name} {flag}: {param} missing\n{text}"
+
+
+def _frames(tmp_path) -> str:
+    """A 3-frame image sequence for usb_camera to replay."""
+    import cv2
+    import numpy as np
+
+    folder = tmp_path / "frames"
+    folder.mkdir(exist_ok=True)
+    for i in range(3):
+        cv2.imwrite(str(folder / f"{i:02d}.png"), np.full((480, 640, 3), 40 * i, np.uint8))
+    return str(folder / "%02d.png")
 
 
 def _start_all(launch, tmp_path, wait_for):
@@ -99,6 +115,11 @@ def _start_all(launch, tmp_path, wait_for):
                                 params={"output": str(tmp_path / "rec.mcap")}),
         "viewer": launch("hyperarm_bringup", "viewer", params={"port": 0,
                                                                "host": "127.0.0.1"}),
+        "marker_detector": launch("hyperarm_perception", "marker_detector"),
+        # streaming (a looped recording at 30 fps): its capture thread publishes while the
+        # signals arrive
+        "usb_camera": launch("hyperarm_perception", "usb_camera", params={
+            "device": _frames(tmp_path), "loop": True}),
     }
     return procs, EmulatorControl(ctl)
 

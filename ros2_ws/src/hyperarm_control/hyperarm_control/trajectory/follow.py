@@ -10,8 +10,9 @@
 - **Goal tolerance**: after the last point, the goal succeeds once every joint is within
   its goal position (and velocity) tolerance; if that has not happened
   ``goal_time_tolerance`` s after the end, it aborts (GOAL_TOLERANCE_VIOLATED) and holds.
-- **Stale state**: a measured state older than ``max_state_age`` s aborts and holds (the
-  path cannot be judged on it).
+- **Stale state**: a measured state older than ``max_state_age`` s aborts and holds the
+  last command (the path cannot be judged on it, and the arm is not sent back to where the
+  old state says it was).
 - **Preemption and cancel**: :meth:`Follower.start` replaces a running goal (from the
   present command, no jump); :meth:`Follower.cancel` holds at the last command.
 
@@ -19,8 +20,9 @@
 joint further from the previous command than its velocity limit x ``period``, and no
 command leaves the joint limits. It is applied last, on every command.
 
-Tolerances follow ``control_msgs/JointTolerance``: a value > 0 is the tolerance, 0 takes the
-controller's default, -1 (any negative) means none. Units: rad, rad/s, s.
+Tolerances follow ``control_msgs/JointTolerance`` as joint_trajectory_controller reads them:
+a value > 0 is the tolerance, 0 takes the controller's default, -1 means none, any other
+negative value is refused; a resolved 0 is not checked. Units: rad, rad/s, s.
 """
 from __future__ import annotations
 
@@ -30,50 +32,77 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from .errors import GoalToleranceViolated, PathToleranceViolated, TrajectoryError
+from .errors import (GoalToleranceViolated, InvalidGoal, PathToleranceViolated,
+                     TrajectoryError)
 from .goal import JointLimits, Trajectory
 
 __all__ = ["Tolerances", "Cycle", "Follower", "resolve_tolerance"]
 
 
 def resolve_tolerance(given: float, default: float) -> float:
-    """A JointTolerance value: > 0 as given, 0 the default, < 0 none (inf)."""
-    if not math.isfinite(given):
-        raise TrajectoryError(f"tolerance {given!r} is not finite")
+    """A JointTolerance value: > 0 as given, 0 the default, -1 none (inf); other negative
+    values are refused (INVALID_GOAL), as joint_trajectory_controller does."""
+    if not math.isfinite(given) or (given < 0 and given != -1.0):
+        raise InvalidGoal(f"tolerance {given!r}: > 0, 0 (the default) or -1 (none)")
     return given if given > 0 else (default if given == 0 else math.inf)
+
+
+def _unchecked_if_zero(values: np.ndarray) -> np.ndarray:
+    out = np.asarray(values, dtype=float).copy()
+    out[out == 0.0] = math.inf
+    return out
 
 
 @dataclass(frozen=True)
 class Tolerances:
-    """Per joint (the controller's order): ``path`` and ``goal`` position tolerances (rad),
-    ``goal_velocity`` (rad/s), and ``goal_time`` (s after the end)."""
+    """Per joint (the controller's order): ``path`` position (rad) and ``path_velocity``
+    (rad/s) tolerances while the trajectory runs, ``goal`` position and ``goal_velocity``
+    tolerances at its end, and ``goal_time`` (s after the end). As in
+    joint_trajectory_controller, 0 means not checked (stored as inf) and a ``goal_time`` of
+    0 waits for the goal without limit. (JointTolerance's acceleration is not checked: the
+    drivers do not measure accelerations.)"""
 
     path: np.ndarray
+    path_velocity: np.ndarray
     goal: np.ndarray
     goal_velocity: np.ndarray
     goal_time: float
 
+    def __post_init__(self) -> None:
+        for name in ("path", "path_velocity", "goal", "goal_velocity"):
+            values = np.asarray(getattr(self, name), dtype=float)
+            if np.any(values < 0) or np.any(np.isnan(values)):
+                raise ValueError(f"{name}: tolerances must be >= 0 (0 = not checked)")
+            object.__setattr__(self, name, _unchecked_if_zero(values))
+        if not self.goal_time >= 0:
+            raise ValueError(f"goal_time must be >= 0 s, got {self.goal_time!r}")
+        if self.goal_time == 0.0:
+            object.__setattr__(self, "goal_time", math.inf)
+
     @classmethod
     def resolve(cls, names: Sequence[str], defaults: "Tolerances",
-                path: Mapping[str, float] | None = None,
-                goal: Mapping[str, float] | None = None,
-                goal_velocity: Mapping[str, float] | None = None,
+                path: Mapping[str, tuple[float, float]] | None = None,
+                goal: Mapping[str, tuple[float, float]] | None = None,
                 goal_time: float = 0.0) -> "Tolerances":
-        """A goal's tolerances (joint name -> JointTolerance value) over ``defaults``;
-        raises :class:`TrajectoryError` (INVALID_GOAL) naming an unknown joint."""
-        out = []
-        for given, base in ((path, defaults.path), (goal, defaults.goal),
-                            (goal_velocity, defaults.goal_velocity)):
-            values = base.astype(float).copy()
-            for name, value in (given or {}).items():
+        """A goal's tolerances over ``defaults``: ``path`` and ``goal`` map a joint name to
+        its JointTolerance (position, velocity) values. Raises :class:`InvalidGoal` naming
+        an unknown joint or an illegal value."""
+        out = {"path": defaults.path.copy(), "path_velocity": defaults.path_velocity.copy(),
+               "goal": defaults.goal.copy(), "goal_velocity": defaults.goal_velocity.copy()}
+        for given, (pos_key, vel_key) in ((path, ("path", "path_velocity")),
+                                          (goal, ("goal", "goal_velocity"))):
+            for name, (position, velocity) in (given or {}).items():
                 if name not in names:
-                    raise TrajectoryError(f"tolerance for {name!r}: not a joint of this "
-                                          f"controller ({', '.join(names)})")
+                    raise InvalidGoal(f"tolerance for {name!r}: not a joint of this "
+                                      f"controller ({', '.join(names)})")
                 i = list(names).index(name)
-                values[i] = resolve_tolerance(float(value), float(base[i]))
-            out.append(values)
-        t = resolve_tolerance(float(goal_time), defaults.goal_time)
-        return cls(out[0], out[1], out[2], t)
+                out[pos_key][i] = resolve_tolerance(float(position), out[pos_key][i])
+                out[vel_key][i] = resolve_tolerance(float(velocity), out[vel_key][i])
+        if not math.isfinite(goal_time) or (goal_time < 0 and goal_time != -1.0):
+            raise InvalidGoal(f"goal_time_tolerance {goal_time!r}: >= 0 or -1")
+        t = defaults.goal_time if goal_time == 0 else (math.inf if goal_time < 0
+                                                       else goal_time)
+        return cls(out["path"], out["path_velocity"], out["goal"], out["goal_velocity"], t)
 
 
 @dataclass
@@ -149,9 +178,13 @@ class Follower:
         stamped ``state_stamp`` (s, same clock)."""
         q = np.asarray(q, dtype=float).reshape(-1)
         n = len(self.limits.names)
-        if q.shape != (n,) or not np.all(np.isfinite(q)):
-            raise TrajectoryError(f"measured state: expected {n} finite positions")
         v = np.zeros(n) if v is None else np.asarray(v, dtype=float).reshape(-1)
+        if q.shape != (n,) or v.shape != (n,) or not np.all(np.isfinite(q + v)):
+            raise TrajectoryError(f"measured state: expected {n} finite positions and "
+                                  "velocities")
+        if not (math.isfinite(now) and math.isfinite(state_stamp)):
+            raise TrajectoryError(f"times must be finite (now {now!r}, stamp "
+                                  f"{state_stamp!r})")
         if self._last is None:   # the first command starts where the arm is
             self._last = np.clip(q, self.limits.lower, self.limits.upper)
         zeros = np.zeros(n)
@@ -161,19 +194,28 @@ class Follower:
             t = now - goal.t0
             desired, dv, da = goal.traj.sample(t)
             age = now - state_stamp
-            if age > self.max_state_age:
+            if age > self.max_state_age:   # the measurement is old: hold the command
                 self._abort(goal, PathToleranceViolated(
                     f"joint_states are {age:.3f} s old (more than {self.max_state_age:g} s): "
-                    "the path cannot be judged; aborted, holding"), q)
+                    "the path cannot be judged; aborted, holding"), self._last)
             elif t <= goal.traj.duration:
                 err = np.abs(desired - q)
+                verr = np.abs(dv - v)
                 over = err > goal.tol.path
+                vover = verr > goal.tol.path_velocity
                 if np.any(over):
                     j = int(np.argmax(np.where(over, err - goal.tol.path, -np.inf)))
                     self._abort(goal, PathToleranceViolated(
                         f"{self.limits.names[j]} is {err[j]:.4f} rad from its path at "
                         f"t = {t:.3f} s (path tolerance {goal.tol.path[j]:g}); aborted, "
                         "holding"), q)
+                elif np.any(vover):
+                    j = int(np.argmax(np.where(vover, verr - goal.tol.path_velocity,
+                                               -np.inf)))
+                    self._abort(goal, PathToleranceViolated(
+                        f"{self.limits.names[j]} moves {verr[j]:.4f} rad/s off its path's "
+                        f"velocity at t = {t:.3f} s (path velocity tolerance "
+                        f"{goal.tol.path_velocity[j]:g}); aborted, holding"), q)
             else:
                 within = (np.all(np.abs(goal.traj.goal - q) <= goal.tol.goal)
                           and np.all(np.abs(v) <= goal.tol.goal_velocity))
@@ -201,6 +243,8 @@ class Follower:
         """The invariant: within one velocity-limit step of the previous command and
         inside the joint limits."""
         assert self._last is not None
+        if not np.all(np.isfinite(target)):
+            raise TrajectoryError(f"non-finite command {np.asarray(target).tolist()}")
         cmd = np.clip(target, self._last - self._step, self._last + self._step)
         cmd = np.clip(cmd, self.limits.lower, self.limits.upper)
         self._last = cmd

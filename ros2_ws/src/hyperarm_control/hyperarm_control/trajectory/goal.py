@@ -73,13 +73,13 @@ class JointLimits:
 @dataclass(frozen=True)
 class Trajectory:
     """Splines of all joints from t = 0 (the start state) to ``duration`` s; held at the
-    last point after it. ``kind``: "cubic" (positions only), "hermite" (with velocities)
-    or "quintic" (with accelerations)."""
+    last point after it. ``kind``: "cubic" (positions only), "hermite" (with velocities),
+    "quintic" (with accelerations) or "hold" (stay at the present position)."""
 
     names: tuple[str, ...]
     knots: np.ndarray
     kind: str
-    _spline: CubicSpline | BPoly
+    _spline: CubicSpline | BPoly | None
     goal: np.ndarray
 
     @property
@@ -88,7 +88,7 @@ class Trajectory:
 
     def sample(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(position, velocity, acceleration) of every joint at ``t`` s after the start."""
-        if t >= self.duration:
+        if self._spline is None or t >= self.duration:
             return self.goal.copy(), np.zeros_like(self.goal), np.zeros_like(self.goal)
         t = max(t, 0.0)
         s = self._spline
@@ -120,10 +120,17 @@ def build_trajectory(limits: JointLimits, joint_names: Sequence[str],
                      velocities: Sequence[Sequence[float]] | None = None,
                      accelerations: Sequence[Sequence[float]] | None = None, *,
                      start_position: np.ndarray, start_velocity: np.ndarray | None = None,
-                     start_tolerance: float = 0.05, check_period: float = 0.002
+                     elapsed: float = 0.0, start_tolerance: float = 0.05,
+                     check_period: float = 0.002, max_duration: float = 3600.0
                      ) -> Trajectory:
     """Check a goal (see the module) and build its splines from the present state
-    (``start_position``, ``start_velocity``: the controller's joint order)."""
+    (``start_position``, ``start_velocity``: the controller's joint order; a position
+    outside the limits is taken as the nearest limit, as the follower's first command is).
+
+    ``elapsed`` (s): how long ago the goal's time origin was (now - header.stamp for a
+    stamp in the past, see :func:`start_time`): as joint_trajectory_controller does, points
+    already due are dropped and the present state is put at the present instant, so the
+    trajectory's t = 0 is now. A goal longer than ``max_duration`` s is refused."""
     names = list(joint_names)
     unknown = [n for n in names if n not in limits.names]
     dup = sorted({n for n in names if names.count(n) > 1})
@@ -146,6 +153,9 @@ def build_trajectory(limits: JointLimits, joint_names: Sequence[str],
                           "not finite")
     if t[0] < 0.0:
         raise InvalidGoal(f"time_from_start: point 0 at {t[0]:g} s, before the start")
+    if t[-1] > max_duration:
+        raise InvalidGoal(f"time_from_start: the last point at {t[-1]:g} s is beyond "
+                          f"{max_duration:g} s (send long motions in parts)")
     if np.any(np.diff(t) <= 0.0):
         i = int(np.argmax(np.diff(t) <= 0.0)) + 1
         raise InvalidGoal(f"time_from_start: point {i} at {t[i]:g} s is not after point "
@@ -157,6 +167,11 @@ def build_trajectory(limits: JointLimits, joint_names: Sequence[str],
     a = _array(accelerations, len(t), n, "accelerations")
     if a is not None and v is None:
         raise InvalidGoal("accelerations without velocities (give both, or positions only)")
+    if v is not None and np.any(v[-1] != 0.0):
+        j = int(np.argmax(v[-1] != 0.0))
+        raise InvalidGoal(f"velocities: the last point gives {names[j]} {v[-1, j]:g} rad/s; "
+                          "a trajectory must end at rest (as joint_trajectory_controller's "
+                          "default allow_nonzero_velocity_at_trajectory_end: false)")
     p = p[:, order]
     v = v[:, order] if v is not None else None
     a = a[:, order] if a is not None else None
@@ -176,7 +191,18 @@ def build_trajectory(limits: JointLimits, joint_names: Sequence[str],
           else np.asarray(start_velocity, dtype=float).reshape(-1))
     if q0.shape != (n,) or v0.shape != (n,) or not np.all(np.isfinite(q0 + v0)):
         raise InvalidGoal(f"the present state: expected {n} finite positions and velocities")
-    if t[0] == 0.0:     # the start state MoveIt sends first
+    if not (elapsed >= 0.0 and math.isfinite(elapsed)):
+        raise InvalidGoal(f"elapsed must be >= 0 s, got {elapsed!r}")
+    q0 = np.clip(q0, limits.lower, limits.upper)
+    if elapsed > 0.0:   # a late start: the points already due are dropped
+        due = t <= elapsed
+        if np.all(due):
+            raise OldHeaderTimestamp(f"every point was due {elapsed:.3f} s after the stamp, "
+                                     "which is past")
+        t, p = t[~due] - elapsed, p[~due]
+        v = v[~due] if v is not None else None
+        a = a[~due] if a is not None else None
+    elif t[0] == 0.0:     # the start state MoveIt sends first
         off = np.abs(p[0] - q0)
         if np.any(off > start_tolerance):
             j = int(np.argmax(off))
@@ -186,10 +212,8 @@ def build_trajectory(limits: JointLimits, joint_names: Sequence[str],
         t, p = t[1:], p[1:]
         v = v[1:] if v is not None else None
         a = a[1:] if a is not None else None
-        if t.size == 0:   # only the start state: stay there
-            t, p = np.array([1e-3]), q0[None, :]
-            v = np.zeros_like(p) if v is not None else None
-            a = np.zeros_like(p) if a is not None else None
+        if t.size == 0:   # only the start state: hold where the arm is
+            return Trajectory(tuple(limits.names), np.zeros(1), "hold", None, q0.copy())
     knots = np.concatenate([[0.0], t])
     pos = np.vstack([q0, p])
     if v is None:
@@ -213,6 +237,7 @@ def build_trajectory(limits: JointLimits, joint_names: Sequence[str],
 def _check_limits(traj: Trajectory, limits: JointLimits, period: float) -> None:
     """Refuse a spline that leaves the position, velocity or acceleration limits anywhere
     (sampled every ``period`` s and at the knots)."""
+    period = max(period, traj.duration / 200_000.0)    # at most 200k samples (memory)
     count = max(2, int(math.ceil(traj.duration / period)) + 1)
     ts = np.unique(np.concatenate([np.linspace(0.0, traj.duration, count), traj.knots]))
     s = traj._spline
@@ -233,13 +258,20 @@ def _check_limits(traj: Trajectory, limits: JointLimits, period: float) -> None:
                               f"({advice})")
 
 
-def start_time(header_stamp: float, duration: float, now: float) -> float:
-    """When a goal starts (s, the controller's clock): ``now`` for a zero header stamp (as
-    joint_trajectory_controller reads it), else the stamp. Raises
-    :class:`OldHeaderTimestamp` if the stamp plus the trajectory's ``duration`` is past."""
+def start_time(header_stamp: float, duration: float, now: float) -> tuple[float, float]:
+    """When a goal starts and how late it is, as (start, elapsed) in s on the controller's
+    clock: a zero header stamp starts ``now`` (elapsed 0), as joint_trajectory_controller
+    reads it; a future stamp starts then (elapsed 0); a past stamp starts now with
+    ``elapsed`` = now - stamp (pass it to :func:`build_trajectory`, which drops the points
+    already due). Raises :class:`OldHeaderTimestamp` if the stamp plus the goal's last
+    ``time_from_start`` (``duration``) is past."""
+    if not (math.isfinite(header_stamp) and math.isfinite(now)):
+        raise OldHeaderTimestamp(f"header.stamp {header_stamp!r} or now {now!r} not finite")
     if header_stamp == 0.0:
-        return now
+        return now, 0.0
     if header_stamp + duration < now:
         raise OldHeaderTimestamp(f"header.stamp is {now - header_stamp:.3f} s ago and the "
                                  f"trajectory lasts {duration:.3f} s: it would be over")
-    return header_stamp
+    if header_stamp > now:
+        return header_stamp, 0.0
+    return now, now - header_stamp
