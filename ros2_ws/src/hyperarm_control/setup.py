@@ -16,5 +16,7 @@ setup(
     maintainer_email="dev@hyperarm.invalid",
     description="hyperarm controllers: the joint trajectory core (issue 26)",
     license="Apache-2.0",
-    entry_points={"console_scripts": []},
+    entry_points={"console_scripts": [
+        "arm_controller = hyperarm_control.entry:arm_controller",
+    ]},
 )

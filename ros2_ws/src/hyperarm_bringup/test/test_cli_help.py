@@ -16,7 +16,7 @@ import pytest
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
 PACKAGES = ("hyperarm_bringup", "hyperarm_description", "hyperarm_driver", "hyperarm_ik",
-            "hyperarm_perception", "hyperarm_tasks")
+            "hyperarm_perception", "hyperarm_tasks", "hyperarm_control")
 
 
 #: hyperarm_tasks' executables, each with the start of its own usage text

@@ -34,6 +34,7 @@ NODES = [
     ("hyperarm_bringup", "viewer", "viewer"),
     ("hyperarm_perception", "marker_detector", "marker_detector"),
     ("hyperarm_perception", "usb_camera", "usb_camera"),
+    ("hyperarm_control", "arm_controller", "arm_controller"),
 ]
 
 BAD_OUTPUT = ("Traceback", "Segmentation fault", "Failed to publish log message",
@@ -54,7 +55,8 @@ HELP_PARAMETERS = {
     "viewer": ["port", "host", "objects_topic", "workcell_file"],
     "host_compensation": ["host_source", "initial_delay", "speed_scale"],
     "marker_detector": ["marker_map", "max_age"],
-    "usb_camera": ["device", "camera_info_file", "reopen_period"]}
+    "usb_camera": ["device", "camera_info_file", "reopen_period"],
+    "arm_controller": ["rate", "path_tolerance", "max_state_age"]}
 
 
 def test_help_of_every_node(executable, tmp_path):
@@ -120,6 +122,7 @@ def _start_all(launch, tmp_path, wait_for):
         # signals arrive
         "usb_camera": launch("hyperarm_perception", "usb_camera", params={
             "device": _frames(tmp_path), "loop": True}),
+        "arm_controller": launch("hyperarm_control", "arm_controller"),
     }
     return procs, EmulatorControl(ctl)
 
