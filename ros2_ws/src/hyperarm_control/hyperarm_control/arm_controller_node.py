@@ -20,7 +20,7 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
 from hyperarm_description import contract
-from hyperarm_description.freshness import stamp_seconds
+from hyperarm_description.freshness import StampGate, stamp_seconds
 from hyperarm_description.joints import JointStateCache, JointStateError
 from hyperarm_description.log_throttle import ReasonThrottle
 from hyperarm_description.params import ParamSpec, Range, declare_parameters
@@ -71,6 +71,9 @@ class ArmControllerNode(Node):
                                     p["goal_time"])
         self._start_tolerance = p["start_tolerance"]
         self._states = JointStateCache()
+        # per driver (its joint set): a message older than the newest used, or than
+        # max_state_age, is not used (it would put an old position in the cache)
+        self._state_gate = StampGate(contract.JOINT_STATES, p["max_state_age"])
         self._throttle = ReasonThrottle(5.0)
         self._counts = {"accepted": 0, "succeeded": 0, "aborted": 0, "stopped": 0,
                         "rejected": 0, "bad_joint_states": 0}
@@ -98,6 +101,12 @@ class ArmControllerNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def _on_state(self, msg: JointState) -> None:
+        rejection = self._state_gate.check(stamp_seconds(msg.header.stamp), self._now(),
+                                           source=tuple(msg.name))
+        if rejection is not None:
+            self._counts["bad_joint_states"] += 1
+            self._warn(rejection.text, f"joint_states_{rejection.reason}")
+            return
         try:
             self._states.update(msg.name, msg.position, msg.velocity, (),
                                 stamp_seconds(msg.header.stamp))

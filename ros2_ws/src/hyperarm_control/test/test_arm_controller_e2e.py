@@ -117,3 +117,53 @@ def test_follows_rejects_preempts_and_stops(launch, rclpy_context, executor, wai
 
     ctl.proc.send_signal(signal.SIGTERM)
     assert ctl.proc.wait(timeout=10.0) == 0, ctl.output()
+
+
+def test_late_and_out_of_order_joint_states_are_not_used(launch, rclpy_context, executor,
+                                                         wait_for):
+    """joint_states stamped 2 s ago, or older than the newest used, are counted and not
+    used: a trajectory starts from the fresh position, not from the late one."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.duration import Duration
+    from sensor_msgs.msg import JointState
+    from trajectory_msgs.msg import JointTrajectory
+
+    from hyperarm_description import contract
+    from hyperarm_description.qos import qos_for
+
+    ctl = launch("hyperarm_control", "arm_controller", params={"diagnostics_period": 0.2})
+    probe = rclpy.create_node("arm_controller_probe2", namespace=contract.DEFAULT_NAMESPACE,
+                              context=rclpy_context)
+    executor.add_node(probe)
+    diags, commands = [], []
+    probe.create_subscription(DiagnosticArray, contract.DIAGNOSTICS,
+                              lambda m: diags.extend(s for s in m.status
+                                                     if s.name == "arm_controller"),
+                              qos_for(contract.DIAGNOSTICS))
+    probe.create_subscription(JointState, contract.JOINT_COMMAND,
+                              lambda m: commands.append(list(m.position)),
+                              qos_for(contract.JOINT_COMMAND))
+    states = probe.create_publisher(JointState, contract.JOINT_STATES,
+                                    qos_for(contract.JOINT_STATES))
+    traj = probe.create_publisher(JointTrajectory, "arm_controller/joint_trajectory", 10)
+    wait_for(lambda: states.get_subscription_count() and traj.get_subscription_count()
+             and diags, 30.0, what=f"arm_controller up\n{ctl.output()}")
+
+    def send(q, age):
+        msg = JointState(name=NAMES, position=[float(x) for x in q])
+        msg.header.stamp = (probe.get_clock().now() - Duration(seconds=age)).to_msg()
+        states.publish(msg)
+
+    send(np.full(9, 0.1), 0.0)                 # fresh
+    send(np.full(9, 0.9), 2.0)                 # 2 s late
+    send(np.full(9, 0.5), 0.05)                # older than the newest used
+    wait_for(lambda: {kv.key: kv.value for kv in diags[-1].values}.get("bad_joint_states")
+             == "2", 10.0, what=f"two rejections\n{ctl.output()}")
+    for _ in range(3):                         # keep the state fresh while it runs
+        send(np.full(9, 0.1), 0.0)
+    pub_goal = np.full(9, 0.1)
+    pub_goal[0] = 0.2
+    traj.publish(_trajectory(NAMES, [(1.0, pub_goal)]))
+    wait_for(lambda: commands, 10.0, what="a command")
+    assert np.allclose(commands[0], 0.1, atol=0.01), commands[0]   # from 0.1, not 0.9/0.5
