@@ -149,6 +149,8 @@ export PATH="$VENV/bin:$PATH"
 # packages are installed in develop mode (--symlink-install), so editing or adding a module
 # needs no rebuild; a new top-level Python package or console script does.
 build_inputs() {
+  (cd "$WS/compat" && find . -type f | LC_ALL=C sort | xargs sha256sum)
+  echo "skip: ${COMPAT_SKIP[*]:-}"
   (cd "$WS/src" && find . -type f ! -name '*.py' ! -name '*.pyc' \
      ! -path '*/__pycache__/*' ! -path '*/.pytest_cache/*' | LC_ALL=C sort)
   (cd "$WS/src" && find . -mindepth 3 -maxdepth 3 -name __init__.py | LC_ALL=C sort)
@@ -158,6 +160,13 @@ build_inputs() {
      | LC_ALL=C sort | xargs sha256sum)
   (cd "$ROOT" && sha256sum scripts/colcon_build.sh)   # how it builds (the scripts' interpreter)
 }
+# ros2_ws/compat holds minimal control_msgs and tf2_msgs for the PyPI route, whose wheels lack
+# them (ros2_ws/compat/README.md). Where /opt/ros/jazzy provides one (the robot, through
+# rosdep), it is skipped, so that it never shadows apt's package.
+COMPAT_SKIP=()
+for pkg in control_msgs tf2_msgs; do
+  if [ -f "/opt/ros/jazzy/share/$pkg/package.xml" ]; then COMPAT_SKIP+=("$pkg"); fi
+done
 want="$(build_inputs | sha256sum | cut -d' ' -f1)"
 if ! stamp_ok build "$want" || [ ! -f "$WS/install/local_setup.bash" ]; then
   log "colcon build (ros2_ws)"
@@ -167,13 +176,20 @@ if ! stamp_ok build "$want" || [ ! -f "$WS/install/local_setup.bash" ]; then
   if [ ! -f "$STAMPS/build" ]; then rm -rf build install log; fi
   # colcon runs under the venv's python, so every installed script's shebang is the venv's
   # (apt's colcon would write /usr/bin/python3, which cannot import requirements-robot.txt)
-  if ! bash "$ROOT/scripts/colcon_build.sh" "$VENV" "$WS" > "$STAMPS/colcon.log" 2>&1; then
+  skip_args=()
+  if [ "${#COMPAT_SKIP[@]}" -gt 0 ]; then
+    log "using apt's ${COMPAT_SKIP[*]} (not building ros2_ws/compat's)"
+    skip_args=(--packages-skip "${COMPAT_SKIP[@]}")
+  fi
+  if ! bash "$ROOT/scripts/colcon_build.sh" "$VENV" "$WS" "${skip_args[@]}" \
+      > "$STAMPS/colcon.log" 2>&1; then
     cat "$STAMPS/colcon.log"
     rm -f "$STAMPS/build"
     echo "[setup] colcon build failed (log above)" >&2
     exit 1
   fi
   echo "$want" > "$STAMPS/build"
-  log "built: $(ls "$WS/install" | grep -c hyperarm_) packages"
+  log "built: $(ls "$WS/install" | grep -c hyperarm_) packages" \
+      "(+ $(ls "$WS/install" | grep -cE '^(control_msgs|tf2_msgs)$') from ros2_ws/compat)"
 fi
 log "ready (source scripts/env.sh to use the workspace)"
