@@ -18,11 +18,12 @@ setup(
     zip_safe=False,
     maintainer="hyperarm developers",
     maintainer_email="dev@hyperarm.invalid",
-    description="hyperarm kinematics (pinocchio), IK solvers, the IK service node and the hybrid force node.",
+    description="hyperarm kinematics (pinocchio), IK solvers, the IK service node, the TF publisher and the hybrid force node.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
             "fk_node = hyperarm_ik.entry:fk_node",
+            "tf_publisher = hyperarm_ik.entry:tf_publisher",
             "ik_service = hyperarm_ik.entry:ik_service",
             "ik_benchmark = hyperarm_ik.benchmark.ik_benchmark:main",
             "hybrid_force = hyperarm_ik.entry:hybrid_force",

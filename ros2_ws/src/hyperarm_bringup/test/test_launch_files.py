@@ -36,11 +36,15 @@ launch file, and checks each node's resolved parameters against what the node de
   ``$(command 'C' [on_stderr])``: shlex.split, stdout; a non-zero exit fails, and stderr
   output fails by default (``command.py``); ``$(eval E)``: Python eval with math
   (``python_expression.py``).
+- ``$(eval E [MODULES])``: Python eval with the comma-separated MODULES (default math)
+  as its names (``python_expression.py``, Jazzy's python_modules).
+- ``<let name value>`` sets a launch configuration (``set_launch_configuration.py``).
 - A node's ``<param>`` entries are passed in order, one ``--params-file`` each (a
   ``/**: ros__parameters:`` file for named values), later ones overriding earlier ones.
 """
 from __future__ import annotations
 
+import importlib
 import math
 import os
 import random
@@ -151,8 +155,15 @@ def _perform_sub(sub: Sub, ctx: dict[str, str]) -> str:
             raise LaunchError(f"executed command showed stderr output: {proc.stderr}")
         return proc.stdout
     if sub.name == "eval":
-        names = {k: v for k, v in vars(math).items() if not k.startswith("_")}
-        return str(eval(args[0], {}, {**names, "math": math}))  # noqa: S307 (launch does)
+        if not 1 <= len(args) <= 2:
+            raise LaunchError("eval substitution expects 1 or 2 arguments")
+        modules = [m.strip() for m in args[1].split(",")] if len(args) == 2 else ["math"]
+        names: dict[str, Any] = {}
+        for module in map(importlib.import_module, modules):
+            if module.__name__ == "math":
+                names.update(vars(module))
+            names[module.__name__] = module
+        return str(eval(args[0], {}, names))  # noqa: S307 (launch does)
     raise AssertionError(f"substitution $({sub.name} ...) is not checked by this test")
 
 
@@ -309,6 +320,11 @@ def load_launch(path: Path, given: dict[str, str],
                 if el.get("default") is None:
                     raise LaunchError(f"{where}: required argument not given")
                 ctx[el.get("name")] = perform(parse_substitution(el.get("default")), ctx)
+        elif el.tag == "let":
+            unknown = set(el.attrib) - {"name", "value"}
+            assert not unknown and not len(el), f"{where}: unchecked {sorted(unknown)}"
+            ctx[perform(parse_substitution(el.get("name")), ctx)] = \
+                perform(parse_substitution(el.get("value")), ctx)
         elif el.tag == "node":
             unknown = set(el.attrib) - _NODE_ATTRS
             assert not unknown, f"{where}: unchecked attributes {sorted(unknown)}"
@@ -429,7 +445,8 @@ def test_launch_file_starts_under_jazzy_rules(name, variant):
     generated URDF's header comment holds ': ', so an untyped parameter fails here)."""
     workcell = str(SRC / "hyperarm_driver" / "config" / "workcell.yaml")
     for force in ("false", "true"):
-        nodes = launched(name, variant=variant, rviz="true", force=force)
+        nodes = launched(name, variant=variant, rviz="true", force=force,
+                         tf_publisher="robot_state_publisher")
         driver = "mock_driver" if name.startswith("mock") else "dynamixel_driver"
         assert driver in nodes and "robot_state_publisher" in nodes and "ik_service" in nodes
         assert ("pmac_rail_driver" in nodes) == (name.startswith("hardware")
@@ -446,6 +463,36 @@ def test_launch_file_starts_under_jazzy_rules(name, variant):
         if driver == "mock_driver":
             assert nodes["mock_driver"][1]["workcell_file"] == world
     assert "rviz2" not in launched(name, variant=variant, rviz="false")
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+@pytest.mark.parametrize("name", ["mock.launch.xml", "hardware.launch.xml"])
+def test_tf_comes_from_robot_state_publisher_where_installed_else_ours(name, variant,
+                                                                      tmp_path, monkeypatch):
+    """tf_publisher:=robot_state_publisher or :=tf_publisher starts that one alone; auto
+    (the default) asks the ament index, as Jazzy's eval with ament_index_python does: ours
+    here (no robot_state_publisher on PyPI), robot_state_publisher once a prefix has it
+    (/opt/ros/jazzy on the robot); any other value stops the launch."""
+    from ament_index_python import has_resource
+
+    both = {"robot_state_publisher", "tf_publisher"}
+    for choice in sorted(both):
+        nodes = launched(name, variant=variant, rviz="false", tf_publisher=choice)
+        assert both & set(nodes) == {choice}
+    node, params = nodes["tf_publisher"]
+    assert node.namespace == "hyperarm" and params["variant"] == variant
+    installed = bool(has_resource("packages", "robot_state_publisher"))
+    assert both & set(launched(name, variant=variant, rviz="false")) == \
+        {"robot_state_publisher" if installed else "tf_publisher"}
+    index = tmp_path / "share" / "ament_index" / "resource_index" / "packages"
+    index.mkdir(parents=True)
+    (index / "robot_state_publisher").touch()
+    monkeypatch.setenv("AMENT_PREFIX_PATH",
+                       f"{tmp_path}{os.pathsep}{os.environ['AMENT_PREFIX_PATH']}")
+    assert both & set(launched(name, variant=variant, rviz="false")) == \
+        {"robot_state_publisher"}
+    with pytest.raises(ValueError, match="'tf2' is not in list"):
+        launched(name, variant=variant, rviz="false", tf_publisher="tf2")
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])

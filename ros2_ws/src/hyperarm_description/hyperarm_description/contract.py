@@ -29,6 +29,12 @@ DETECTIONS = "detections"              # hyperarm_interfaces/Detections, in came
 DETECTIONS_TRUTH = "debug/detections_truth"  # mock only: ground truth, same type
 DIAGNOSTICS = "/diagnostics"           # diagnostic_msgs/DiagnosticArray (absolute)
 CLOCK = "/clock"                       # rosgraph_msgs/Clock, mock with sim time (absolute)
+# TF (issue 26): robot_state_publisher on the robot, else hyperarm_ik's tf_publisher. /tf and
+# /tf_static are absolute (tf2's names); robot_description is relative, as
+# robot_state_publisher publishes it.
+TF = "/tf"                             # tf2_msgs/TFMessage: moving joints, per joint_states
+TF_STATIC = "/tf_static"               # tf2_msgs/TFMessage: every fixed joint, once (latched)
+ROBOT_DESCRIPTION = "robot_description"  # std_msgs/String: the URDF (latched)
 # Host motion (issue 15). On the arm variant, `world` exists only while host_pose is given.
 HOST_POSE = "host_pose"                # geometry_msgs/PoseStamped: base_link in world
 BASE_REACTION = "base_reaction"        # geometry_msgs/WrenchStamped: arm on its mount, base_link
@@ -79,6 +85,11 @@ QOS = {
     BASE_REACTION: {"reliability": "reliable", "durability": "volatile", "depth": 10},
     HOST_COMP_GOAL: {"reliability": "reliable", "durability": "volatile", "depth": 1},
     TOOL_POSE_TRUTH: {"reliability": "reliable", "durability": "volatile", "depth": 10},
+    # tf2's own profiles (tf2_ros DynamicBroadcasterQoS / StaticBroadcasterQoS), and
+    # robot_state_publisher's for robot_description
+    TF: {"reliability": "reliable", "durability": "volatile", "depth": 100},
+    TF_STATIC: {"reliability": "reliable", "durability": "transient_local", "depth": 1},
+    ROBOT_DESCRIPTION: {"reliability": "reliable", "durability": "transient_local", "depth": 1},
 }
 
 # Joint naming
