@@ -18,5 +18,6 @@ setup(
     license="Apache-2.0",
     entry_points={"console_scripts": [
         "arm_controller = hyperarm_control.entry:arm_controller",
+        "trajectory_benchmark = hyperarm_control.benchmark.trajectory_benchmark:main",
     ]},
 )

@@ -1,21 +1,30 @@
 """arm_controller: follows joint trajectories on the arm, streaming ``joint_command`` (issue 26).
 
-Takes ``arm_controller/joint_trajectory`` (trajectory_msgs/JointTrajectory), as
-joint_trajectory_controller's topic interface does: a new trajectory replaces the running
-one, an empty one (no points) stops it and holds. Each control cycle (``rate``) it samples
-the trajectory and publishes the command on ``joint_command`` for ``joint1``..``joint9``
-(and ``rail`` on rail_arm), while a trajectory runs and until the hold after it is reached;
-it is silent otherwise (the drivers hold their last goal). Reads ``joint_states``; publishes
-``/diagnostics``. The checks, splines, tolerances and the per-cycle step limit are
-:mod:`hyperarm_control.trajectory` (docs/control.md); this node converts messages and wires
-them up. (The FollowJointTrajectory action needs control_msgs, which the PyPI route lacks:
-not served yet.)
+Serves ``arm_controller/follow_joint_trajectory`` (control_msgs/FollowJointTrajectory) and
+takes ``arm_controller/joint_trajectory`` (trajectory_msgs/JointTrajectory), as
+joint_trajectory_controller does: a new goal or trajectory replaces the running one (a
+preempted action goal is aborted, saying so), a cancel or an empty trajectory stops and
+holds. A goal that fails the checks is accepted and at once aborted with the action's error
+code and a message (a ROS 2 rejection carries no reason); it does not disturb a running one.
+Each control cycle (``rate``) it samples the trajectory and publishes the command on
+``joint_command`` for ``joint1``..``joint9`` (and ``rail`` on rail_arm), while a trajectory
+runs and until the hold after it is reached; it is silent otherwise (the drivers hold their
+last goal). Action feedback (desired, actual, error) at ``action_monitor_rate``. Reads
+``joint_states``; publishes ``/diagnostics``. The checks, splines, tolerances and the
+per-cycle step limit are :mod:`hyperarm_control.trajectory` (docs/control.md); this node
+converts messages (:mod:`hyperarm_control.messages`) and wires them up.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
+from control_msgs.action import FollowJointTrajectory
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.action.server import ServerGoalHandle
 from rclpy.node import Node
+from rclpy.task import Future
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
@@ -27,10 +36,12 @@ from hyperarm_description.params import ParamSpec, Range, declare_parameters
 from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import declare_robot_description, run_node
 
-from .trajectory import (Follower, JointLimits, Tolerances, TrajectoryError,
+from .messages import TrajectoryArgs, feedback, goal_tolerances, trajectory_args
+from .trajectory import (SUCCESSFUL, Follower, JointLimits, Tolerances, TrajectoryError,
                          build_trajectory, start_time)
 
-TRAJECTORY_TOPIC = "arm_controller/joint_trajectory"
+TRAJECTORY_TOPIC = contract.ARM_TRAJECTORY_TOPIC
+ACTION = contract.ARM_TRAJECTORY_ACTION
 
 PARAMETERS: ParamSpec = {
     "rate": (100.0, "Hz, control cycles (one joint_command each while a trajectory runs)",
@@ -43,14 +54,24 @@ PARAMETERS: ParamSpec = {
                   "limit)", Range(0.0, 600.0)),
     "start_tolerance": (0.05, "rad, how far a first point at t = 0 may be from the present "
                         "position", Range(0.0, 1.0)),
+    "command_lead": (0.03, "s, commands are the trajectory this far ahead of the cycle's "
+                     "time, making up for the servos' delay in reaching a goal position "
+                     "(docs/control.md); 0 sends the present point", Range(0.0, 0.5)),
     "max_state_age": (0.25, "s, joint_states older than this abort the running trajectory",
                       Range(0.01, 10.0)),
+    "action_monitor_rate": (20.0, "Hz, FollowJointTrajectory feedback while a goal runs",
+                            Range(0.1, 1000.0)),
     "diagnostics_period": (1.0, "s between diagnostics messages", Range(0.1, 60.0)),
 }
 
 
-def _seconds(duration) -> float:
-    return float(duration.sec) + 1e-9 * float(duration.nanosec)
+@dataclass
+class _ActionGoal:
+    """The action goal that owns the follower's goal; ``done`` carries its result."""
+
+    handle: ServerGoalHandle
+    done: Future
+    next_feedback: float = 0.0
 
 
 class ArmControllerNode(Node):
@@ -65,7 +86,8 @@ class ArmControllerNode(Node):
         self._names = list(self._limits.names)
         n = len(self._names)
         self._period = 1.0 / p["rate"]
-        self._follower = Follower(self._limits, self._period, p["max_state_age"])
+        self._follower = Follower(self._limits, self._period, p["max_state_age"],
+                                  p["command_lead"])
         self._defaults = Tolerances(np.full(n, p["path_tolerance"]), np.zeros(n),
                                     np.full(n, p["goal_tolerance"]), np.zeros(n),
                                     p["goal_time"])
@@ -80,6 +102,8 @@ class ArmControllerNode(Node):
         self._last_result = "no trajectory yet"
         self._reported = True        # the current goal's end has been logged
         self._active = False         # commanding (a goal runs, or the hold is not reached)
+        self._owner: _ActionGoal | None = None   # the action goal being followed
+        self._monitor_period = 1.0 / p["action_monitor_rate"]
         self._cmd_pub = self.create_publisher(JointState, contract.JOINT_COMMAND,
                                               qos_for(contract.JOINT_COMMAND))
         self._diag = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
@@ -87,10 +111,13 @@ class ArmControllerNode(Node):
         self.create_subscription(JointState, contract.JOINT_STATES, self._on_state,
                                  qos_for(contract.JOINT_STATES))
         self.create_subscription(JointTrajectory, TRAJECTORY_TOPIC, self._on_trajectory, 10)
+        # offered once joint_states of every joint have arrived (see _on_state): a client
+        # waiting for the server (MoveIt does) then never sends a goal it must refuse
+        self._server: ActionServer | None = None
         self.create_timer(self._period, self._cycle)
         self.create_timer(p["diagnostics_period"], self._publish_diagnostics)
         self.get_logger().info(f"arm_controller: {', '.join(self._names)} at "
-                               f"{p['rate']:g} Hz; {TRAJECTORY_TOPIC} -> "
+                               f"{p['rate']:g} Hz; {ACTION}, {TRAJECTORY_TOPIC} -> "
                                f"{contract.JOINT_COMMAND}")
 
     def _warn(self, text: str, reason: str) -> None:
@@ -113,6 +140,14 @@ class ArmControllerNode(Node):
         except JointStateError as exc:
             self._counts["bad_joint_states"] += 1
             self._warn(f"joint_states ignored: {exc}", "joint_states")
+            return
+        if self._server is None and all(j in self._states.stamp for j in self._names):
+            self._server = ActionServer(self, FollowJointTrajectory, ACTION,
+                                        execute_callback=self._execute,
+                                        goal_callback=lambda _goal: GoalResponse.ACCEPT,
+                                        cancel_callback=lambda _handle: CancelResponse.ACCEPT)
+            self.get_logger().info(f"arm_controller: joint_states of every joint received; "
+                                   f"serving {ACTION}")
 
     def _state(self) -> tuple[np.ndarray, np.ndarray, float]:
         q = self._states.positions(self._names)
@@ -120,61 +155,118 @@ class ArmControllerNode(Node):
         stamp = min(self._states.stamp[j] for j in self._names)
         return q, v, stamp
 
+    def _start(self, args: TrajectoryArgs, goal=None) -> None:
+        """Check a goal and start following it (preempting the running one); raises
+        TrajectoryError or JointStateError, with nothing changed, when it fails a check."""
+        q, v, _stamp = self._state()
+        start, elapsed = start_time(args.stamp, args.duration, self._now())
+        traj = build_trajectory(
+            self._limits, args.joint_names, args.times, args.positions, args.velocities,
+            args.accelerations, start_position=q, start_velocity=v, elapsed=elapsed,
+            start_tolerance=self._start_tolerance)
+        tol = self._defaults if goal is None else goal_tolerances(goal, self._names,
+                                                                  self._defaults)
+        self._end_action(FollowJointTrajectory.Result.INVALID_GOAL,
+                         "preempted by a new goal" if goal is not None else
+                         f"preempted by a trajectory on {TRAJECTORY_TOPIC}", abort=True)
+        self._follower.start(traj, tol, start)
+        self._counts["accepted"] += 1
+        self._active = True
+        self._reported = False
+        self._last_result = f"running ({traj.kind}, {traj.duration:.2f} s)"
+
+    def _rejected(self, exc: Exception) -> tuple[int, str]:
+        self._counts["rejected"] += 1
+        code = getattr(exc, "code", FollowJointTrajectory.Result.INVALID_GOAL)
+        self._last_result = f"rejected ({code}): {exc}"
+        self._warn(f"arm_controller: trajectory {self._last_result}", type(exc).__name__)
+        return code, str(exc)
+
     def _on_trajectory(self, msg: JointTrajectory) -> None:
         if not msg.points:           # joint_trajectory_controller: an empty one stops
             if self._follower.goal_status == "running":
                 self._follower.cancel()
+                self._end_action(FollowJointTrajectory.Result.INVALID_GOAL,
+                                 f"stopped by an empty trajectory on {TRAJECTORY_TOPIC}",
+                                 abort=True)
                 self._counts["stopped"] += 1
                 self._last_result = "stopped by an empty trajectory: holding"
                 self.get_logger().info(f"arm_controller: {self._last_result}")
             return
         try:
-            q, v, _stamp = self._state()
-            now = self._now()
-            times = [_seconds(pt.time_from_start) for pt in msg.points]
-            start, elapsed = start_time(stamp_seconds(msg.header.stamp), max(times), now)
-            traj = build_trajectory(
-                self._limits, list(msg.joint_names), times,
-                [list(pt.positions) for pt in msg.points],
-                [list(pt.velocities) for pt in msg.points],
-                [list(pt.accelerations) for pt in msg.points],
-                start_position=q, start_velocity=v, elapsed=elapsed,
-                start_tolerance=self._start_tolerance)
+            self._start(trajectory_args(msg))
         except (TrajectoryError, JointStateError) as exc:
-            self._counts["rejected"] += 1
-            code = getattr(exc, "code", None)
-            self._last_result = f"rejected ({code}): {exc}" if code else f"rejected: {exc}"
-            self._warn(f"arm_controller: trajectory {self._last_result}", type(exc).__name__)
+            self._rejected(exc)
+
+    async def _execute(self, handle: ServerGoalHandle) -> FollowJointTrajectory.Result:
+        try:
+            self._start(trajectory_args(handle.request.trajectory), handle.request)
+        except (TrajectoryError, JointStateError) as exc:
+            code, text = self._rejected(exc)
+            handle.abort()
+            return FollowJointTrajectory.Result(error_code=code, error_string=text)
+        self._owner = _ActionGoal(handle, Future())
+        return await self._owner.done
+
+    def _end_action(self, code: int, text: str, *, abort: bool = False,
+                    cancelled: bool = False) -> None:
+        """End the action goal being followed (if any) with ``code`` and ``text``."""
+        owner, self._owner = self._owner, None
+        if owner is None or not owner.handle.is_active:
             return
-        self._follower.start(traj, self._defaults, start)
-        self._counts["accepted"] += 1
-        self._active = True
-        self._reported = False
-        self._last_result = f"running ({traj.kind}, {traj.duration:.2f} s)"
+        if cancelled:
+            owner.handle.canceled()
+        elif abort:
+            owner.handle.abort()
+        else:
+            owner.handle.succeed()
+        owner.done.set_result(FollowJointTrajectory.Result(error_code=code, error_string=text))
+
+    def _monitor_action(self, cyc) -> None:
+        owner = self._owner
+        if owner is None:
+            return
+        if owner.handle.is_cancel_requested and cyc.status == "running":
+            self._follower.cancel()
+            self._counts["stopped"] += 1
+            self._last_result = "cancelled: holding"
+            self.get_logger().info("arm_controller: goal cancelled, holding")
+            self._end_action(SUCCESSFUL, "cancelled: holding", cancelled=True)
+        elif cyc.status == "running" and self._now() >= owner.next_feedback:
+            owner.next_feedback = self._now() + self._monitor_period
+            owner.handle.publish_feedback(feedback(
+                FollowJointTrajectory.Feedback, cyc, self._names,
+                self.get_clock().now().to_msg()))
 
     def _cycle(self) -> None:
         if not self._active:
             return
         try:
             q, v, stamp = self._state()
-            cyc = self._follower.step(self._now(), q, stamp, v)
+            now = self.get_clock().now()
+            cyc = self._follower.step(now.nanoseconds * 1e-9, q, stamp, v)
         except (TrajectoryError, JointStateError) as exc:
             self._follower.cancel()
+            self._end_action(getattr(exc, "code", FollowJointTrajectory.Result.INVALID_GOAL),
+                             f"{exc}; holding", abort=True)
             self._warn(f"arm_controller: {exc}; holding", "cycle")
             return
         msg = JointState(name=self._names, position=[float(x) for x in cyc.command])
-        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.stamp = now.to_msg()      # the instant the trajectory was sampled
         self._cmd_pub.publish(msg)
+        self._monitor_action(cyc)
         if cyc.status != "running" and not self._reported:
             self._reported = True
             if cyc.status == "succeeded":
                 self._counts["succeeded"] += 1
                 self._last_result = "succeeded"
                 self.get_logger().info("arm_controller: trajectory succeeded")
+                self._end_action(SUCCESSFUL, "")
             elif cyc.status == "aborted":
                 self._counts["aborted"] += 1
                 self._last_result = f"aborted ({cyc.failure.code}): {cyc.failure}"
                 self.get_logger().error(f"arm_controller: trajectory {self._last_result}")
+                self._end_action(cyc.failure.code, str(cyc.failure), abort=True)
         if cyc.status != "running" and np.array_equal(cyc.command, cyc.desired):
             self._active = False     # the hold is reached: the drivers keep it
 

@@ -204,6 +204,13 @@ def test_a_goal_must_end_at_rest_and_not_last_for_hours():
         _build(list(LIM.names), [1.0, 2.0], p, v)
     with pytest.raises(InvalidGoal, match="beyond 3600 s"):
         _build(list(LIM.names), [1.0, 1e7], p)
+    # at rest as joint_trajectory_controller judges it (float32 epsilon): a velocity that
+    # arithmetic made -6e-16 is rest, 1e-6 rad/s is not
+    v[-1] = -5.9e-16
+    assert _build(list(LIM.names), [1.0, 2.0], p, v).kind != "hold"
+    v[-1] = 1e-6
+    with pytest.raises(InvalidGoal, match="must end at rest"):
+        _build(list(LIM.names), [1.0, 2.0], p, v)
 
 
 def test_holding_here_while_moving_is_a_hold_not_a_refusal():
@@ -401,3 +408,60 @@ def test_invariant_no_command_step_beyond_the_velocity_limit_whatever_happens(se
         last = cmd
         t += PERIOD
     assert events >= 10
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_command_lead_makes_up_for_a_servo_that_lags(seed):
+    """A servo that reaches each command ``lag`` s late: with command_lead = lag the path
+    error is the spline's own curvature over a cycle (under 1 mrad); without a lead it is
+    about velocity x lag, and every command stays within one velocity-limit step."""
+    rng = np.random.default_rng(40 + seed)
+    lag = 0.03
+    names, times, p, v, a = _random_goal(rng, np.zeros(N), points=3, kind="quintic",
+                                         slack=1.6)
+    traj = _build(names, times, p, v, a)
+    worst = {}
+    for lead in (0.0, lag):
+        f = Follower(LIM, PERIOD, command_lead=lead)
+        f.start(traj, Tolerances(np.zeros(N), np.zeros(N), np.zeros(N), np.zeros(N), 0.0),
+                0.0)
+        sent: list[tuple[float, np.ndarray]] = []
+        last = None
+        errors = []
+        for k in range(int(times[-1] / PERIOD)):
+            t = k * PERIOD
+            # the servo is where the command sent lag s ago asked it to be
+            due = [c for tc, c in sent if tc <= t - lag + 1e-9]
+            q = due[-1] if due else np.zeros(N)
+            cyc = f.step(t, q, t)
+            if last is not None:
+                assert np.all(np.abs(cyc.command - last) <= LIM.velocity * PERIOD + 1e-12)
+            last = cyc.command
+            sent.append((t, cyc.command))
+            if t > lag + PERIOD:
+                errors.append(np.abs(cyc.error).max())
+        worst[lead] = max(errors)
+    speed = max(np.abs(traj.sample(t)[1]).max() for t in np.arange(0, times[-1], 0.01))
+    assert worst[lag] < 1e-3, worst
+    assert worst[0.0] > 0.5 * speed * lag, (worst, speed)
+
+
+def test_a_state_is_judged_against_the_path_where_it_was_measured():
+    """States that arrive 0.15 s after they were measured, on a fast move: judged at their
+    stamp they are on the path (no abort); the feedback's time is the stamp's."""
+    traj = _build(list(LIM.names), [1.5], np.full((1, N), 1.0))
+    f = Follower(LIM, PERIOD, max_state_age=0.3)
+    f.start(traj, DEFAULTS, 0.0)
+    for k in range(int(2.5 / PERIOD)):
+        t = k * PERIOD
+        stamp = max(t - 0.15, 0.0)
+        cyc = f.step(t, traj.sample(stamp)[0], stamp)
+        assert cyc.status in ("running", "succeeded"), cyc.failure
+        if cyc.status == "running":
+            assert np.abs(cyc.error).max() < 1e-12
+            assert cyc.time == pytest.approx(stamp)
+    assert cyc.status == "succeeded"
+    # the same late states judged at the cycle's time would have been beyond the path
+    # tolerance (0.1 rad): it would have aborted
+    assert max(np.abs(traj.sample(t)[0] - traj.sample(t - 0.15)[0]).max()
+               for t in np.arange(0.15, 1.5, 0.01)) > DEFAULTS.path[0]

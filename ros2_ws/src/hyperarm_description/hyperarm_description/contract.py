@@ -64,6 +64,13 @@ HOST_MOTION_ENABLE = "host_motion/enable"      # std_srvs/SetBool
 
 # Actions (relative to the namespace)
 RUN_TASK = "run_task"                  # hyperarm_interfaces/RunTask
+# The ROS arm conventions (issue 26): joint_trajectory_controller's and
+# gripper_action_controller's names, as moveit_controllers.yaml points at them.
+ARM_CONTROLLER = "arm_controller"
+ARM_TRAJECTORY_ACTION = "arm_controller/follow_joint_trajectory"  # control_msgs/FollowJointTrajectory
+ARM_TRAJECTORY_TOPIC = "arm_controller/joint_trajectory"  # trajectory_msgs/JointTrajectory
+GRIPPER_CONTROLLER = "gripper_controller"
+GRIPPER_ACTION = "gripper_controller/gripper_command"  # control_msgs/GripperCommand
 
 # QoS, as plain settings (hyperarm_description.qos builds rclpy profiles from them).
 # Everything the robot acts on or reports is RELIABLE (a lost command or state is a bug, and

@@ -49,3 +49,16 @@ def lazy_main(module: str, attr: str = "main") -> Callable[[], Any]:
     entry.__name__ = entry.__qualname__ = f"{module.rsplit('.', 1)[-1]}_{attr}"
     entry.__doc__ = f"Entry point of {module}.{attr} (see hyperarm_description.launcher)."
     return entry
+
+
+def installed_executable(package: str, name: str) -> str:
+    """Path of an installed executable of ``package``, as ``ros2 run package name`` finds
+    it; raises FileNotFoundError saying to build the workspace."""
+    from pathlib import Path
+
+    from ament_index_python.packages import get_package_prefix
+
+    path = Path(get_package_prefix(package)) / "lib" / package / name
+    if not path.exists():
+        raise FileNotFoundError(f"{path} not found: is the workspace built (make setup)?")
+    return str(path)

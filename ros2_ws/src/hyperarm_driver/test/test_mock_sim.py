@@ -50,8 +50,28 @@ def run(sim, seconds, record=None):
             record.append((sim.time, sim.position.copy(), sim.velocity.copy()))
 
 
-def test_tracks_goal_within_velocity_and_acceleration_limits(sim, desc):
+def test_default_profile_is_velocity_limited_like_profile_acceleration_0(sim, desc):
+    """The Dynamixel driver leaves Profile Acceleration 0 (unlimited): the profile moves at
+    the velocity limit from the first step, straight to the goal, without overshoot."""
     j = desc.joints[0]
+    sim.command(["joint1"], [1.0])
+    trace: list = []
+    run(sim, 1.2, trace)
+    pos = np.array([p[0] for _, p, _ in trace])
+    vel = np.array([v[0] for _, _, v in trace])
+    assert pos[-1] == 1.0
+    assert np.abs(vel).max() <= j.velocity + 1e-9
+    t_reach = next(t for t, p, _ in trace if abs(p[0] - 1.0) < 1e-3)
+    # d/v = 0.333 s; the servo's lag (0.02 s) adds to it; no trapezoid ramp (0.3 s)
+    assert 1.0 / j.velocity < t_reach < 1.0 / j.velocity + 0.15
+    assert np.all(np.diff(pos) >= -1e-12)
+
+
+def test_tracks_goal_within_velocity_and_acceleration_limits(desc):
+    j = desc.joints[0]
+    cfg = config()
+    sim = JointSim(desc, dataclasses.replace(
+        cfg, servo=dataclasses.replace(cfg.servo, profile_acceleration=j.acceleration)))
     sim.command(["joint1"], [1.0])
     trace: list = []
     run(sim, 1.2, trace)

@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING
 
 import yaml
 
+from hyperarm_description import contract
 from hyperarm_description.contract import DEFAULT_NAMESPACE
 from hyperarm_description.model import VARIANTS, RobotDescription, load_description
 from hyperarm_description.urdf import generate_urdf
@@ -52,9 +53,9 @@ ROBOT_NAME = "hyperarm"
 ARM_GROUP, RAIL_GROUP, GRIPPER_GROUP = "arm", "rail_arm", "gripper"
 READY_STATE, OPEN_STATE, CLOSED_STATE = "ready", "open", "closed"
 # The controllers of issue 26 (hyperarm_control): their action servers, in move_group's
-# namespace, are <controller>/<action_ns>.
-ARM_CONTROLLER, ARM_ACTION_NS = "arm_controller", "follow_joint_trajectory"
-GRIPPER_CONTROLLER, GRIPPER_ACTION_NS = "gripper_controller", "gripper_command"
+# namespace, are <controller>/<action_ns>, from the contract.
+ARM_CONTROLLER, ARM_ACTION_NS = contract.ARM_TRAJECTORY_ACTION.split("/")
+GRIPPER_CONTROLLER, GRIPPER_ACTION_NS = contract.GRIPPER_ACTION.split("/")
 KDL_PLUGIN = "kdl_kinematics_plugin/KDLKinematicsPlugin"
 #: KDL's time per IK request (s): the Setup Assistant's 0.005 s is short for 9-10 joints
 KDL_TIMEOUT = 0.05

@@ -6,7 +6,13 @@
 
 - **Path tolerance**: while the trajectory runs, a joint further than its path tolerance
   from the desired position aborts the goal (PATH_TOLERANCE_VIOLATED) and the arm holds
-  where it is.
+  where it is. The measured state is judged against the trajectory at the instant it was
+  measured (its stamp), not at the cycle's time: the error is the arm's, not the age of the
+  message that reports it.
+- **Command lead**: each command is the trajectory ``command_lead`` s ahead of the cycle's
+  time, so that the servos, which reach a goal position with a delay (their position loop,
+  the bus and the driver's cycle), are where the trajectory is when it is there. 0 sends the
+  trajectory's present position, as joint_trajectory_controller's position interface does.
 - **Goal tolerance**: after the last point, the goal succeeds once every joint is within
   its goal position (and velocity) tolerance; if that has not happened
   ``goal_time_tolerance`` s after the end, it aborts (GOAL_TOLERANCE_VIOLATED) and holds.
@@ -107,10 +113,12 @@ class Tolerances:
 
 @dataclass
 class Cycle:
-    """One control cycle's output: ``command`` (the position to send), the desired
-    position/velocity/acceleration, the measured position, their difference ``error``
-    (desired - measured), ``status`` ("idle", "running", "succeeded", "aborted",
-    "cancelled") and, after an abort, ``failure`` (with its action error code)."""
+    """One control cycle's output: ``command`` (the position to send: ``target`` after
+    the per-cycle step limit), the desired position/velocity/acceleration at ``time`` (s
+    from the goal's start: the measured state's stamp), the measured position ``actual``,
+    their difference ``error`` (desired - measured), ``status`` ("idle", "running",
+    "succeeded", "aborted", "cancelled") and, after an abort, ``failure`` (with its action
+    error code). ``target``: the trajectory ``command_lead`` s ahead, or the hold."""
 
     command: np.ndarray
     desired: np.ndarray
@@ -121,6 +129,7 @@ class Cycle:
     status: str
     failure: TrajectoryError | None = None
     time: float = 0.0
+    target: np.ndarray | None = None
 
 
 @dataclass
@@ -134,17 +143,21 @@ class _Goal:
 
 
 class Follower:
-    """See the module. ``period`` (s) is the control cycle; ``max_state_age`` (s)."""
+    """See the module. ``period`` (s) is the control cycle; ``max_state_age`` (s);
+    ``command_lead`` (s, >= 0) how far ahead of the cycle's time commands are sampled."""
 
-    def __init__(self, limits: JointLimits, period: float, max_state_age: float = 0.25
-                 ) -> None:
+    def __init__(self, limits: JointLimits, period: float, max_state_age: float = 0.25,
+                 command_lead: float = 0.0) -> None:
         if not (period > 0 and math.isfinite(period)):
             raise ValueError(f"period must be > 0 s, got {period!r}")
         if not max_state_age > 0:
             raise ValueError(f"max_state_age must be > 0 s, got {max_state_age!r}")
+        if not (0.0 <= command_lead <= 1.0):
+            raise ValueError(f"command_lead must be in [0, 1] s, got {command_lead!r}")
         self.limits = limits
         self.period = period
         self.max_state_age = max_state_age
+        self.command_lead = command_lead
         self._step = limits.velocity * period
         self._last: np.ndarray | None = None
         self._hold: np.ndarray | None = None
@@ -190,9 +203,13 @@ class Follower:
         zeros = np.zeros(n)
         goal = self._goal
         desired, dv, da = (self._hold if self._hold is not None else self._last), zeros, zeros
+        target = desired
+        t_state = 0.0
         if goal is not None and goal.status == "running":
             t = now - goal.t0
-            desired, dv, da = goal.traj.sample(t)
+            t_state = min(state_stamp - goal.t0, t)   # judged where the state was measured
+            target = goal.traj.sample(t + self.command_lead)[0]
+            desired, dv, da = goal.traj.sample(t_state)
             age = now - state_stamp
             if age > self.max_state_age:   # the measurement is old: hold the command
                 self._abort(goal, PathToleranceViolated(
@@ -233,11 +250,12 @@ class Follower:
                         f"{goal.tol.goal_time:g} s); aborted, holding"), q)
             if goal.status != "running":
                 desired, dv, da = self._hold, zeros, zeros
-        command = self._limit(desired)
+                target = desired
+        command = self._limit(target)
         return Cycle(command, np.asarray(desired, dtype=float).copy(), dv, da, q,
                      np.asarray(desired, dtype=float) - q, self.goal_status,
-                     goal.failure if goal is not None else None,
-                     (now - goal.t0) if goal is not None else 0.0)
+                     goal.failure if goal is not None else None, t_state,
+                     np.asarray(target, dtype=float).copy())
 
     def _limit(self, target: np.ndarray) -> np.ndarray:
         """The invariant: within one velocity-limit step of the previous command and

@@ -95,6 +95,11 @@ class Trajectory:
         return np.asarray(s(t)), np.asarray(s(t, 1)), np.asarray(s(t, 2))
 
 
+#: rad/s: a last point's velocity at most this is at rest (float32's epsilon, as
+#: joint_trajectory_controller's check)
+REST_VELOCITY = float(np.finfo(np.float32).eps)
+
+
 def _array(values: Sequence[Sequence[float]] | None, n_points: int, n: int,
            what: str) -> np.ndarray | None:
     """Per-point arrays of one kind: all points have ``n`` values, or none has any."""
@@ -167,8 +172,10 @@ def build_trajectory(limits: JointLimits, joint_names: Sequence[str],
     a = _array(accelerations, len(t), n, "accelerations")
     if a is not None and v is None:
         raise InvalidGoal("accelerations without velocities (give both, or positions only)")
-    if v is not None and np.any(v[-1] != 0.0):
-        j = int(np.argmax(v[-1] != 0.0))
+    # joint_trajectory_controller compares with float's epsilon: a velocity computed as
+    # -6e-16 is at rest
+    if v is not None and np.any(np.abs(v[-1]) > REST_VELOCITY):
+        j = int(np.argmax(np.abs(v[-1]) > REST_VELOCITY))
         raise InvalidGoal(f"velocities: the last point gives {names[j]} {v[-1, j]:g} rad/s; "
                           "a trajectory must end at rest (as joint_trajectory_controller's "
                           "default allow_nonzero_velocity_at_trajectory_end: false)")

@@ -85,7 +85,7 @@ def _reject_unknown(raw: Mapping[str, Any], known: frozenset[str] | None, where:
 
 _KNOWN = {
     "servo": frozenset({"stiffness", "gripper_stiffness", "rail_stiffness", "lag", "damping",
-                        "gripper_acceleration", "mode_switch_gap"}),
+                        "gripper_acceleration", "profile_acceleration", "mode_switch_gap"}),
     "current": frozenset({"enabled", "torque_constant_error", "friction", "quantum"}),
     "imperfections": frozenset({"repeatability", "move_threshold", "position_noise",
                                 "velocity_noise", "effort_noise", "state_latency",
@@ -105,6 +105,10 @@ class ServoConfig:
     constant between the velocity/acceleration-limited profile and the joint. damping:
     N·m·s/rad viscous friction of a joint in torque mode or with torque off.
     gripper_acceleration: rad/s² (the description has none for the gripper).
+    profile_acceleration: rad/s², the arm servos' Profile Acceleration; 0 (the default) is
+    unlimited, as the Dynamixel driver leaves the real servos (it writes Profile Velocity
+    only): the profile moves at up to the velocity limit and does not brake towards each
+    streamed goal. (The rail keeps its acceleration limit: the PMAC's jog profile.)
     """
 
     stiffness: float = 20.0
@@ -113,6 +117,7 @@ class ServoConfig:
     lag: float = 0.02
     damping: float = 0.05
     gripper_acceleration: float = 20.0
+    profile_acceleration: float = 0.0
     mode_switch_gap: float = 0.005
 
 
@@ -301,6 +306,8 @@ def parse_mock_config(data: Any, source: str = "<data>") -> MockConfig:
         damping=_num(rs, "damping", "servo", ServoConfig.damping, positive=True),
         gripper_acceleration=_num(rs, "gripper_acceleration", "servo",
                                   ServoConfig.gripper_acceleration, positive=True),
+        profile_acceleration=_num(rs, "profile_acceleration", "servo",
+                                  ServoConfig.profile_acceleration, nonneg=True),
         mode_switch_gap=_num(rs, "mode_switch_gap", "servo", ServoConfig.mode_switch_gap,
                              nonneg=True))
     rcur = _section(data, "current", "")

@@ -168,8 +168,9 @@ class JointSim:
         if desc.rail:
             vel.append(desc.rail.velocity); acc.append(desc.rail.acceleration)
             stall.append(RAIL_FORCE_LIMIT); stiff.append(s.rail_stiffness)
-        for j in desc.joints:
-            vel.append(j.velocity); acc.append(j.acceleration)
+        for j in desc.joints:      # Profile Acceleration 0: unlimited (inf)
+            vel.append(j.velocity)
+            acc.append(s.profile_acceleration if s.profile_acceleration > 0 else math.inf)
             stall.append(j.effort); stiff.append(s.stiffness)
         vel.append(desc.gripper.velocity); acc.append(s.gripper_acceleration)
         stall.append(desc.gripper.effort); stiff.append(s.gripper_stiffness)
@@ -767,14 +768,18 @@ class JointSim:
         # Fastest speed v = m·a·dt from which braking at amax in steps of dt (v, v - a·dt,
         # ..., while > 0) covers exactly |e|: with n = floor(m), |e| = dt·(v(n+1) - a·dt·T_n)
         # where T_n = n(n+1)/2; n follows from T_n <= |e|/(a·dt²) < T_(n+1).
-        adt = self.amax * dt
+        # an unlimited acceleration (inf) moves at up to vmax straight to the goal
+        limited = np.isfinite(self.amax)
+        adt = np.where(limited, self.amax, 1.0) * dt
         big_e = np.abs(e) / (adt * dt)
         n = np.floor((np.sqrt(1.0 + 8.0 * big_e) - 1.0) / 2.0)
         v_stop = adt * (big_e + n * (n + 1.0) / 2.0) / (n + 1.0)
+        v_stop = np.where(limited, v_stop, np.abs(e) / dt)
         v_des = np.minimum(np.maximum(np.sign(e) * v_stop, -self.vmax), self.vmax)
-        v_new = np.minimum(np.maximum(v_des, self._prof_v - adt), self._prof_v + adt)
+        v_new = np.where(limited, np.minimum(np.maximum(v_des, self._prof_v - adt),
+                                             self._prof_v + adt), v_des)
         # on the braking curve: follow it exactly (it decelerates at amax, step by step)
-        braking = (v_new * e > 0.0) & (np.abs(v_des) < np.abs(v_new))
+        braking = limited & (v_new * e > 0.0) & (np.abs(v_des) < np.abs(v_new))
         v_new = np.where(braking, v_des, v_new)
         p_new = self._prof_p + v_new * dt
         done = (self.goal - p_new) * e <= 0.0

@@ -1,0 +1,1 @@
+"""Benchmarks of the controllers (scripts that print their figures; docs/benchmarks.md)."""

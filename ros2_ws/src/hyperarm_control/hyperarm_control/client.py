@@ -1,0 +1,184 @@
+"""A small client of ``arm_controller/follow_joint_trajectory`` for scripts, the CLI and tests,
+in the manner of nav2_simple_commander: :meth:`TrajectoryClient.send` a goal, then
+:meth:`~TrajectoryClient.done`, :meth:`~TrajectoryClient.feedback`,
+:meth:`~TrajectoryClient.cancel` and :meth:`~TrajectoryClient.result`. The caller spins the
+node (any executor); nothing here blocks except :meth:`~TrajectoryClient.wait`, which sleeps
+while another thread spins.
+
+Goals can be built from plain data with :func:`goal_from_points` (s, rad), or loaded from a
+trajectory file with :func:`goal_from_file` (docs/ros-interfaces.md: ``joint_names``, and
+``points`` of ``time`` and ``positions``, optional ``velocities``, ``accelerations``;
+optional ``goal_tolerance``, ``path_tolerance`` maps and ``goal_time_tolerance``)."""
+from __future__ import annotations
+
+import math
+import threading
+import time
+from pathlib import Path
+from typing import Mapping, Sequence
+
+from control_msgs.action import FollowJointTrajectory
+from control_msgs.msg import JointTolerance
+from rclpy.action import ActionClient
+from rclpy.node import Node
+
+from hyperarm_description import contract
+
+from .messages import point
+
+__all__ = ["ACTION", "TrajectoryClient", "TrajectoryFileError", "goal_from_points",
+           "goal_from_file", "RESULT_NAMES"]
+
+ACTION = contract.ARM_TRAJECTORY_ACTION
+
+#: FollowJointTrajectory.Result error codes by value
+RESULT_NAMES = {0: "SUCCESSFUL", -1: "INVALID_GOAL", -2: "INVALID_JOINTS",
+                -3: "OLD_HEADER_TIMESTAMP", -4: "PATH_TOLERANCE_VIOLATED",
+                -5: "GOAL_TOLERANCE_VIOLATED"}
+
+
+class TrajectoryFileError(ValueError):
+    """A trajectory file that cannot be read or does not follow the schema."""
+
+
+def _tolerances(given: Mapping[str, float] | None) -> list[JointTolerance]:
+    return [JointTolerance(name=str(n), position=float(v)) for n, v in (given or {}).items()]
+
+
+def goal_from_points(joint_names: Sequence[str], times: Sequence[float],
+                     positions: Sequence[Sequence[float]],
+                     velocities: Sequence[Sequence[float]] | None = None,
+                     goal_tolerance: Mapping[str, float] | None = None,
+                     path_tolerance: Mapping[str, float] | None = None,
+                     goal_time_tolerance: float = 0.0) -> FollowJointTrajectory.Goal:
+    """A goal from times (s from start) and positions (one row per point); tolerances are
+    position tolerances by joint name (rad or m; 0 = the controller's default)."""
+    goal = FollowJointTrajectory.Goal()
+    goal.trajectory.joint_names = [str(n) for n in joint_names]
+    for i, (t, q) in enumerate(zip(times, positions)):
+        v = velocities[i] if velocities else None
+        goal.trajectory.points.append(point(q, v, t=float(t)))
+    goal.goal_tolerance = _tolerances(goal_tolerance)
+    goal.path_tolerance = _tolerances(path_tolerance)
+    whole = math.floor(goal_time_tolerance)
+    goal.goal_time_tolerance.sec = int(whole)
+    goal.goal_time_tolerance.nanosec = int(round((goal_time_tolerance - whole) * 1e9))
+    return goal
+
+
+TRAJECTORY_SCHEMA = {
+    "type": "object",
+    "required": ["joint_names", "points"],
+    "additionalProperties": False,
+    "properties": {
+        "joint_names": {"type": "array", "minItems": 1, "items": {"type": "string"}},
+        "points": {"type": "array", "minItems": 1, "items": {
+            "type": "object", "required": ["time", "positions"], "additionalProperties": False,
+            "properties": {
+                "time": {"type": "number", "minimum": 0},
+                "positions": {"type": "array", "items": {"type": "number"}},
+                "velocities": {"type": "array", "items": {"type": "number"}}}}},
+        "goal_tolerance": {"type": "object", "additionalProperties": {"type": "number"}},
+        "path_tolerance": {"type": "object", "additionalProperties": {"type": "number"}},
+        "goal_time_tolerance": {"type": "number", "minimum": 0},
+    },
+}
+
+
+def goal_from_file(path: str | Path) -> FollowJointTrajectory.Goal:
+    """Load a trajectory file (YAML, :data:`TRAJECTORY_SCHEMA`); raises
+    :class:`TrajectoryFileError` saying what is wrong and where."""
+    import jsonschema
+    import yaml
+
+    try:
+        data = yaml.safe_load(Path(path).read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise TrajectoryFileError(f"{path}: {exc}") from exc
+    try:
+        jsonschema.validate(data, TRAJECTORY_SCHEMA)
+    except jsonschema.ValidationError as exc:
+        where = "/".join(str(p) for p in exc.absolute_path) or "(top level)"
+        raise TrajectoryFileError(f"{path}: {where}: {exc.message}") from exc
+    points = data["points"]
+    vel = [p.get("velocities", []) for p in points]
+    return goal_from_points(data["joint_names"], [p["time"] for p in points],
+                            [p["positions"] for p in points],
+                            vel if any(vel) else None, data.get("goal_tolerance"),
+                            data.get("path_tolerance"), data.get("goal_time_tolerance", 0.0))
+
+
+class TrajectoryClient:
+    """One goal at a time on ``action`` (relative to ``node``'s namespace)."""
+
+    def __init__(self, node: Node, action: str = ACTION) -> None:
+        self._node = node
+        self._client = ActionClient(node, FollowJointTrajectory, action)
+        self._lock = threading.Lock()
+        self._handle = None
+        self._result_future = None
+        self._feedback: list = []
+        self._rejected = False
+
+    def server_ready(self) -> bool:
+        return self._client.server_is_ready()
+
+    def send(self, goal: FollowJointTrajectory.Goal) -> None:
+        """Send ``goal`` (returns at once; :meth:`accepted` and :meth:`done` tell more)."""
+        with self._lock:
+            self._handle, self._result_future, self._rejected = None, None, False
+            self._feedback = []
+        fut = self._client.send_goal_async(goal, feedback_callback=self._on_feedback)
+        fut.add_done_callback(self._on_response)
+
+    def _on_feedback(self, msg) -> None:
+        with self._lock:
+            self._feedback.append(msg.feedback)
+
+    def _on_response(self, fut) -> None:
+        handle = fut.result()
+        with self._lock:
+            if not handle.accepted:
+                self._rejected = True
+                return
+            self._handle = handle
+            self._result_future = handle.get_result_async()
+
+    def accepted(self) -> bool | None:
+        """True once accepted, False if rejected, None while unanswered."""
+        with self._lock:
+            return False if self._rejected else (None if self._handle is None else True)
+
+    def done(self) -> bool:
+        with self._lock:
+            return self._rejected or (self._result_future is not None
+                                      and self._result_future.done())
+
+    def feedback(self) -> list:
+        """Every FollowJointTrajectory feedback received for the present goal."""
+        with self._lock:
+            return list(self._feedback)
+
+    def cancel(self) -> None:
+        with self._lock:
+            handle = self._handle
+        if handle is not None:
+            handle.cancel_goal_async()
+
+    def result(self) -> tuple[int, FollowJointTrajectory.Result | None]:
+        """(action status, result) once :meth:`done`; status is action_msgs' GoalStatus
+        value (4 succeeded, 5 canceled, 6 aborted)."""
+        with self._lock:
+            if self._rejected or self._result_future is None or not self._result_future.done():
+                return 0, None
+            res = self._result_future.result()
+        return res.status, res.result
+
+    def wait(self, timeout: float) -> bool:
+        """Sleep until :meth:`done` (another thread spins the node) or ``timeout`` s."""
+        end = time.monotonic() + timeout
+        while not self.done():
+            if time.monotonic() > end:
+                return False
+            time.sleep(0.01)
+        return True
