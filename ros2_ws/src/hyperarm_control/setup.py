@@ -19,5 +19,10 @@ setup(
     entry_points={"console_scripts": [
         "arm_controller = hyperarm_control.entry:arm_controller",
         "trajectory_benchmark = hyperarm_control.benchmark.trajectory_benchmark:main",
+        "hybrid_force = hyperarm_control.entry:hybrid_force",
+        "hybrid_force_calibrate = hyperarm_control.entry:hybrid_force_calibrate",
+        "force_benchmark = hyperarm_control.benchmark.force_benchmark:main",
+        "host_benchmark = hyperarm_control.benchmark.host_benchmark:main",
+        "host_compensation = hyperarm_control.entry:host_compensation",
     ]},
 )

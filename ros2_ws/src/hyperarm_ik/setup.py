@@ -18,7 +18,7 @@ setup(
     zip_safe=False,
     maintainer="hyperarm developers",
     maintainer_email="dev@hyperarm.invalid",
-    description="hyperarm kinematics (pinocchio), IK solvers, the IK service node, the TF publisher and the hybrid force node.",
+    description="hyperarm kinematics (pinocchio), IK solvers, the IK service node and the TF publisher.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
@@ -26,11 +26,6 @@ setup(
             "tf_publisher = hyperarm_ik.entry:tf_publisher",
             "ik_service = hyperarm_ik.entry:ik_service",
             "ik_benchmark = hyperarm_ik.benchmark.ik_benchmark:main",
-            "hybrid_force = hyperarm_ik.entry:hybrid_force",
-            "hybrid_force_calibrate = hyperarm_ik.entry:hybrid_force_calibrate",
-            "force_benchmark = hyperarm_ik.benchmark.force_benchmark:main",
-            "host_benchmark = hyperarm_ik.benchmark.host_benchmark:main",
-            "host_compensation = hyperarm_ik.entry:host_compensation",
         ],
     },
 )

@@ -6,13 +6,13 @@ kind, so a NaN after a bad quaternion after a late message are three log lines, 
 throttled line), ``text`` names the stream and the bad field.
 
 - :class:`StateFeed`, ``joint_states``: malformed (the kinds of
-  :func:`hyperarm_ik.host.inputs.joint_state_problem`, and ``effort_nan`` /
+  :func:`hyperarm_control.host.inputs.joint_state_problem`, and ``effort_nan`` /
   ``effort_inf``: the runner reads the gripper's effort), then late or out of order
   (:class:`~hyperarm_description.freshness.StampGate`, per source: each driver publishes
   its own joints with its own stamps).
 - :class:`DetectionFeed`, ``detections``: ``frame`` (not the camera's), ``length`` (names
   and poses differ), each pose's ``position_nan`` ... ``quaternion_norm``
-  (:func:`hyperarm_ik.host.inputs.pose_problem`), then late or out of order.
+  (:func:`hyperarm_control.host.inputs.pose_problem`), then late or out of order.
 
 A message older than the newest one used (same source), older than ``max_age`` s, stamped
 more than ``max_future`` s ahead or unstamped is rejected; times are the node's clock (s).
@@ -24,7 +24,7 @@ from typing import Sequence
 
 from hyperarm_description import contract
 from hyperarm_description.freshness import StampGate
-from hyperarm_ik.host.inputs import InputProblem, joint_state_problem, pose_problem
+from hyperarm_control.host.inputs import InputProblem, joint_state_problem, pose_problem
 
 __all__ = ["StateFeed", "DetectionFeed", "InputProblem"]
 

@@ -189,10 +189,10 @@ class ForceSimRobot(SimRobot):
     def __init__(self, sim: JointSim, kin, dt: float = 0.01,
                  late: Sequence[tuple[float, float]] = (), output: str = "position",
                  params: Mapping[str, object] | None = None, **kw) -> None:
-        from hyperarm_ik.force.controller import ForceController
-        from hyperarm_ik.force.law import HybridLaw
-        from hyperarm_ik.force.parameters import PARAMETERS, build
-        from hyperarm_ik.force.wrench import WrenchEstimator
+        from hyperarm_control.force.controller import ForceController
+        from hyperarm_control.force.law import HybridLaw
+        from hyperarm_control.force.parameters import PARAMETERS, build
+        from hyperarm_control.force.wrench import WrenchEstimator
         super().__init__(sim, dt, **kw)
         values = {name: v[0] for name, v in PARAMETERS.items()}
         values["output"] = output
@@ -214,7 +214,7 @@ class ForceSimRobot(SimRobot):
         if event is None:
             return
         self.events.append((self.sim.time, event.kind, event.message))
-        from hyperarm_ik.force.controller import Mode
+        from hyperarm_control.force.controller import Mode
         if self.ctl.mode is Mode.PASSIVE:
             self.passive = (event.kind, event.message)
         if event.hold and event.kind == "stale":
@@ -246,7 +246,7 @@ class ForceSimRobot(SimRobot):
         return True
 
     def set_force_control(self, enabled: bool) -> str | None:
-        from hyperarm_ik.force.errors import ForceError
+        from hyperarm_control.force.errors import ForceError
         try:
             event = self.ctl.enable(enabled, self.sim.time)
         except ForceError as exc:

@@ -77,7 +77,7 @@ fi
 # per executable: each took 0.1-0.3 s of the start-up).
 prefixes="$(python3 -c "
 from ament_index_python.packages import get_package_prefix as g
-for p in ('hyperarm_driver', 'hyperarm_ik', 'hyperarm_tasks'):
+for p in ('hyperarm_driver', 'hyperarm_control', 'hyperarm_tasks'):
     try:
         print(p, g(p))
     except (LookupError, ValueError):
@@ -176,7 +176,7 @@ PY
   start mock_driver "$(exe hyperarm_driver mock_driver)" --ros-args "${mock[@]}"
 fi
 if [ "$force_node" = 1 ]; then
-  start hybrid_force "$(exe hyperarm_ik hybrid_force)" --ros-args "${ros[@]}"
+  start hybrid_force "$(exe hyperarm_control hybrid_force)" --ros-args "${ros[@]}"
 fi
 task_args=("${ros[@]}")
 [ -z "$workcell" ] || task_args+=(-p "world_file:=$workcell")

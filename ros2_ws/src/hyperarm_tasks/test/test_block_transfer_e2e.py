@@ -140,7 +140,7 @@ def test_cancel_mid_insertion_holds_with_force_off(launch, rclpy_context, execut
     cell["imperfections"]["seed"] = 5
     (tmp_path / "tight.yaml").write_text(yaml.safe_dump(cell))
     launch("hyperarm_driver", "mock_driver", params={"workcell_file": str(tmp_path / "tight.yaml")})
-    force = launch("hyperarm_ik", "hybrid_force")      # the insertion under force control
+    force = launch("hyperarm_control", "hybrid_force")      # the insertion under force control
     task = launch("hyperarm_tasks", "task_node")
     node = rclpy.create_node("probe", namespace=contract.DEFAULT_NAMESPACE, context=rclpy_context)
     states, commands = [], []

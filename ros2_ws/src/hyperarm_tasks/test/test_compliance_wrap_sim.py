@@ -1,8 +1,8 @@
 """Core test of whole-arm compliance (issue 10, the paper's Fig. 4) with the force node's
-core in the loop (no rclpy): hyperarm_tasks.testing.ForceSimRobot runs hyperarm_ik's
+core in the loop (no rclpy): hyperarm_tasks.testing.ForceSimRobot runs hyperarm_control's
 ForceController on the mock's simulation of the shipped ``workcell_post.yaml`` as
 hybrid_force runs it. The same scene through the installed executables:
-hyperarm_ik/test/test_force_e2e.py::test_whole_arm_compliance_closes_around_a_pole."""
+hyperarm_control/test/test_force_e2e.py::test_whole_arm_compliance_closes_around_a_pole."""
 from __future__ import annotations
 
 import dataclasses
@@ -44,7 +44,7 @@ def test_soft_arm_closes_around_the_post_with_three_links(desc, kin, seed):
     (inside the post) and the goal leading the tool there in 4 steps of 1 s: the arm ends
     with at least 3 links on the post, every force below 25 N and steady over the last
     second, the controller still active."""
-    from hyperarm_ik.force.controller import Mode
+    from hyperarm_control.force.controller import Mode
 
     cfg = post_cell(seed)
     (post,) = cfg.world.poles

@@ -1,5 +1,5 @@
 """Core tests of force_insert with the force node's core in the loop (no rclpy):
-hyperarm_tasks.testing.ForceSimRobot runs hyperarm_ik's ForceController on the mock's
+hyperarm_tasks.testing.ForceSimRobot runs hyperarm_control's ForceController on the mock's
 simulation as hybrid_force runs it, and injects windows of late joint states (a loaded
 machine: the controller goes passive on stale states and the step enables it again).
 The CI's failure of the two-cycle e2e run came from such re-enables: a drop of the tool

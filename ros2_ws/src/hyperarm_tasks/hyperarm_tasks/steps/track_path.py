@@ -15,7 +15,7 @@ orientation. The step
    jump along the path (the traversal then takes longer: ``track_time``);
 With ``redundancy: min_reaction`` (fixed arm only) the three free joints also keep the
 arm's centre of mass over its mount, lowering the moment it exerts on the mount
-(:mod:`hyperarm_ik.host.redundancy`): after step 1 the arm moves in the task's null space
+(:mod:`hyperarm_control.host.redundancy`): after step 1 the arm moves in the task's null space
 (the tool stays at the first waypoint) to the posture that minimises that moment, and step
 2 solves every waypoint with the same secondary objective.
 
@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hyperarm_ik.host import OBJECTIVES, HostError, ReactionMinimizer
+from hyperarm_control.host import OBJECTIVES, HostError, ReactionMinimizer
 from hyperarm_ik.paths import FIGURE8_WAYPOINTS, PATHS, Figure8, hold_orientation
 
 from ..errors import StepFailed

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from hyperarm_description.model import load_description
-from hyperarm_ik.host import (HostConfigError, HostGoalError, HostStateError,
+from hyperarm_control.host import (HostConfigError, HostGoalError, HostStateError,
                               ReactionMinimizer, ReactionModel, RedundancyConfig)
 from hyperarm_ik.kinematics import Kinematics
 from hyperarm_ik.paths import FIGURE8, hold_orientation
@@ -36,7 +36,7 @@ def _figure8_task(tmp_path, desc, redundancy: str):
 
 @pytest.mark.slow
 def test_min_reaction_lowers_the_peak_base_moment_on_the_figure8():
-    from hyperarm_ik.benchmark.host_sim import figure8_task
+    from hyperarm_control.benchmark.host_sim import figure8_task
 
     runs = figure8_task(None), figure8_task("min_reaction")
     (base, m_base), (low, m_low) = ((r["metrics"], r["moment"]) for r in runs)

@@ -2,7 +2,7 @@
 
 A node that only copies each joint_states message to joint_command (same names, positions
 and stamp): the probe's round trip through it is what two Python processes, DDS and the
-executors cost without any control law. ``python -m hyperarm_ik.benchmark.force_echo
+executors cost without any control law. ``python -m hyperarm_control.benchmark.force_echo
 [single|events] --ros-args ...``
 """
 from __future__ import annotations

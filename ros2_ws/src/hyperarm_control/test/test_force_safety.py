@@ -11,8 +11,8 @@ import pinocchio as pin
 import pytest
 
 from hyperarm_description.model import load_description
-from hyperarm_ik.force import HybridLaw, LawConfig, make_goal
-from hyperarm_ik.force.law import null_space_torque
+from hyperarm_control.force import HybridLaw, LawConfig, make_goal
+from hyperarm_control.force.law import null_space_torque
 from hyperarm_ik.kinematics import Kinematics
 from hyperarm_ik.solvers import DEFAULT_SOLVER, make_solver
 
@@ -106,7 +106,7 @@ def test_limit_push_dominates_the_posture_spring_near_a_limit(kin):
 # -- late, out-of-order and malformed inputs (issue 24 item 3) ------------------------------
 
 def _controller(kin, **cfg):
-    from hyperarm_ik.force.controller import ControllerConfig, ForceController
+    from hyperarm_control.force.controller import ControllerConfig, ForceController
     return ForceController(HybridLaw(kin), config=ControllerConfig(**cfg))
 
 
@@ -329,8 +329,8 @@ def test_commanded_efforts_stay_within_the_margin_after_calibration(kin):
     its limits (a press 15 mm deep at 4000 N/m with the tool held, as the issue's; a goal
     5 cm deep in the torque output). Fails on the old controller: 1.11 x the margin
     (0.8 / 0.9 = 0.89 of stall)."""
-    from hyperarm_ik.force.calibration import JointCalibration, TorqueCalibration
-    from hyperarm_ik.force.controller import ControllerConfig, ForceController
+    from hyperarm_control.force.calibration import JointCalibration, TorqueCalibration
+    from hyperarm_control.force.controller import ControllerConfig, ForceController
 
     for output, depth in (("position", 0.015), ("torque", 0.05)):
         law = HybridLaw(kin)
@@ -367,7 +367,7 @@ def test_estimate_covariance_counts_the_friction_the_filter_does_not_remove(kin)
     spread over 400 draws of the biases matches the covariance (diagonal within 20 %). The
     old covariance, the noise alone times the filter's variance gain, was 10 x too small in
     variance (3 x in std) with these figures: it fails the comparison."""
-    from hyperarm_ik.force import EstimatorConfig, WrenchEstimator
+    from hyperarm_control.force import EstimatorConfig, WrenchEstimator
 
     rng = np.random.default_rng(4)
     cfg = EstimatorConfig(filter=0.2, effort_noise=0.02, friction_noise=0.02)

@@ -36,7 +36,7 @@ from hyperarm_description.model import load_description
 
 from ..force.controller import ControllerConfig, ForceController
 from ..force.law import HybridLaw
-from ..kinematics import Kinematics
+from hyperarm_ik.kinematics import Kinematics
 
 
 def bench_core(cycles: int) -> dict:
@@ -65,7 +65,7 @@ def bench_core(cycles: int) -> dict:
 def _launch(exe: str, domain: int, params: dict, log: Path) -> subprocess.Popen:
     from ament_index_python.packages import get_package_prefix
 
-    pkg = {"hybrid_force": "hyperarm_ik", "mock_driver": "hyperarm_driver"}[exe]
+    pkg = {"hybrid_force": "hyperarm_control", "mock_driver": "hyperarm_driver"}[exe]
     cmd = [str(Path(get_package_prefix(pkg)) / "lib" / pkg / exe), "--ros-args"]
     for k, v in params.items():
         cmd += ["-p", f"{k}:={str(v).lower() if isinstance(v, bool) else v}"]
@@ -247,7 +247,7 @@ def bench_latency(samples: int, domain: int, tmp: Path) -> dict:
         if what == "echo":
             env = dict(os.environ, ROS_DOMAIN_ID=str(domain),
                        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-            proc = subprocess.Popen([sys.executable, "-m", "hyperarm_ik.benchmark.force_echo",
+            proc = subprocess.Popen([sys.executable, "-m", "hyperarm_control.benchmark.force_echo",
                                      params["executor"], "--ros-args"], env=env,
                                     stdout=open(log, "wb"), stderr=subprocess.STDOUT,
                                     start_new_session=True)

@@ -3,7 +3,7 @@
 Subscribes ``hybrid_goal`` and ``joint_states``; publishes ``joint_command`` (arm joints
 only, while enabled), ``ee_wrench`` (tool0) and ``ee_wrench_base`` (base_link); serves
 ``hybrid_force/enable``, ``hybrid_force/tare``, ``hybrid_force/compliance``. The logic is
-in ``hyperarm_ik.force`` (no ROS); this node converts messages and keeps time.
+in ``hyperarm_control.force`` (no ROS); this node converts messages and keeps time.
 """
 from __future__ import annotations
 
@@ -33,8 +33,8 @@ from .force.errors import ForceError
 from .force.law import HybridLaw
 from .force.parameters import DYNAMIC, PARAMETERS, build
 from .force.wrench import WrenchEstimator
-from .kinematics import Kinematics
-from .ros_conversions import JointStateInput
+from hyperarm_ik.kinematics import Kinematics
+from hyperarm_ik.ros_conversions import JointStateInput
 
 _LEVEL = {Mode.DISABLED: 0, Mode.ACTIVE: 0, Mode.PASSIVE: 1}   # OK, OK, WARN
 

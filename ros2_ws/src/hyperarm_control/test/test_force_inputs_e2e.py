@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hyperarm_description.model import load_description
-from hyperarm_ik.benchmark.force_probe import ForceProbe
+from hyperarm_control.benchmark.force_probe import ForceProbe
 from hyperarm_ik.kinematics import Kinematics
 
 pytestmark = [pytest.mark.e2e]
@@ -68,7 +68,7 @@ def test_late_out_of_order_and_malformed_inputs_are_dropped(launch, rclpy_contex
     kin = Kinematics(load_description())
     # stale_timeout 0.5 s: the probe's 100 Hz stream may stall 0.1 s on a loaded machine
     # (the stale rule is test_force_e2e.py's); state_max_age stays at its default
-    proc = launch("hyperarm_ik", "hybrid_force", params={"diagnostics_period": 0.2,
+    proc = launch("hyperarm_control", "hybrid_force", params={"diagnostics_period": 0.2,
                                                           "stale_timeout": 0.5})
     probe = ForceProbe(rclpy_context, executor, wait_for, driver=True)
     try:

@@ -12,7 +12,7 @@ import pytest
 from hyperarm_description import contract
 from hyperarm_description.model import load_description
 from hyperarm_description.qos import qos_for
-from hyperarm_ik.benchmark.force_probe import (ForceProbe, MockArm, excursion, mean_force,
+from hyperarm_control.benchmark.force_probe import (ForceProbe, MockArm, excursion, mean_force,
                                                step_response)
 from hyperarm_ik.kinematics import Kinematics
 
@@ -51,7 +51,7 @@ def test_passive_rules_with_a_scripted_driver(launch, rclpy_context, executor, w
     it is, no more commands); stale joint_states passive within 0.2 s (the driver's hold
     called once); a joint near its limit passive; disable holds the arm once; goals while
     disabled ignored."""
-    proc = launch("hyperarm_ik", "hybrid_force", params={"diagnostics_period": 0.2})
+    proc = launch("hyperarm_control", "hybrid_force", params={"diagnostics_period": 0.2})
     probe = ForceProbe(rclpy_context, executor, wait_for, driver=True)
     try:
         _passive_rules(probe, proc, wait_for, kin)
@@ -209,7 +209,7 @@ def _mock_session(launch, rclpy_context, executor, wait_for, tmp_path, mock_para
     ready (joint_states seen, the mock subscribed to joint_command)."""
     launch("hyperarm_driver", "mock_driver",
            params={"workcell_file": _workcell(tmp_path), **(mock_params or {})})
-    hf = launch("hyperarm_ik", "hybrid_force", params=dict(MOCK_PARAMS, **force_params))
+    hf = launch("hyperarm_control", "hybrid_force", params=dict(MOCK_PARAMS, **force_params))
     probe = ForceProbe(rclpy_context, executor, wait_for)
     arm = MockArm(probe, wait_for)
     arm.q_now()
@@ -277,7 +277,7 @@ def test_pressing_on_a_peg_top_with_the_mock(launch, rclpy_context, executor, wa
     probe = ForceProbe(rclpy_context, executor, wait_for)
     before, _ = _launch_uncalibrated(launch, probe, payload_mass=0.05)
     path, _ = _calibrate(launch, wait_for, tmp_path)
-    launch("hyperarm_ik", "hybrid_force",
+    launch("hyperarm_control", "hybrid_force",
            params=dict(MOCK_PARAMS, payload_mass=0.05, calibration_file=path))
     arm = MockArm(probe, wait_for)
     arm.q_now()
@@ -439,7 +439,7 @@ def test_whole_arm_compliance_closes_around_a_pole(launch, rclpy_context, execut
     q_open, q_closed = wrap_postures(sim, post)
     launch("hyperarm_driver", "mock_driver", params={"workcell_file": cell})
     posture = "[" + ",".join(f"{v:.4f}" for v in q_closed) + "]"
-    launch("hyperarm_ik", "hybrid_force", params=dict(MOCK_PARAMS, posture=posture,
+    launch("hyperarm_control", "hybrid_force", params=dict(MOCK_PARAMS, posture=posture,
                                                       **WRAP_PARAMS))
     probe = ForceProbe(rclpy_context, executor, wait_for)
     contacts: list = []
@@ -503,7 +503,7 @@ def _calibrate(launch, wait_for, tmp_path, poses: int = 3) -> tuple[str, str]:
     """hybrid_force_calibrate on the running mock (hybrid_force disabled or not started):
     exits 0; returns (the calibration file, its log)."""
     out = tmp_path / "calibration.yaml"
-    cal_proc = launch("hyperarm_ik", "hybrid_force_calibrate", params={
+    cal_proc = launch("hyperarm_control", "hybrid_force_calibrate", params={
         "output_file": str(out), "poses": poses, "approach": 0.02, "settle": 0.2,
         "average": 0.2})
     wait_for(lambda: cal_proc.proc.poll() is not None, 60.0, what="calibration finished")
@@ -522,7 +522,7 @@ def _launch_uncalibrated(launch, probe: ForceProbe, **params):
     beside the calibrated node."""
     from geometry_msgs.msg import WrenchStamped
 
-    proc = launch("hyperarm_ik", "hybrid_force", "--ros-args", "-r",
+    proc = launch("hyperarm_control", "hybrid_force", "--ros-args", "-r",
                   f"joint_states:={contract.DEFAULT_NAMESPACE}/{contract.JOINT_STATES}", "-r",
                   f"{contract.DIAGNOSTICS}:={UNCALIBRATED}/diagnostics",
                   params=dict(MOCK_PARAMS, **params), namespace=UNCALIBRATED)
@@ -550,7 +550,7 @@ def test_calibration_executable_writes_the_file_the_node_loads(launch, rclpy_con
     nothing touching: the truth debug/tool_wrench_truth is zero), the RMS error of the
     wrench estimate of the calibrated node is at most half that of an uncalibrated one."""
     t_start = time.monotonic()
-    from hyperarm_ik.force.calibration import load_calibration
+    from hyperarm_control.force.calibration import load_calibration
 
     launch("hyperarm_driver", "mock_driver", params={"workcell_file": _workcell(tmp_path)})
     probe = ForceProbe(rclpy_context, executor, wait_for)
@@ -559,7 +559,7 @@ def test_calibration_executable_writes_the_file_the_node_loads(launch, rclpy_con
     t = time.monotonic()
     cal = load_calibration(path, list(contract.ARM_JOINTS))
     assert not cal.joints["joint1"].identified and cal.joints["joint2"].identified
-    hf = launch("hyperarm_ik", "hybrid_force", params=dict(MOCK_PARAMS, calibration_file=path))
+    hf = launch("hyperarm_control", "hybrid_force", params=dict(MOCK_PARAMS, calibration_file=path))
     wait_for(lambda: f"calibration {path}" in hf.output(), 20.0, what="hybrid_force started")
     arm = MockArm(probe, wait_for)
     arm.q_now()

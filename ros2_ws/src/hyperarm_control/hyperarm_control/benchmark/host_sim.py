@@ -1,11 +1,11 @@
 """Host-compensation scenarios on the mock's simulation, no ROS (core tests, figures).
 
-- :func:`rail_sweep`: :class:`~hyperarm_ik.host.CompensationLoop` (what host_compensation
+- :func:`rail_sweep`: :class:`~hyperarm_control.host.CompensationLoop` (what host_compensation
   runs per joint state) drives the arm of the mock's ``JointSim`` (rail_arm: the servos'
   acceleration-limited profiles and first-order lag, repeatability 0) while the rail sweeps
   0 -> +0.2 -> -0.2 -> 0 m at 0.2 m/s; every command reaches the simulation one step after
   the joint state it answers. Tool error by FK of the measured joints, rail included, and
-  the reaction the node publishes (:class:`~hyperarm_ik.host.ReactionModel`).
+  the reaction the node publishes (:class:`~hyperarm_control.host.ReactionModel`).
 - :func:`rail_reach`: issue 24's item 1 on the same simulation: tool0 held about 0.62 m
   ahead (:data:`Q_REACH`, 10 deg below forward, near the stretched singularity) while the
   rail is streamed 0.2 m away from it at 0.1 m/s and back: the arm reaches full stretch
@@ -33,7 +33,7 @@ from hyperarm_description.model import load_description
 from ..host import (AccelerationEstimator, CompensationConfig, CompensationLoop, Compensator,
                     DelayEstimator, RailHost, ReactionModel)
 from ..host.reaction import STANDARD_GRAVITY as _GRAVITY
-from ..kinematics import Kinematics, rotation_angle
+from hyperarm_ik.kinematics import Kinematics, rotation_angle
 
 if TYPE_CHECKING:
     from hyperarm_driver.mock.host_motion import HostMotionSpec

@@ -29,7 +29,7 @@ from typing import Callable
 import numpy as np
 import pinocchio as pin
 
-from ..kinematics import Kinematics
+from hyperarm_ik.kinematics import Kinematics
 from .errors import HostConfigError, HostGoalError, HostStateError
 from .reaction import STANDARD_GRAVITY
 

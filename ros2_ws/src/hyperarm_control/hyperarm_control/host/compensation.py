@@ -44,7 +44,7 @@ from hyperarm_description.limits import limit_step
 from hyperarm_description.model import RobotDescription
 from hyperarm_description.pinocchio_model import build_model
 
-from ..kinematics import Kinematics, rotation_angle
+from hyperarm_ik.kinematics import Kinematics, rotation_angle
 from .errors import HostConfigError, HostGoalError, HostStateError, NotStartedError
 
 __all__ = ["MOUNT_POSE_CUTOFF", "MOUNT_TWIST_CUTOFF", "HostState", "RailHost", "HostPoseTracker", "CompensationConfig", "Status",
@@ -277,7 +277,7 @@ class CompensationConfig:
     band, in the task's null space; the posture pull fades as (distance / limit_band)^2.
     track_position_tolerance / track_orientation_tolerance: m / rad, the MEASURED tool error
     (FK of the measured joints on the host pose) above which the loop reports ``off_track``
-    (:class:`~hyperarm_ik.host.CompensationLoop`).
+    (:class:`~hyperarm_control.host.CompensationLoop`).
     singular_threshold: m/rad, the weighted Jacobian's smallest singular value (position
     rows in m/rad, orientation rows x orientation_scale) below which the damping grows.
     singular_damping: m^2, the damping added at the singularity (smallest singular value

@@ -13,7 +13,7 @@ from hyperarm_description import contract
 from hyperarm_description.model import load_description
 from hyperarm_description.qos import qos_for
 
-from ..kinematics import Kinematics
+from hyperarm_ik.kinematics import Kinematics
 
 
 class ForceProbe:

@@ -34,7 +34,7 @@ from hyperarm_description import contract
 from hyperarm_description.model import load_description
 
 from ..host import Compensator, RailHost, ReactionModel
-from ..kinematics import Kinematics
+from hyperarm_ik.kinematics import Kinematics
 
 Q0 = [1.367, 0.62, -1.871, 0.548, 1.726, -1.732, 1.335, -0.596, 0.726]
 
@@ -66,7 +66,7 @@ def bench_latency(samples: int, domain: int) -> tuple[float, float, float]:
 
     from hyperarm_description.qos import qos_for
 
-    exe = Path(get_package_prefix("hyperarm_ik")) / "lib" / "hyperarm_ik" / "host_compensation"
+    exe = Path(get_package_prefix("hyperarm_control")) / "lib" / "hyperarm_control" / "host_compensation"
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     log = Path(tempfile.mkdtemp()) / "host_compensation.log"
     proc = subprocess.Popen([str(exe), "--ros-args", "-p", "variant:=rail_arm", "-p",

@@ -18,7 +18,7 @@ from std_srvs.srv import SetBool
 
 from hyperarm_description import contract
 from hyperarm_description.qos import qos_for
-from hyperarm_ik.host import ReactionModel
+from hyperarm_control.host import ReactionModel
 from hyperarm_ik.kinematics import Kinematics
 
 pytestmark = pytest.mark.node
@@ -47,7 +47,7 @@ def test_enable_goal_and_host_pose_rules(rclpy_context, executor, wait_for):
     from rclpy.node import Node
     from rclpy.parameter import Parameter
 
-    from hyperarm_ik.host_compensation_node import HostCompensationNode
+    from hyperarm_control.host_compensation_node import HostCompensationNode
 
     # stale_timeout 5 s: the probe's states are sporadic (this test is about the rules)
     node = HostCompensationNode(context=rclpy_context, parameter_overrides=[
@@ -134,7 +134,7 @@ def test_reaction_takes_the_force_nodes_contact_wrench_and_the_hosts_acceleratio
     from rclpy.node import Node
     from rclpy.parameter import Parameter
 
-    from hyperarm_ik.host_compensation_node import HostCompensationNode
+    from hyperarm_control.host_compensation_node import HostCompensationNode
 
     node = HostCompensationNode(context=rclpy_context, parameter_overrides=[
         Parameter("stale_timeout", value=5.0), Parameter("contact_wrench_timeout", value=2.0),

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from ..kinematics import Kinematics
+from hyperarm_ik.kinematics import Kinematics
 from .errors import HostConfigError, HostStateError
 
 __all__ = ["ReactionModel", "AccelerationEstimator", "HostAccelerationEstimator", "LatestWrench",

@@ -50,7 +50,7 @@ ARM = list(contract.ARM_JOINTS)
 # tool0 pointing down 0.2 m in front of the base (its wrist stays inside its reach while
 # the base moves +-0.2 m; see test_host_core)
 Q0 = [1.367, 0.62, -1.871, 0.548, 1.726, -1.732, 1.335, -0.596, 0.726]
-# tool0 0.62 m ahead, 0.1 m up, 10 deg below forward (hyperarm_ik.benchmark.host_sim.Q_REACH)
+# tool0 0.62 m ahead, 0.1 m up, 10 deg below forward (hyperarm_control.benchmark.host_sim.Q_REACH)
 Q_REACH = [0.141, 0.134, -0.305, -0.071, 0.137, 0.3, 0.145, -0.19, -0.113]
 def _ns(stamp) -> int:
     return stamp.sec * 10**9 + stamp.nanosec
@@ -199,7 +199,7 @@ def _start(launch, probe_args, variant: str, wait_for, **mock_params):
     mock = launch("hyperarm_driver", "mock_driver", params={
         "variant": variant, "repeatability": 0.0, "sim_speed": 1.0, "lockstep_timeout": 0.2,
         **mock_params})
-    comp = launch("hyperarm_ik", "host_compensation", params={
+    comp = launch("hyperarm_control", "host_compensation", params={
         "variant": variant, "diagnostics_period": 0.2, "use_sim_time": True})
     probe = Probe(*probe_args)
     wait_for(lambda: probe.latest() is not None, 30.0, what=f"{variant} joint_states")
@@ -428,7 +428,7 @@ def test_a_late_host_pose_moves_nothing_and_is_counted(launch, rclpy_context, ex
     then one host pose stamped now - 2 s and one 30 ms out of order, each 3 cm off. The
     commands do not move the tool (the old node took each as the current host pose: ~6 mm),
     the diagnostics count them, the log says why."""
-    comp = launch("hyperarm_ik", "host_compensation", params={
+    comp = launch("hyperarm_control", "host_compensation", params={
         "variant": "arm", "diagnostics_period": 0.2, "stale_timeout": 1.0})
     probe = Probe(rclpy_context, executor)
     host = probe.node.create_publisher(PoseStamped, contract.HOST_POSE,

@@ -5,11 +5,11 @@ world) and ``host_compensation/goal`` (PoseStamped of tool0 in world); serves
 ``host_compensation/enable`` (SetBool: true holds tool0 where it is now); while enabled
 publishes arm-only ``joint_command`` on every joint_states message; always publishes
 ``base_reaction`` (WrenchStamped, the arm's wrench on its mount, base_link) and
-diagnostics. The logic is in ``hyperarm_ik.host`` (no ROS); docs/host.md.
+diagnostics. The logic is in ``hyperarm_control.host`` (no ROS); docs/host.md.
 
 Inputs: a host_pose or joint state older than the newest one used (per source), or older
 than ``max_message_age``, is rejected (``hyperarm_description.freshness.StampGate``); a
-malformed one (``hyperarm_ik.host.inputs``) too, whole. Each rejection is counted in the
+malformed one (``hyperarm_control.host.inputs``) too, whole. Each rejection is counted in the
 diagnostics and logged, throttled per kind, naming the field.
 """
 from __future__ import annotations
@@ -34,14 +34,14 @@ from hyperarm_description.params import OneOf, ParamSpec, Range, declare_paramet
 from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import EXECUTORS, declare_robot_description, run_node
 
-from .errors import IKError
+from hyperarm_ik.errors import IKError
 from .host import (MOUNT_POSE_CUTOFF, MOUNT_TWIST_CUTOFF, AccelerationEstimator, CompensationConfig, CompensationLoop, Compensator,
                    DelayEstimator, HostAccelerationEstimator, HostPoseTracker, HostState,
                    LatestWrench, RailHost, ReactionModel)
 from .host.inputs import joint_state_problem, pose_problem
 from .host.reaction import STANDARD_GRAVITY
-from .kinematics import Kinematics
-from .ros_conversions import pose_to_matrix
+from hyperarm_ik.kinematics import Kinematics
+from hyperarm_ik.ros_conversions import pose_to_matrix
 
 _C = CompensationConfig()
 PARAMETERS: ParamSpec = {

@@ -2,7 +2,7 @@
 host_pose and joint_states are rejected whole, counted and logged per kind naming the field;
 base_reaction differentiates the joint velocities at the states' stamps.
 
-Core tests of ``hyperarm_ik.host.inputs``; node tests drive the real node's callbacks
+Core tests of ``hyperarm_control.host.inputs``; node tests drive the real node's callbacks
 in-process, one message at a time (deterministic; the publishers are the node's own,
 recorded), on the fixed arm with host_pose as the host.
 """
@@ -17,8 +17,8 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool
 
 from hyperarm_description import contract
-from hyperarm_ik.host import ReactionModel
-from hyperarm_ik.host.inputs import JOINT_STATE_REASONS, POSE_REASONS, joint_state_problem, \
+from hyperarm_control.host import ReactionModel
+from hyperarm_control.host.inputs import JOINT_STATE_REASONS, POSE_REASONS, joint_state_problem, \
     pose_problem
 from hyperarm_ik.kinematics import Kinematics
 
@@ -69,7 +69,7 @@ class Harness:
     def __init__(self, context, **params) -> None:
         from rclpy.parameter import Parameter
 
-        from hyperarm_ik.host_compensation_node import HostCompensationNode
+        from hyperarm_control.host_compensation_node import HostCompensationNode
 
         self.node = HostCompensationNode(context=context, parameter_overrides=[
             Parameter(k, value=v) for k, v in {"stale_timeout": 5.0, **params}.items()])
@@ -120,7 +120,7 @@ class Harness:
         assert res.success, res.message
 
     def diagnostics(self) -> dict:
-        from hyperarm_ik.host_compensation_node import HostCompensationNode  # noqa: F401
+        from hyperarm_control.host_compensation_node import HostCompensationNode  # noqa: F401
         out = {}
         self.node._diag.publish = lambda arr: out.update(
             {kv.key: kv.value for kv in arr.status[0].values})

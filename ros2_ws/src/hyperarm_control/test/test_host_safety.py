@@ -18,9 +18,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as hs
 
-from hyperarm_ik.benchmark.host_sim import DT, rail_reach, rail_sweep
-from hyperarm_ik.host import CompensationConfig, Compensator, HostState
-from hyperarm_ik.host.redundancy import ReactionMinimizer, RedundancyConfig
+from hyperarm_control.benchmark.host_sim import DT, rail_reach, rail_sweep
+from hyperarm_control.host import CompensationConfig, Compensator, HostState
+from hyperarm_control.host.redundancy import ReactionMinimizer, RedundancyConfig
 from hyperarm_ik.kinematics import Kinematics
 
 pytestmark = pytest.mark.core

@@ -42,7 +42,7 @@ import pinocchio as pin
 from hyperarm_description.limits import limit_step
 from hyperarm_description.model import RobotDescription
 
-from ..kinematics import Kinematics
+from hyperarm_ik.kinematics import Kinematics
 from .errors import ForceConfigError, InvalidGoalError, StateError
 
 __all__ = ["Payload", "LawConfig", "HybridGoal", "Command", "GravityModel", "HybridLaw",

@@ -17,7 +17,7 @@ import pytest
 
 from hyperarm_description.model import load_description
 from hyperarm_ik.errors import IKError
-from hyperarm_ik.host import (CompensationConfig, Compensator, HostConfigError, HostGoalError,
+from hyperarm_control.host import (CompensationConfig, Compensator, HostConfigError, HostGoalError,
                               HostState, HostStateError, NotStartedError, RailHost,
                               ReactionModel, Status)
 from hyperarm_ik.kinematics import Kinematics, rotation_angle
@@ -238,7 +238,7 @@ def test_reaction_rejects_malformed_states(kin):
 
 
 def test_delay_estimator_finds_a_known_delay_and_ignores_standstill():
-    from hyperarm_ik.host import DelayEstimator
+    from hyperarm_control.host import DelayEstimator
 
     est = DelayEstimator(0.01, gain=0.2)
     delay = 0.045
@@ -257,8 +257,8 @@ def test_delay_estimator_finds_a_known_delay_and_ignores_standstill():
 
 
 def _enabled_loop(kin):
-    from hyperarm_ik.host import CompensationConfig, DelayEstimator
-    from hyperarm_ik.host.loop import CompensationLoop
+    from hyperarm_control.host import CompensationConfig, DelayEstimator
+    from hyperarm_control.host.loop import CompensationLoop
     loop = CompensationLoop(Compensator(kin, CompensationConfig()), DelayEstimator(0.04), 0.1,
                             host_from_states=False)
     host = HostState(np.eye(4))
@@ -305,7 +305,7 @@ def test_loop_stops_on_silence_but_not_on_its_own_scheduling_gap(kin):
 def test_latest_contact_wrench_is_used_while_fresh_and_refuses_bad_values():
     """LatestWrench: the newest wrench while at most ``timeout`` s old, then None; a
     malformed one raises HostStateError and the last good one stays; timeout 0 = never."""
-    from hyperarm_ik.host import HostStateError, LatestWrench
+    from hyperarm_control.host import HostStateError, LatestWrench
 
     latest = LatestWrench(0.2)
     assert latest.get(0.0) is None
@@ -330,7 +330,7 @@ def test_host_acceleration_is_differenced_over_its_baseline():
     that acceleration once a baseline (50 ms) is spanned, None before; a repeated stamp
     returns the last estimate; after reset it waits for a baseline again (a velocity jump
     right after a reset is no spike); bad settings and velocities are precise errors."""
-    from hyperarm_ik.host import HostAccelerationEstimator, HostStateError
+    from hyperarm_control.host import HostAccelerationEstimator, HostStateError
 
     est = HostAccelerationEstimator(0.05)
     a = np.array([2.0, -1.0, 0.5])

@@ -3,7 +3,7 @@
 Drives the arm (position-only joint_command; run it with hybrid_force disabled and nothing
 touching the arm) through ``poses`` postures around the present one, each approached from
 both sides, averages the measured efforts at rest, fits them against the description's
-gravity torques (hyperarm_ik.force.calibration) and writes ``output_file``, the YAML that
+gravity torques (hyperarm_control.force.calibration) and writes ``output_file``, the YAML that
 hybrid_force loads with ``calibration_file``. Exits 0 when the file is written, 1 on error.
 """
 from __future__ import annotations
@@ -21,8 +21,8 @@ from hyperarm_description.ros_main import declare_robot_description, run_node
 from .force.calibration import (CalibrationError, CalibrationRun, calibration_poses,
                                 fit_calibration, fit_friction, save_calibration)
 from .force.law import GravityModel, Payload
-from .kinematics import Kinematics
-from .ros_conversions import JointStateInput
+from hyperarm_ik.kinematics import Kinematics
+from hyperarm_ik.ros_conversions import JointStateInput
 
 PARAMETERS: ParamSpec = {
     "output_file": ("", "path of the calibration YAML to write", NonEmpty()),

@@ -10,11 +10,11 @@ import pinocchio as pin
 import pytest
 
 from hyperarm_description.model import load_description
-from hyperarm_ik.force import (CalibrationError, EstimatorConfig, ForceConfigError, HybridLaw, InvalidGoalError,
+from hyperarm_control.force import (CalibrationError, EstimatorConfig, ForceConfigError, HybridLaw, InvalidGoalError,
                                LawConfig, Payload, StateError, WrenchEstimator, fit_calibration,
                                load_calibration, make_goal, save_calibration, to_tool)
-from hyperarm_ik.force.calibration import TorqueCalibration
-from hyperarm_ik.force.law import (payload_jacobian, pose_error, rate_limit, scale_into_limits,
+from hyperarm_control.force.calibration import TorqueCalibration
+from hyperarm_control.force.law import (payload_jacobian, pose_error, rate_limit, scale_into_limits,
                                    scale_wrench)
 from hyperarm_ik.kinematics import Kinematics
 
@@ -398,7 +398,7 @@ def test_calibration_errors(tmp_path):
 def test_every_parameter_is_documented_with_its_default():
     from pathlib import Path
 
-    from hyperarm_ik.force.parameters import PARAMETERS, build
+    from hyperarm_control.force.parameters import PARAMETERS, build
 
     doc = (Path(__file__).resolve().parents[4] / "docs" / "force.md").read_text()
     for name, (default, _text, _check) in PARAMETERS.items():
@@ -479,7 +479,7 @@ def test_friction_fit_and_compensation(tmp_path):
     """Coulomb friction: fitted per joint from moving samples against the model torques
     (median of sign(v) (corrected - model)), subtracted from a moving joint's effort only;
     a joint without enough moving samples keeps friction 0; the file keeps it."""
-    from hyperarm_ik.force.calibration import FRICTION_VELOCITY, JointCalibration, fit_friction
+    from hyperarm_control.force.calibration import FRICTION_VELOCITY, JointCalibration, fit_friction
 
     rng = np.random.default_rng(3)
     names = ["joint1", "joint2", "joint3"]
@@ -509,7 +509,7 @@ def test_friction_fit_and_compensation(tmp_path):
 
 
 def _enabled_controller(kin, q):
-    from hyperarm_ik.force.controller import ForceController
+    from hyperarm_control.force.controller import ForceController
     ctl = ForceController(HybridLaw(kin))
     ctl.step(0.0, q, np.zeros(kin.nq), np.zeros(kin.nq))
     ctl.enable(True, 0.0)
@@ -522,7 +522,7 @@ def test_stale_states_make_it_passive_but_not_its_own_scheduling_gap(kin):
     process itself not run: a loaded machine) is not judged as the states' silence: the
     states queued meanwhile are read first, the next check judges (before, such a starved
     node went passive with fresh states waiting)."""
-    from hyperarm_ik.force.controller import Mode
+    from hyperarm_control.force.controller import Mode
     q = _configs(kin, 1)[0]
     ctl = _enabled_controller(kin, q)
     for t in np.arange(0.01, 0.095, 0.01):

@@ -3,7 +3,7 @@
 ``host_benchmark --plots DIR`` writes into DIR:
 
 - ``host_tool_error.png``: tool0's position and orientation error over time, compensated
-  by :class:`~hyperarm_ik.host.CompensationLoop` on the mock's simulated servos: the rail
+  by :class:`~hyperarm_control.host.CompensationLoop` on the mock's simulated servos: the rail
   sweep (+-0.2 m at 0.2 m/s, judged by FK of the joint states, rail included) and the
   ``uav_sway`` host motion (judged by FK on the host pose and by the mock's truth), with the
   issue's bounds;

@@ -5,14 +5,14 @@ hyperarm_ik error, so one ``except IKError`` still catches everything the packag
 """
 from __future__ import annotations
 
-from ..errors import IKError
+from hyperarm_ik.errors import IKError
 
 __all__ = ["ForceError", "ForceConfigError", "InvalidGoalError", "StateError",
            "CalibrationError"]
 
 
 class ForceError(IKError):
-    """Root of every error raised by ``hyperarm_ik.force``."""
+    """Root of every error raised by ``hyperarm_control.force``."""
 
 
 class ForceConfigError(ForceError):
