@@ -18,6 +18,7 @@ setup(
     license="Apache-2.0",
     entry_points={"console_scripts": [
         "arm_controller = hyperarm_control.entry:arm_controller",
+        "gripper_controller = hyperarm_control.entry:gripper_controller",
         "trajectory_benchmark = hyperarm_control.benchmark.trajectory_benchmark:main",
         "hybrid_force = hyperarm_control.entry:hybrid_force",
         "hybrid_force_calibrate = hyperarm_control.entry:hybrid_force_calibrate",

@@ -36,6 +36,7 @@ NODES = [
     ("hyperarm_perception", "marker_detector", "marker_detector"),
     ("hyperarm_perception", "usb_camera", "usb_camera"),
     ("hyperarm_control", "arm_controller", "arm_controller"),
+    ("hyperarm_control", "gripper_controller", "gripper_controller"),
 ]
 
 BAD_OUTPUT = ("Traceback", "Segmentation fault", "Failed to publish log message",
@@ -58,7 +59,8 @@ HELP_PARAMETERS = {
     "host_compensation": ["host_source", "initial_delay", "speed_scale"],
     "marker_detector": ["marker_map", "max_age"],
     "usb_camera": ["device", "camera_info_file", "reopen_period"],
-    "arm_controller": ["rate", "path_tolerance", "max_state_age"]}
+    "arm_controller": ["rate", "path_tolerance", "max_state_age"],
+    "gripper_controller": ["goal_tolerance", "stall_timeout", "allow_stalling"]}
 
 
 def test_help_of_every_node(executable, tmp_path):
@@ -126,6 +128,7 @@ def _start_all(launch, tmp_path, wait_for):
         "usb_camera": launch("hyperarm_perception", "usb_camera", params={
             "device": _frames(tmp_path), "loop": True}),
         "arm_controller": launch("hyperarm_control", "arm_controller"),
+        "gripper_controller": launch("hyperarm_control", "gripper_controller"),
     }
     return procs, EmulatorControl(ctl)
 
