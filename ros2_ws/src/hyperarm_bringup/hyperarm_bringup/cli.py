@@ -1,7 +1,7 @@
 """`hyperarm`: the robot from the shell, with or without the `ros2` CLI.
 
 ROS subcommands talk to the running nodes (namespace /hyperarm, this shell's ROS_DOMAIN_ID):
-state, diag, torque, hold, reboot, home, move, ik, run. Bus subcommands open the serial port
+state, diag, torque, hold, reboot, home, move, ik, run, traj. Bus subcommands open the serial port
 themselves, without ROS (stop the driver first): scan, set-id, set-baud, calibrate.
 Exit codes: 0 done, 1 failed or refused (the message says why), 2 bad usage.
 """
@@ -204,6 +204,36 @@ def cmd_run(a: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_traj(a: argparse.Namespace) -> int:
+    from hyperarm_control.client import TrajectoryFileError, goal_from_file
+
+    try:
+        goal = goal_from_file(a.file)
+    except TrajectoryFileError as exc:
+        print(f"hyperarm traj: refused, nothing sent: {exc}", file=sys.stderr)
+        return 1
+    points = goal.trajectory.points
+    duration = points[-1].time_from_start.sec + 1e-9 * points[-1].time_from_start.nanosec
+    print(f"sending {len(points)} points of {', '.join(goal.trajectory.joint_names)} "
+          f"({duration:.2f} s) to arm_controller", flush=True)
+    shown = [-1.0]
+
+    def show(fb: Any) -> None:
+        t = fb.desired.time_from_start.sec + 1e-9 * fb.desired.time_from_start.nanosec
+        if t - shown[0] >= 0.5:       # a line every 0.5 s of the trajectory
+            shown[0] = t
+            worst = max((abs(e) for e in fb.error.positions), default=0.0)
+            print(f"  t = {t:6.2f} s   largest path error {worst * 1000:7.2f} mrad",
+                  flush=True)
+
+    with _client() as c:
+        result, feedback = c.follow_trajectory(goal, a.timeout, show)
+    worst = max((abs(e) for f in feedback for e in f.error.positions), default=0.0)
+    print(f"trajectory succeeded: largest path error {worst * 1000:.2f} mrad over "
+          f"{len(feedback)} feedback messages")
+    return 0
+
+
 # Bus subcommands (no ROS) ----------------------------------------------------------------
 def _confirm(question: str, yes: bool) -> bool:
     if yes:
@@ -323,6 +353,11 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--solver", default="", help="solver name ('' = the service default)")
     sp = add("run", cmd_run, "run a task on task_node (run_task action)", timeout=300.0)
     sp.add_argument("task")
+    sp = add("traj", cmd_traj, "send a joint trajectory file (YAML: joint_names, points with "
+             "time and positions, optional velocities and tolerances; docs/ros-interfaces.md) "
+             "to arm_controller (FollowJointTrajectory) and wait for the result; Ctrl-C "
+             "cancels (the arm holds)", timeout=10.0)
+    sp.add_argument("file", help="the trajectory YAML")
 
     def bus(name: str, fn: Callable[[argparse.Namespace], int], text: str,
             baud: bool = True) -> argparse.ArgumentParser:

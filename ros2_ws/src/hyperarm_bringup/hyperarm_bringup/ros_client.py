@@ -416,3 +416,52 @@ class HyperarmClient:
             raise ClientError(f"task {task!r} {result.name.lower()}: "
                               f"{msg.message if msg else ''}")
         return msg
+
+    def follow_trajectory(self, goal: Any, timeout: float,
+                          on_feedback: Callable[[Any], None]) -> tuple[Any, list[Any]]:
+        """Send a FollowJointTrajectory ``goal`` to arm_controller and wait for its result:
+        ``timeout`` s for the server, then the trajectory's duration + ``timeout``. Returns
+        (result, feedback) on success; ClientError with the controller's error code and
+        message otherwise. Ctrl-C (KeyboardInterrupt) cancels the goal (the arm holds), says
+        so and re-raises."""
+        from hyperarm_control.client import RESULT_NAMES, TrajectoryClient
+
+        client = TrajectoryClient(self.node, contract.ARM_TRAJECTORY_ACTION)
+        name = self._full(contract.ARM_TRAJECTORY_ACTION)
+        if not self._spin_until(client.server_ready, timeout):
+            raise ClientError(f"no arm_controller serves {name} within {timeout:g} s "
+                              f"(--timeout; {_where()}): is arm_controller running, and are "
+                              "the drivers publishing joint_states?")
+        points = goal.trajectory.points
+        duration = (points[-1].time_from_start.sec + 1e-9 * points[-1].time_from_start.nanosec
+                    if points else 0.0)
+        seen = [0]
+
+        def progress() -> bool:
+            fb = client.feedback()
+            for f in fb[seen[0]:]:
+                on_feedback(f)
+            seen[0] = len(fb)
+            return client.done()
+
+        client.send(goal)
+        try:
+            if not self._spin_until(progress, duration + timeout):
+                client.cancel()
+                self._spin_until(client.done, 1.5)
+                raise ClientError(f"no result from {name} within {duration + timeout:g} s "
+                                  "(the trajectory's duration + --timeout): cancelled")
+        except KeyboardInterrupt:
+            print("Ctrl-C: cancelling the trajectory (the arm holds)", file=sys.stderr,
+                  flush=True)
+            client.cancel()
+            self._spin_until(client.done, 1.5)
+            raise
+        if client.accepted() is False:
+            raise ClientError(f"{name} rejected the goal")
+        status, result = client.result()
+        if status != 4:   # action_msgs GoalStatus: 4 succeeded, 5 canceled, 6 aborted
+            how = {5: "canceled", 6: "aborted"}.get(status, f"ended with status {status}")
+            raise ClientError(f"trajectory {how}: {RESULT_NAMES.get(result.error_code, '?')} "
+                              f"({result.error_code}): {result.error_string}")
+        return result, client.feedback()

@@ -14,7 +14,7 @@ from hyperarm_bringup.cli import build_parser, parse_assignments
 from hyperarm_description.model import load_description
 
 SUBCOMMANDS = ("state", "diag", "torque", "hold", "reboot", "home", "move", "ik", "run",
-               "scan", "set-id", "set-baud", "calibrate")
+               "traj", "scan", "set-id", "set-baud", "calibrate")
 
 
 def hyperarm(executable, *args: str, timeout: float = 60.0, stdin: str | None = None):

@@ -57,6 +57,9 @@ PARAMETERS: ParamSpec = {
     "command_lead": (0.03, "s, commands are the trajectory this far ahead of the cycle's "
                      "time, making up for the servos' delay in reaching a goal position "
                      "(docs/control.md); 0 sends the present point", Range(0.0, 0.5)),
+    "profile_lead": (True, "add v|v|/(2a) to each command: the distance the servos' "
+                     "acceleration-limited profile (Profile Acceleration = the description's "
+                     "limit, as dynamixel_driver writes it) trails a moving goal", None),
     "max_state_age": (0.25, "s, joint_states older than this abort the running trajectory",
                       Range(0.01, 10.0)),
     "action_monitor_rate": (20.0, "Hz, FollowJointTrajectory feedback while a goal runs",
@@ -87,7 +90,8 @@ class ArmControllerNode(Node):
         n = len(self._names)
         self._period = 1.0 / p["rate"]
         self._follower = Follower(self._limits, self._period, p["max_state_age"],
-                                  p["command_lead"])
+                                  p["command_lead"],
+                                  self._limits.acceleration if p["profile_lead"] else None)
         self._defaults = Tolerances(np.full(n, p["path_tolerance"]), np.zeros(n),
                                     np.full(n, p["goal_tolerance"]), np.zeros(n),
                                     p["goal_time"])

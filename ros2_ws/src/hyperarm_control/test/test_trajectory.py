@@ -132,7 +132,7 @@ def _bad(**change):
     ({"p": np.array([np.full(N, 0.1), [0.2] * (N - 1) + [math.nan]])}, InvalidGoal,
      "positions: point 1 has nan"),
     ({"p": np.array([np.full(N, 0.1), [9.0] + [0.2] * (N - 1)])}, InvalidGoal,
-     "positions: point 1, joint1 = 9 is outside"),
+     "positions: point 1, joint1 = 9 is outside its limits"),
     ({"v": np.array([np.full(N, 99.0), np.zeros(N)])}, InvalidGoal,
      "velocities: point 0, joint1 = 99"),
     ({"v": np.zeros((2, N)), "a": np.array([np.zeros(N), np.full(N, 1e3)])}, InvalidGoal,

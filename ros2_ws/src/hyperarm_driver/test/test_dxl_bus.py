@@ -14,7 +14,9 @@ from hypothesis import strategies as hs
 
 from hyperarm_description.model import load_description
 from hyperarm_driver.dynamixel.bus import DynamixelBus
-from hyperarm_driver.dynamixel.config import BusConfig, bus_config_from_description
+from hyperarm_driver.dynamixel.config import (BusConfig, acceleration_to_raw,
+                                              bus_config_from_description)
+from hyperarm_driver.dynamixel.control_table import ACCELERATION_UNIT_RPM2
 from hyperarm_driver.dynamixel.driver import DynamixelDriver
 from hyperarm_driver.dynamixel.errors import (CommandError, CommError, PortOpenError,
                                                StartupError)
@@ -160,6 +162,15 @@ def test_startup_configures_every_servo_torque_off(emu):
         assert (s["min_position_limit"], s["max_position_limit"]) == j.tick_limits
         assert s["operating_mode"] == 5   # every position-class command: current-based pos.
         assert s["profile_velocity"] > 0
+        # the arm's servos get the description's acceleration (a trapezoid, as the mock
+        # and host compensation assume); the gripper keeps its own register
+        if j.gripper:
+            assert s["profile_acceleration"] == 0
+        else:
+            spec = next(sp for sp in DESC.joints if sp.name == j.name)
+            a = s["profile_acceleration"] * ACCELERATION_UNIT_RPM2 * 2 * math.pi / 3600
+            assert s["profile_acceleration"] > 0
+            assert abs(a - spec.acceleration) <= 0.5 * 0.3746, (j.name, a, spec.acceleration)
     st = drv.cycle()
     assert np.allclose(st.position, 0.0) and np.allclose(st.voltage, 12.0)
 
@@ -751,3 +762,9 @@ def test_a_failed_read_stops_the_torque_of_joints_in_current_mode(emu):
         drv.command(["joint4"], effort=[0.5])
         return servo(emu, 4)["goal_current"] > 0
     run_until(drv, pushing, 3.0, "torque command back")
+
+
+@pytest.mark.parametrize("a, raw", [(10.0, 27), (0.3745, 1), (1e-6, 1), (1e9, 32767)])
+def test_acceleration_to_raw(a, raw):
+    # 214.577 rev/min² per unit (e-Manual): 10 rad/s² = 5729.6 rev/min² = 26.7 units
+    assert acceleration_to_raw(a) == raw

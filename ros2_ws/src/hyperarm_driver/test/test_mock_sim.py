@@ -50,10 +50,13 @@ def run(sim, seconds, record=None):
             record.append((sim.time, sim.position.copy(), sim.velocity.copy()))
 
 
-def test_default_profile_is_velocity_limited_like_profile_acceleration_0(sim, desc):
-    """The Dynamixel driver leaves Profile Acceleration 0 (unlimited): the profile moves at
-    the velocity limit from the first step, straight to the goal, without overshoot."""
+def test_profile_acceleration_0_is_velocity_limited_only(desc):
+    """A servo's Profile Acceleration 0 (unlimited): the profile moves at the velocity limit
+    from the first step, straight to the goal, without overshoot."""
     j = desc.joints[0]
+    cfg = config()
+    sim = JointSim(desc, dataclasses.replace(
+        cfg, servo=dataclasses.replace(cfg.servo, profile_acceleration=0.0)))
     sim.command(["joint1"], [1.0])
     trace: list = []
     run(sim, 1.2, trace)
@@ -67,11 +70,10 @@ def test_default_profile_is_velocity_limited_like_profile_acceleration_0(sim, de
     assert np.all(np.diff(pos) >= -1e-12)
 
 
-def test_tracks_goal_within_velocity_and_acceleration_limits(desc):
+def test_tracks_goal_within_velocity_and_acceleration_limits(sim, desc):
+    """The default: the description's acceleration limit, as dynamixel_driver writes it
+    into each servo's Profile Acceleration."""
     j = desc.joints[0]
-    cfg = config()
-    sim = JointSim(desc, dataclasses.replace(
-        cfg, servo=dataclasses.replace(cfg.servo, profile_acceleration=j.acceleration)))
     sim.command(["joint1"], [1.0])
     trace: list = []
     run(sim, 1.2, trace)

@@ -13,6 +13,13 @@
   time, so that the servos, which reach a goal position with a delay (their position loop,
   the bus and the driver's cycle), are where the trajectory is when it is there. 0 sends the
   trajectory's present position, as joint_trajectory_controller's position interface does.
+- **Profile lead**: servos that run an acceleration-limited profile towards each goal
+  (Dynamixel Profile Acceleration, as dynamixel_driver writes it; the PMAC's jog) brake to
+  stop at the goal, so they trail a goal moving at v by v|v| / (2 a). With
+  ``profile_acceleration`` given (per joint, rad/s²), each command adds that distance for
+  the trajectory's velocity at the commanded instant: the servo's own braking curve then
+  ends where the trajectory goes, and as the trajectory slows down the lead shrinks to 0
+  at its end.
 - **Goal tolerance**: after the last point, the goal succeeds once every joint is within
   its goal position (and velocity) tolerance; if that has not happened
   ``goal_time_tolerance`` s after the end, it aborts (GOAL_TOLERANCE_VIOLATED) and holds.
@@ -144,10 +151,13 @@ class _Goal:
 
 class Follower:
     """See the module. ``period`` (s) is the control cycle; ``max_state_age`` (s);
-    ``command_lead`` (s, >= 0) how far ahead of the cycle's time commands are sampled."""
+    ``command_lead`` (s, >= 0) how far ahead of the cycle's time commands are sampled;
+    ``profile_acceleration`` (rad/s² per joint, > 0) the servos' profile acceleration for
+    the profile lead, or None for none."""
 
     def __init__(self, limits: JointLimits, period: float, max_state_age: float = 0.25,
-                 command_lead: float = 0.0) -> None:
+                 command_lead: float = 0.0,
+                 profile_acceleration: np.ndarray | None = None) -> None:
         if not (period > 0 and math.isfinite(period)):
             raise ValueError(f"period must be > 0 s, got {period!r}")
         if not max_state_age > 0:
@@ -158,6 +168,14 @@ class Follower:
         self.period = period
         self.max_state_age = max_state_age
         self.command_lead = command_lead
+        if profile_acceleration is not None:
+            profile_acceleration = np.asarray(profile_acceleration, dtype=float).reshape(-1)
+            if (profile_acceleration.shape != limits.velocity.shape
+                    or not np.all(profile_acceleration > 0)
+                    or not np.all(np.isfinite(profile_acceleration))):
+                raise ValueError(f"profile_acceleration: {len(limits.names)} finite values > 0"
+                                 f" rad/s², got {profile_acceleration.tolist()}")
+        self.profile_acceleration = profile_acceleration
         self._step = limits.velocity * period
         self._last: np.ndarray | None = None
         self._hold: np.ndarray | None = None
@@ -208,7 +226,9 @@ class Follower:
         if goal is not None and goal.status == "running":
             t = now - goal.t0
             t_state = min(state_stamp - goal.t0, t)   # judged where the state was measured
-            target = goal.traj.sample(t + self.command_lead)[0]
+            target, tv, _ = goal.traj.sample(t + self.command_lead)
+            if self.profile_acceleration is not None:
+                target = target + tv * np.abs(tv) / (2.0 * self.profile_acceleration)
             desired, dv, da = goal.traj.sample(t_state)
             age = now - state_stamp
             if age > self.max_state_age:   # the measurement is old: hold the command

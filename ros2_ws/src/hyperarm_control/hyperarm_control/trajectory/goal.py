@@ -192,7 +192,7 @@ def build_trajectory(limits: JointLimits, joint_names: Sequence[str],
         if bad.size:
             i, j = bad[0]
             raise InvalidGoal(f"{what}: point {i}, {limits.names[j]} = {arr[i, j]:.6g} is "
-                              f"outside [{lo[j]:.6g}, {hi[j]:.6g}]")
+                              f"outside its limits [{lo[j]:.6g}, {hi[j]:.6g}]")
     q0 = np.asarray(start_position, dtype=float).reshape(-1)
     v0 = (np.zeros(n) if start_velocity is None
           else np.asarray(start_velocity, dtype=float).reshape(-1))

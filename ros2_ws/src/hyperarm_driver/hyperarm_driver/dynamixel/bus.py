@@ -23,7 +23,7 @@ import numpy as np
 from dynamixel_sdk import (COMM_SUCCESS, GroupSyncRead, GroupSyncWrite, PacketHandler,
                            PortHandler)
 
-from .config import BusConfig, velocity_to_raw
+from .config import BusConfig, acceleration_to_raw, velocity_to_raw
 from .control_table import (BUS_WATCHDOG_FIRMWARE, BUS_WATCHDOG_UNIT, CENTER_TICK,
                             INDIRECT_ADDRESS_1, INDIRECT_DATA_1, RAD_PER_TICK,
                             RADPS_PER_VELOCITY_UNIT, REGISTERS, OperatingMode,
@@ -287,7 +287,7 @@ class DynamixelBus:
 
     def configure(self, index: int) -> None:
         """Torque off, then Return Delay Time 0, Drive Mode 0 and Homing Offset 0, operating
-        mode, position limits, profile velocity and the indirect address blocks of joint
+        mode, position limits, profile acceleration and velocity and the indirect address blocks of joint
         ``index``.
 
         Drive Mode 0 (normal direction, velocity-based profile) and Homing Offset 0 make the
@@ -315,6 +315,11 @@ class DynamixelBus:
         lo, hi = j.tick_limits
         self.write(index, "min_position_limit", lo)
         self.write(index, "max_position_limit", hi)
+        # Profile Acceleration before Profile Velocity: a velocity-based trapezoid with the
+        # description's acceleration, the profile the mock and host compensation assume
+        # (0, the factory value, is a rectangular profile: a velocity step)
+        if j.acceleration is not None:
+            self.write(index, "profile_acceleration", acceleration_to_raw(j.acceleration))
         self.write(index, "profile_velocity", velocity_to_raw(j.velocity))
         addrs = _READ_ADDRS + _WRITE_ADDRS
         if not self.has_watchdog[index]:   # no register 98: that byte reads register 70

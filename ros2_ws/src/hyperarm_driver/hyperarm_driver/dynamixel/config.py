@@ -15,10 +15,11 @@ from typing import Sequence
 import numpy as np
 
 from .control_table import (
-    CENTER_TICK, RAD_PER_TICK, RADPS_PER_VELOCITY_UNIT, ModelSpec, OperatingMode, model_by_name)
+    CENTER_TICK, RAD_PER_TICK, RADPS2_PER_ACCELERATION_UNIT, RADPS_PER_VELOCITY_UNIT, ModelSpec, OperatingMode, model_by_name)
 from .errors import ConfigError
 
-__all__ = ["JointServo", "BusConfig", "bus_config_from_description", "velocity_to_raw"]
+__all__ = ["JointServo", "BusConfig", "bus_config_from_description", "velocity_to_raw",
+           "acceleration_to_raw"]
 
 
 @dataclass(frozen=True)
@@ -26,7 +27,8 @@ class JointServo:
     """One joint's servo: ID, model, direction (+1/-1), zero offset (rad), limits.
 
     ``lower``/``upper`` (rad) are the joint limits; ``velocity`` (rad/s) the profile
-    velocity; ``mode`` the operating mode used for position commands (``position`` or
+    velocity; ``acceleration`` (rad/s²) the profile acceleration, ``None`` to leave the
+    servo's register alone (the gripper: its closing is judged by stall); ``mode`` the operating mode used for position commands (``position`` or
     ``current_based_position``); ``hold_effort`` (N·m) the current limit used in
     current-based position mode when no effort is commanded (the gripper's grip torque);
     ``gripper`` marks the gripper's servo (``hold`` leaves a gripping gripper squeezing).
@@ -43,6 +45,7 @@ class JointServo:
     mode: str = "position"
     hold_effort: float | None = None
     gripper: bool = False
+    acceleration: float | None = None
 
     def __post_init__(self) -> None:
         if not 0 <= self.id <= 252:
@@ -62,6 +65,9 @@ class JointServo:
                               f"turn (ticks {lo}..{hi})")
         if not (self.velocity > 0 and math.isfinite(self.velocity)):
             raise ConfigError(f"{self.name}: velocity must be > 0, got {self.velocity}")
+        if self.acceleration is not None and not (
+                self.acceleration > 0 and math.isfinite(self.acceleration)):
+            raise ConfigError(f"{self.name}: acceleration must be > 0, got {self.acceleration}")
 
     # -- conversions -----------------------------------------------------------------------
     def rad_to_ticks_float(self, q: float) -> float:
@@ -134,6 +140,12 @@ def velocity_to_raw(v: float) -> int:
     return max(1, int(round(v / RADPS_PER_VELOCITY_UNIT)))
 
 
+def acceleration_to_raw(a: float) -> int:
+    """rad/s² -> Profile Acceleration units (214.577 rev/min² ≈ 0.3745 rad/s²), at least 1
+    (0 would mean 'no limit'), at most the register's 32767."""
+    return min(32767, max(1, int(round(a / RADPS2_PER_ACCELERATION_UNIT))))
+
+
 def bus_config_from_description(desc) -> BusConfig:  # type: ignore[no-untyped-def]
     """Build the bus configuration of the nine arm joints + gripper of a RobotDescription."""
     joints: list[JointServo] = []
@@ -149,6 +161,7 @@ def bus_config_from_description(desc) -> BusConfig:  # type: ignore[no-untyped-d
             name=spec.name, id=servo.id, model=model, direction=servo.direction,
             zero_offset=servo.zero_offset, lower=spec.lower, upper=spec.upper,
             velocity=spec.velocity, mode=servo.operating_mode,
+            acceleration=None if is_gripper else spec.acceleration,
             hold_effort=desc.gripper.grip_effort if is_gripper else None,
             gripper=is_gripper))
     return BusConfig(tuple(joints))

@@ -40,6 +40,8 @@ __all__ = [
     "RAD_PER_TICK",
     "VELOCITY_UNIT_RPM",
     "RADPS_PER_VELOCITY_UNIT",
+    "ACCELERATION_UNIT_RPM2",
+    "RADPS2_PER_ACCELERATION_UNIT",
 ]
 
 
@@ -216,6 +218,9 @@ CENTER_TICK = 2048
 RAD_PER_TICK = 2.0 * math.pi / TICKS_PER_REV
 VELOCITY_UNIT_RPM = 0.229
 RADPS_PER_VELOCITY_UNIT = VELOCITY_UNIT_RPM * 2.0 * math.pi / 60.0
+# Profile Acceleration (108) unit, rev/min² (e-Manual, X series, velocity-based profile)
+ACCELERATION_UNIT_RPM2 = 214.577
+RADPS2_PER_ACCELERATION_UNIT = ACCELERATION_UNIT_RPM2 * 2.0 * math.pi / 3600.0
 
 
 @dataclass(frozen=True)

@@ -866,7 +866,8 @@ class EmulatedBus:
                  "goal_position",
                  "goal_current", "present_position", "present_velocity", "present_current",
                  "hardware_error_status", "return_delay_time", "min_position_limit",
-                 "max_position_limit", "profile_velocity", "current_limit", "drive_mode",
+                 "max_position_limit", "profile_acceleration", "profile_velocity", "current_limit",
+                 "drive_mode",
                  "homing_offset", "bus_watchdog")
         return {n: s.get(n) for n in names}
 

@@ -105,10 +105,11 @@ class ServoConfig:
     constant between the velocity/acceleration-limited profile and the joint. damping:
     N·m·s/rad viscous friction of a joint in torque mode or with torque off.
     gripper_acceleration: rad/s² (the description has none for the gripper).
-    profile_acceleration: rad/s², the arm servos' Profile Acceleration; 0 (the default) is
-    unlimited, as the Dynamixel driver leaves the real servos (it writes Profile Velocity
-    only): the profile moves at up to the velocity limit and does not brake towards each
-    streamed goal. (The rail keeps its acceleration limit: the PMAC's jog profile.)
+    profile_acceleration: rad/s², the arm servos' Profile Acceleration. Absent (None, the
+    default): each joint's acceleration limit from the description, as dynamixel_driver
+    writes it into the servos; 0: unlimited (a servo's Profile Acceleration 0: the profile
+    moves at up to the velocity limit and does not brake towards each streamed goal).
+    (The rail keeps its acceleration limit: the PMAC's jog profile.)
     """
 
     stiffness: float = 20.0
@@ -117,7 +118,7 @@ class ServoConfig:
     lag: float = 0.02
     damping: float = 0.05
     gripper_acceleration: float = 20.0
-    profile_acceleration: float = 0.0
+    profile_acceleration: float | None = None
     mode_switch_gap: float = 0.005
 
 
@@ -306,8 +307,8 @@ def parse_mock_config(data: Any, source: str = "<data>") -> MockConfig:
         damping=_num(rs, "damping", "servo", ServoConfig.damping, positive=True),
         gripper_acceleration=_num(rs, "gripper_acceleration", "servo",
                                   ServoConfig.gripper_acceleration, positive=True),
-        profile_acceleration=_num(rs, "profile_acceleration", "servo",
-                                  ServoConfig.profile_acceleration, nonneg=True),
+        profile_acceleration=(None if rs.get("profile_acceleration") is None else
+                              _num(rs, "profile_acceleration", "servo", nonneg=True)),
         mode_switch_gap=_num(rs, "mode_switch_gap", "servo", ServoConfig.mode_switch_gap,
                              nonneg=True))
     rcur = _section(data, "current", "")

@@ -168,9 +168,10 @@ class JointSim:
         if desc.rail:
             vel.append(desc.rail.velocity); acc.append(desc.rail.acceleration)
             stall.append(RAIL_FORCE_LIMIT); stiff.append(s.rail_stiffness)
-        for j in desc.joints:      # Profile Acceleration 0: unlimited (inf)
+        for j in desc.joints:      # the driver writes j.acceleration; 0: unlimited (inf)
             vel.append(j.velocity)
-            acc.append(s.profile_acceleration if s.profile_acceleration > 0 else math.inf)
+            acc.append(j.acceleration if s.profile_acceleration is None else
+                       (s.profile_acceleration if s.profile_acceleration > 0 else math.inf))
             stall.append(j.effort); stiff.append(s.stiffness)
         vel.append(desc.gripper.velocity); acc.append(s.gripper_acceleration)
         stall.append(desc.gripper.effort); stiff.append(s.gripper_stiffness)
