@@ -15,7 +15,10 @@ setup(
     zip_safe=False,
     maintainer="hyperarm developers",
     maintainer_email="dev@hyperarm.invalid",
-    description="hyperarm controllers: the joint trajectory core (issue 26)",
+    description="hyperarm controllers: the joint trajectory core and arm_controller "
+                "(FollowJointTrajectory), gripper_controller (GripperCommand), the hybrid "
+                "force controller, host-motion compensation, force calibration, and their "
+                "benchmarks",
     license="Apache-2.0",
     entry_points={"console_scripts": [
         "arm_controller = hyperarm_control.entry:arm_controller",

@@ -51,6 +51,7 @@ import random
 import re
 import shlex
 import subprocess
+import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -452,6 +453,7 @@ def test_launch_file_starts_under_jazzy_rules(name, variant):
         assert ("pmac_rail_driver" in nodes) == (name.startswith("hardware")
                                                  and variant == "rail_arm")
         assert ("hybrid_force" in nodes) == (force == "true")
+        assert {"arm_controller", "gripper_controller"} <= set(nodes)  # controllers:=true
         assert ("rviz2" in nodes) is True
         urdf = _urdf(variant)
         assert ": " in urdf.read_text()  # the case that broke Jazzy's untyped parameter
@@ -463,6 +465,58 @@ def test_launch_file_starts_under_jazzy_rules(name, variant):
         if driver == "mock_driver":
             assert nodes["mock_driver"][1]["workcell_file"] == world
     assert "rviz2" not in launched(name, variant=variant, rviz="false")
+
+
+CONTROLLERS = {"arm_controller": "FollowJointTrajectory",
+               "gripper_controller": "GripperCommand"}
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+@pytest.mark.parametrize("name", ["mock.launch.xml", "hardware.launch.xml"])
+def test_controllers_start_unless_controllers_false(name, variant):
+    """issue 26: arm_controller (FollowJointTrajectory) and gripper_controller
+    (GripperCommand), hyperarm_control's console scripts, start by default (controllers:=true)
+    in /hyperarm with the variant's parameter file, like the other hyperarm nodes, and only
+    with parameters they declare (launched() checks them against --help);
+    controllers:=false starts neither and nothing else changes. The argument is a launch
+    condition: Jazzy takes true/1/false/0 only."""
+    default = launched(name, variant=variant, rviz="false")
+    assert set(CONTROLLERS) <= set(default)
+    task_node = default["task_node"][0]
+    for exe in CONTROLLERS:
+        node, params = default[exe]
+        assert (node.pkg, node.exe, node.name, node.namespace) == \
+            ("hyperarm_control", exe, exe, "hyperarm")
+        assert node.key == f"/hyperarm/{exe}"
+        # the same parameter file as the other nodes: the variant's, nothing else
+        assert node.params == task_node.params
+        assert [Path(p[1]).name for p in node.params] == [f"{variant}.yaml"]
+        assert params["variant"] == variant
+        assert node.args == []
+    for on in ("true", "1", "True"):
+        assert set(launched(name, variant=variant, rviz="false", controllers=on)) == \
+            set(default)
+    for off in ("false", "0"):
+        nodes = launched(name, variant=variant, rviz="false", controllers=off)
+        assert set(nodes) == set(default) - set(CONTROLLERS)
+    # independent of force:=
+    nodes = launched(name, variant=variant, rviz="false", force="true", controllers="false")
+    assert "hybrid_force" in nodes and not set(CONTROLLERS) & set(nodes)
+    with pytest.raises(LaunchError, match="not one of true"):
+        launched(name, variant=variant, rviz="false", controllers="yes")
+
+
+def test_the_controllers_argument_is_declared_and_passed_through():
+    """mock.launch.xml and hardware.launch.xml declare controllers (default true) and hand
+    it to common.launch.xml, which declares it too (so it also works on its own)."""
+    for path in LAUNCH:
+        root = ET.parse(path).getroot()
+        args = {a.get("name"): a for a in root.findall("arg")}
+        assert args["controllers"].get("default") == "true", path.name
+        assert args["controllers"].get("description"), path.name
+        for include in root.findall("include"):
+            passed = {a.get("name"): a.get("value") for a in include.findall("arg")}
+            assert passed.get("controllers") == "$(var controllers)", path.name
 
 
 @pytest.mark.parametrize("variant", VARIANTS)
@@ -688,3 +742,57 @@ def test_a_standalone_ik_service_says_it_avoids_no_work_cell(launch, wait_for):
     assert wait_for(lambda: "ik_service" in proc.output(), timeout=60), proc.output()
     first = proc.output().splitlines()[0]
     assert "no work cell" in first and "world_file" in first, first
+
+
+# --- issue 26: the launched controllers ------------------------------------------------------
+
+@pytest.mark.slow
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_launched_controllers_serve_their_actions_and_stay_silent(
+        variant, launch, rclpy_context, executor, wait_for, tmp_path):
+    """mock_driver, arm_controller and gripper_controller as mock.launch.xml starts them
+    (namespace, parameter file): both controllers load the variant's joints, offer their
+    actions once joint_states arrive, and publish nothing on joint_command while idle (the
+    one-commander rule, docs/architecture.md: other commanders such as task_node are free
+    to command the arm and gripper while no goal runs); then a gripper goal is heard
+    streaming joint_command for the gripper alone."""
+    import rclpy
+    from control_msgs.action import FollowJointTrajectory, GripperCommand
+    from rclpy.action import ActionClient
+    from sensor_msgs.msg import JointState
+
+    from hyperarm_description import contract
+    from hyperarm_description.model import load_description
+    from hyperarm_description.qos import qos_for
+
+    nodes = launched("mock.launch.xml", variant=variant, rviz="false")
+    node = rclpy.create_node("launch_probe", namespace="/hyperarm", context=rclpy_context)
+    commands: list = []
+    node.create_subscription(JointState, contract.JOINT_COMMAND, commands.append,
+                             qos_for(contract.JOINT_COMMAND))
+    clients = {"arm_controller": ActionClient(node, FollowJointTrajectory,
+                                              contract.ARM_TRAJECTORY_ACTION),
+               "gripper_controller": ActionClient(node, GripperCommand,
+                                                  contract.GRIPPER_ACTION)}
+    executor.add_node(node)
+    procs = {name: _start_as_launched(launch, tmp_path, nodes[name][0])
+             for name in ("mock_driver", *CONTROLLERS)}
+    for name in CONTROLLERS:
+        wait_for(lambda: "serving" in procs[name].output(), 60.0,
+                 what=f"{name} serving its action\n{procs[name].output()}")
+        wait_for(clients[name].server_is_ready, 30.0, what=f"{name}'s action server")
+    first = procs["arm_controller"].output()
+    assert ("rail, joint1" in first) == (variant == "rail_arm"), first
+    time.sleep(2.0)                      # idle: 200 arm and 100 gripper cycles
+    assert commands == [], [(c.name, list(c.position)) for c in commands[:3]]
+    # the probe does hear joint_command: a gripper goal (open) streams it, gripper only
+    goal = GripperCommand.Goal()
+    goal.command.position = float(load_description(None, variant).gripper.upper)
+    sent = clients["gripper_controller"].send_goal_async(goal)
+    wait_for(lambda: sent.done(), 30.0, what="the gripper goal's acceptance")
+    result = sent.result().get_result_async()
+    wait_for(lambda: result.done(), 30.0, what="the gripper goal's result")
+    assert result.result().result.reached_goal, result.result()
+    assert commands and all(list(c.name) == ["gripper"] for c in commands), commands[:3]
+    for proc in procs.values():
+        assert proc.proc.poll() is None, proc.output()

@@ -16,6 +16,7 @@ converts messages (:mod:`hyperarm_control.messages`) and wires them up.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,8 +45,14 @@ TRAJECTORY_TOPIC = contract.ARM_TRAJECTORY_TOPIC
 ACTION = contract.ARM_TRAJECTORY_ACTION
 
 PARAMETERS: ParamSpec = {
-    "rate": (100.0, "Hz, control cycles (one joint_command each while a trajectory runs)",
+    "rate": (100.0, "Hz, control cycles (one joint_command each while a trajectory runs); "
+             "with cycle_on_joint_states, set it to the arm driver's rate",
              Range(1.0, 1000.0)),
+    "cycle_on_joint_states": (True, "run each control cycle when the arm driver's "
+                              "joint_states arrive (read, update, write, as ros2_control "
+                              "does), so every command reaches the driver the same time "
+                              "before its next cycle; the rate timer then only runs a cycle "
+                              "when joint_states are 2.5 periods late", None),
     "path_tolerance": (0.1, "rad, default path tolerance of every joint (0 = not checked)",
                        Range(0.0, 10.0)),
     "goal_tolerance": (0.02, "rad, default goal tolerance of every joint (0 = not checked)",
@@ -54,7 +61,7 @@ PARAMETERS: ParamSpec = {
                   "limit)", Range(0.0, 600.0)),
     "start_tolerance": (0.05, "rad, how far a first point at t = 0 may be from the present "
                         "position", Range(0.0, 1.0)),
-    "command_lead": (0.03, "s, commands are the trajectory this far ahead of the cycle's "
+    "command_lead": (0.02, "s, commands are the trajectory this far ahead of the cycle's "
                      "time, making up for the servos' delay in reaching a goal position "
                      "(docs/control.md); 0 sends the present point", Range(0.0, 0.5)),
     "profile_lead": (True, "add v|v|/(2a) to each command: the distance the servos' "
@@ -89,6 +96,8 @@ class ArmControllerNode(Node):
         self._names = list(self._limits.names)
         n = len(self._names)
         self._period = 1.0 / p["rate"]
+        self._on_states = p["cycle_on_joint_states"]
+        self._last_cycle = -math.inf     # node-clock time of the last control cycle, s
         self._follower = Follower(self._limits, self._period, p["max_state_age"],
                                   p["command_lead"],
                                   self._limits.acceleration if p["profile_lead"] else None)
@@ -118,7 +127,7 @@ class ArmControllerNode(Node):
         # offered once joint_states of every joint have arrived (see _on_state): a client
         # waiting for the server (MoveIt does) then never sends a goal it must refuse
         self._server: ActionServer | None = None
-        self.create_timer(self._period, self._cycle)
+        self.create_timer(self._period, self._on_timer)
         self.create_timer(p["diagnostics_period"], self._publish_diagnostics)
         self.get_logger().info(f"arm_controller: {', '.join(self._names)} at "
                                f"{p['rate']:g} Hz; {ACTION}, {TRAJECTORY_TOPIC} -> "
@@ -145,6 +154,11 @@ class ArmControllerNode(Node):
             self._counts["bad_joint_states"] += 1
             self._warn(f"joint_states ignored: {exc}", "joint_states")
             return
+        # the arm driver's message (a rail's comes from another driver): cycle now, unless
+        # the last cycle was less than 3/4 of a period ago (a faster driver, a burst)
+        if (self._on_states and self._active and self._names[-1] in msg.name
+                and self._now() - self._last_cycle >= 0.75 * self._period):
+            self._cycle()
         if self._server is None and all(j in self._states.stamp for j in self._names):
             self._server = ActionServer(self, FollowJointTrajectory, ACTION,
                                         execute_callback=self._execute,
@@ -242,9 +256,16 @@ class ArmControllerNode(Node):
                 FollowJointTrajectory.Feedback, cyc, self._names,
                 self.get_clock().now().to_msg()))
 
+    def _on_timer(self) -> None:
+        if (self._on_states
+                and self._now() - self._last_cycle < 2.5 * self._period):
+            return                   # joint_states drive the cycles
+        self._cycle()
+
     def _cycle(self) -> None:
         if not self._active:
             return
+        self._last_cycle = self._now()
         try:
             q, v, stamp = self._state()
             now = self.get_clock().now()
@@ -273,6 +294,7 @@ class ArmControllerNode(Node):
                 self._end_action(cyc.failure.code, str(cyc.failure), abort=True)
         if cyc.status != "running" and np.array_equal(cyc.command, cyc.desired):
             self._active = False     # the hold is reached: the drivers keep it
+            self._follower.release()  # the next goal starts where the arm is then
 
     def _publish_diagnostics(self) -> None:
         level = 2 if self._last_result.startswith("aborted") else (

@@ -67,8 +67,10 @@ def test_follows_rejects_preempts_and_stops(launch, rclpy_context, executor, wai
                                                      if s.name == "arm_controller"),
                               qos_for(contract.DIAGNOSTICS))
     pub = probe.create_publisher(JointTrajectory, "arm_controller/joint_trajectory", 10)
+    # the controller has the arm's joint_states too once it serves its action
     wait_for(lambda: pub.get_subscription_count() and all(n in states for n in NAMES)
-             and diags, 60.0, what=f"arm_controller up\n{ctl.output()}")
+             and diags and "joint_states of every joint received" in ctl.output(), 60.0,
+             what=f"arm_controller up\n{ctl.output()}")
 
     def q_now():
         return np.array([states[n] for n in NAMES])

@@ -366,6 +366,34 @@ def test_cancel_holds_the_last_command_and_a_preemption_starts_from_it():
     assert np.array_equal(first.command, first.desired)
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_after_release_the_next_goal_starts_where_the_arm_was_moved(seed):
+    # goal 1 ends at its hold; the controller releases the arm; another commander moves
+    # it; goal 2's commands start at the measured position, not at goal 1's hold
+    rng = np.random.default_rng(seed)
+    f = Follower(LIM, PERIOD)
+    end1 = rng.uniform(-0.3, 0.3, N)
+    out = _run(f, _build(list(LIM.names), [1.0], end1[None, :]), DEFAULTS,
+               lambda t, out: out[-1].command if out else np.zeros(N), 3.0)
+    assert out[-1].status == "succeeded"
+    hold = f.step(3.0, end1, 3.0)
+    assert np.array_equal(hold.command, hold.desired)
+    with pytest.raises(TrajectoryError):      # never while a goal runs
+        f2 = Follower(LIM, PERIOD)
+        f2.start(_build(list(LIM.names), [1.0], end1[None, :]), DEFAULTS, 0.0)
+        f2.release()
+    f.release()
+    moved = end1 + rng.uniform(0.4, 0.8, N) * rng.choice([-1.0, 1.0], N)
+    moved = np.clip(moved, LIM.lower, LIM.upper)
+    end2 = moved + 0.05
+    f.start(_build(list(LIM.names), [1.0], end2[None, :], q0=moved), DEFAULTS, 5.0)
+    first = f.step(5.0, moved, 5.0)
+    # within one velocity-limit step of where the arm is (not heading back to end1)
+    assert np.all(np.abs(first.command - moved) <= LIM.velocity * PERIOD + 1e-12)
+    assert np.all(np.abs(first.command - end1) > 0.3)
+
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_invariant_no_command_step_beyond_the_velocity_limit_whatever_happens(seed):
     """Random goals (all kinds), measured states that track, lag, jump or freeze, late

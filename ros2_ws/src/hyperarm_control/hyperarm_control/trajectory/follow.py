@@ -27,7 +27,9 @@
   last command (the path cannot be judged on it, and the arm is not sent back to where the
   old state says it was).
 - **Preemption and cancel**: :meth:`Follower.start` replaces a running goal (from the
-  present command, no jump); :meth:`Follower.cancel` holds at the last command.
+  present command, no jump); :meth:`Follower.cancel` holds at the last command;
+  :meth:`Follower.release` (the controller stops commanding) makes the next goal start
+  from the arm's measured position.
 
 **The invariant**: whatever the trajectory, the state or an abort does, no command moves a
 joint further from the previous command than its velocity limit x ``period``, and no
@@ -197,6 +199,15 @@ class Follower:
         if self._goal is not None and self._goal.status == "running":
             self._goal.status = "cancelled"
         self._hold = self._last.copy() if self._last is not None else None
+
+    def release(self) -> None:
+        """The controller stops commanding (its hold is reached): forget the last command,
+        so the next goal's first command starts where the arm is measured then, not where
+        this controller last left it (another commander may have moved the arm since)."""
+        if self._goal is not None and self._goal.status == "running":
+            raise TrajectoryError("release() while a goal runs")
+        self._last = None
+        self._hold = None
 
     def _abort(self, goal: _Goal, failure: TrajectoryError, q: np.ndarray) -> None:
         goal.status = "aborted"

@@ -1,0 +1,145 @@
+"""Node tier: arm_controller in-process, its cycle against the driver's (issue 26).
+
+A probe plays a perfect arm driver at 50 Hz, half the controller's rate: each joint_states
+reports the last joint_command. With ``cycle_on_joint_states`` (the default) the controller
+runs one cycle per joint_states, right after it, and the trajectory still succeeds; on its
+own timer it sends two commands per state. When joint_states stop, the rate timer still
+runs the cycle and the goal aborts on the stale state, holding."""
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory
+
+from hyperarm_description import contract
+from hyperarm_description.qos import qos_for
+
+pytestmark = pytest.mark.node
+
+NAMES = list(contract.ARM_JOINTS)
+STATE_PERIOD = 0.02       # the probe driver's cycle, s (the controller runs at 100 Hz)
+
+
+class PerfectDriver:
+    """joint_states at STATE_PERIOD with the last commanded positions; logs both streams."""
+
+    def __init__(self, probe) -> None:
+        self.probe = probe
+        self.q = np.zeros(len(NAMES))
+        self.lock = threading.Lock()
+        self.events: list[tuple[str, float]] = []     # ("state" | "command", node time)
+        self.running = True
+        self.pub = probe.create_publisher(JointState, contract.JOINT_STATES,
+                                          qos_for(contract.JOINT_STATES))
+        probe.create_subscription(JointState, contract.JOINT_COMMAND, self._on_command,
+                                  qos_for(contract.JOINT_COMMAND))
+        probe.create_timer(STATE_PERIOD, self._publish)
+
+    def _now(self) -> float:
+        return self.probe.get_clock().now().nanoseconds * 1e-9
+
+    def _on_command(self, msg: JointState) -> None:
+        with self.lock:
+            assert list(msg.name) == NAMES
+            self.q = np.array(msg.position)
+            self.events.append(("command", self._now()))
+
+    def _publish(self) -> None:
+        if not self.running:
+            return
+        msg = JointState()
+        msg.header.stamp = self.probe.get_clock().now().to_msg()
+        msg.name = NAMES
+        with self.lock:
+            msg.position = [float(x) for x in self.q]
+            msg.velocity = [0.0] * len(NAMES)
+            self.events.append(("state", self._now()))
+        self.pub.publish(msg)
+
+    def between(self, t0: float, t1: float) -> list[str]:
+        with self.lock:
+            return [kind for kind, t in self.events if t0 <= t < t1]
+
+
+def _start(rclpy_context, executor, wait_for, on_states: bool):
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+
+    from hyperarm_control.arm_controller_node import ArmControllerNode
+
+    node = ArmControllerNode(context=rclpy_context, parameter_overrides=[
+        Parameter("rate", value=100.0),
+        Parameter("cycle_on_joint_states", value=on_states)])
+    probe = Node("arm_controller_probe", namespace=contract.DEFAULT_NAMESPACE,
+                 context=rclpy_context)
+    driver = PerfectDriver(probe)
+    traj_pub = probe.create_publisher(JointTrajectory, contract.ARM_TRAJECTORY_TOPIC, 10)
+    executor.add_node(node)
+    executor.add_node(probe)
+    wait_for(lambda: node._server is not None, 10.0, what="the controller's joint_states")
+    wait_for(lambda: traj_pub.get_subscription_count() > 0, 10.0, what="trajectory topic")
+    return node, probe, driver, traj_pub
+
+
+def _send(probe, traj_pub, q_end: np.ndarray, duration: float) -> float:
+    from builtin_interfaces.msg import Duration
+    from trajectory_msgs.msg import JointTrajectoryPoint
+
+    msg = JointTrajectory()
+    msg.joint_names = NAMES
+    pt = JointTrajectoryPoint()
+    pt.positions = [float(x) for x in q_end]
+    pt.time_from_start = Duration(sec=int(duration), nanosec=int((duration % 1) * 1e9))
+    msg.points.append(pt)
+    t0 = probe.get_clock().now().nanoseconds * 1e-9
+    traj_pub.publish(msg)
+    return t0
+
+
+@pytest.mark.parametrize("on_states", [True, False])
+def test_cycles_follow_the_drivers_joint_states(rclpy_context, executor, wait_for,
+                                                on_states):
+    node, probe, driver, traj_pub = _start(rclpy_context, executor, wait_for, on_states)
+    q_end = np.where(np.arange(len(NAMES)) % 2, -0.3, 0.3)
+    t0 = _send(probe, traj_pub, q_end, 2.0)
+    wait_for(lambda: node._follower.goal_status == "succeeded", 10.0,
+             what="the trajectory to succeed")
+    np.testing.assert_allclose(driver.q, q_end, atol=0.02)
+    # over the moving part (after a start-up margin): commands per state
+    seq = driver.between(t0 + 0.3, t0 + 1.8)
+    states, commands = seq.count("state"), seq.count("command")
+    assert states >= 50, seq
+    # two commands in a row without a joint_states between them
+    pairs = sum(1 for a, b in zip(seq, seq[1:]) if a == b == "command")
+    if on_states:
+        # one command per joint_states: at the driver's 50 Hz, not the rate's 100 Hz, and
+        # each right after a state
+        assert 0.85 * states <= commands <= 1.1 * states, (states, commands)
+        assert pairs <= 0.05 * commands, seq
+    else:
+        # the rate's own timer runs at twice the driver's rate (rclpy's timers run slow
+        # here: about 70 Hz): many commands follow no new state
+        assert commands > 1.2 * states and pairs >= 0.2 * commands, (states, commands, seq)
+
+
+def test_stopped_joint_states_still_abort_on_the_timer(rclpy_context, executor, wait_for):
+    node, probe, driver, traj_pub = _start(rclpy_context, executor, wait_for, True)
+    q_end = np.full(len(NAMES), 0.4)
+    _send(probe, traj_pub, q_end, 3.0)
+    wait_for(lambda: driver.between(0.0, float("inf")).count("command") > 20, 10.0,
+             what="commands")
+    driver.running = False            # the driver stops: no more joint_states
+    t_stop = probe.get_clock().now().nanoseconds * 1e-9
+    wait_for(lambda: node._follower.goal_status == "aborted", 5.0,
+             what="the stale-state abort")
+    assert "old" in str(node._follower._goal.failure)
+    # the timer ran the cycles that found the state stale, and the hold repeats the last
+    # command (no step after the stop)
+    after = driver.between(t_stop, float("inf"))
+    assert after.count("command") >= 1
+    held = driver.q.copy()
+    wait_for(lambda: not node._active, 5.0, what="the hold")
+    np.testing.assert_allclose(driver.q, held, atol=1e-12)
