@@ -386,3 +386,33 @@ def test_brake_law_before_a_limit_in_current_mode():
     half = up - d.limit_margin - d.limit_ramp / 2
     assert guard(half, 0.0, 1.0) == pytest.approx(0.5)      # fading over the ramp
     assert guard(d.lower[3] + 0.002, 0.0, -1.0) == 0.0      # the lower limit alike
+
+
+@pytest.mark.parametrize("acc_raw", [0, 27, 80])
+def test_emulated_servo_runs_the_velocity_based_trapezoid(acc_raw):
+    """Position mode, Profile Velocity 3 rad/s: with Profile Acceleration a > 0 the speed
+    never changes faster than a (e-Manual: 214.577 rev/min² per unit) and the servo stops on
+    the goal without overshoot; 0 is a step (full speed from the first step)."""
+    from hyperarm_driver.dynamixel.config import acceleration_to_raw, velocity_to_raw
+    from hyperarm_driver.dynamixel.emulator import TICKS_PER_S2_PER_ACC_UNIT
+
+    s = EmulatedServo(1, model_by_name("XM430-W350"))
+    s._set("operating_mode", 3)
+    s._set("profile_velocity", velocity_to_raw(3.0))
+    s._set("profile_acceleration", acc_raw)
+    s._set("torque_enable", 1)
+    s._set("goal_position", 2048 + 1500)
+    dt, vels, pos = 0.005, [0.0], []
+    for _ in range(400):
+        s.step(dt)
+        vels.append(s.vel)
+        pos.append(s.pos)
+    dv = np.abs(np.diff(vels)) / dt
+    if acc_raw == 0:
+        assert dv[0] > 1e4                 # ticks/s² : a step to full speed
+    else:
+        a = acc_raw * TICKS_PER_S2_PER_ACC_UNIT
+        assert dv.max() <= a * (1 + 1e-9), (dv.max(), a)
+        # 10 rad/s² is 27 units (acceleration_to_raw), 1 unit = 0.3745 rad/s²
+        assert acceleration_to_raw(acc_raw * 2 * math.pi * 214.577 / 3600) == acc_raw
+    assert max(pos) <= 2048 + 1500 + 1e-9 and pos[-1] == pytest.approx(2048 + 1500, abs=1e-6)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import random
 import select
@@ -31,7 +32,7 @@ from typing import Any
 
 from . import protocol2 as p2
 from .control_table import (
-    BAUD_RATES, CENTER_TICK, EEPROM_END, INDIRECT_ADDRESS_1, INDIRECT_ADDRESS_29,
+    ACCELERATION_UNIT_RPM2, BAUD_RATES, CENTER_TICK, EEPROM_END, INDIRECT_ADDRESS_1, INDIRECT_ADDRESS_29,
     INDIRECT_COUNT, INDIRECT_DATA_1, INDIRECT_DATA_29, MODELS, REGISTERS, TABLE_SIZE,
     TICKS_PER_REV, VELOCITY_UNIT_RPM, Item, ModelSpec, OperatingMode, Register, control_items,
     model_by_name)
@@ -39,6 +40,8 @@ from .control_table import (
 __all__ = ["EmulatedServo", "EmulatedBus", "PtyEmulator", "main"]
 
 TICKS_PER_S_PER_VEL_UNIT = VELOCITY_UNIT_RPM / 60.0 * TICKS_PER_REV
+# Profile Acceleration (108): 214.577 rev/min² per unit, in ticks/s²
+TICKS_PER_S2_PER_ACC_UNIT = ACCELERATION_UNIT_RPM2 / 3600.0 * TICKS_PER_REV
 POSITION_TAU = 0.03          # s, first-order time constant of the position loop
 POSITION_GAIN = 4.0          # raw current per tick of position error (position loop)
 CURRENT_TO_VEL = 2.0         # ticks/s per raw current unit in current mode (free load)
@@ -419,7 +422,15 @@ class EmulatedServo:
         elif mode in (OperatingMode.POSITION, OperatingMode.CURRENT_BASED_POSITION,
                       OperatingMode.EXTENDED_POSITION):
             err = self.get("goal_position") - self.pos
-            self.vel = max(-vmax, min(vmax, err / POSITION_TAU))
+            want = max(-vmax, min(vmax, err / POSITION_TAU))
+            acc = self.get("profile_acceleration") * TICKS_PER_S2_PER_ACC_UNIT
+            if acc > 0:
+                # velocity-based trapezoid (Drive Mode 0): accelerate at Profile
+                # Acceleration, brake to stop at the goal (v = sqrt(2 a |err|)); 0 = a step
+                brake = math.sqrt(2.0 * acc * abs(err))
+                want = max(-brake, min(brake, want))
+                want = max(self.vel - acc * dt, min(self.vel + acc * dt, want))
+            self.vel = want
             limit = (abs(self.get("goal_current")) if mode == OperatingMode.CURRENT_BASED_POSITION
                      else self.get("current_limit"))
             self.current = max(-limit, min(limit, POSITION_GAIN * err))
