@@ -30,6 +30,7 @@ setup(
             "task_recorder = hyperarm_tasks.entry:task_recorder",
             "plot_task = hyperarm_tasks.plots:main",
             "soak_block_transfer = hyperarm_tasks.benchmarks.soak:main",
+            "host_plots = hyperarm_tasks.benchmarks.host_plots:main",
         ],
     },
 )

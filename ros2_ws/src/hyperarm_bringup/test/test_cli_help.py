@@ -26,6 +26,7 @@ TASKS_USAGE = {
     "task_recorder": "usage: ros2 run <package> task_recorder",
     "plot_task": "usage: plot_task",
     "soak_block_transfer": "usage: soak_block_transfer",
+    "host_plots": "usage: host_plots",
     "run_task.sh": "run_task.sh: start the hyperarm stack",
     "ready.sh": "ready.sh: move the arm to the ready pose",
     "run_sequence.sh": "run_sequence.sh: run several tasks in order",

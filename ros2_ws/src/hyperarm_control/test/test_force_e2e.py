@@ -422,7 +422,7 @@ WRAP_STIFFNESS = [200.0, 200.0, 200.0, 2.0, 2.0, 2.0]
 def test_whole_arm_compliance_closes_around_a_pole(launch, rclpy_context, executor, wait_for,
                                                    tmp_path):
     """Whole-arm compliance through the node in the shipped post cell: from an open wrap
-    posture (hyperarm_tasks.testing.wrap_postures: the post inside the arm's open U,
+    posture (hyperarm_control.testing.wrap_postures: the post inside the arm's open U,
     nothing touching), force control in the torque output, compliance on, the goal leads
     the tool (tool pose of the closed posture, in 4 steps) and the null-space posture is
     that closed posture, which lies inside the post: the arm ends with at least 3 links on
@@ -431,7 +431,7 @@ def test_whole_arm_compliance_closes_around_a_pole(launch, rclpy_context, execut
     from diagnostic_msgs.msg import DiagnosticArray
     from hyperarm_driver.mock.config import load_mock_config
     from hyperarm_driver.mock.joint_sim import JointSim
-    from hyperarm_tasks.testing import wrap_postures
+    from hyperarm_control.testing import wrap_postures
 
     cell = _post_cell(tmp_path)
     sim = JointSim(load_description(), load_mock_config(cell))

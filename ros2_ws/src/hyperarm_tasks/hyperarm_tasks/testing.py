@@ -12,10 +12,10 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from hyperarm_description.world import PoleSpec
 from hyperarm_driver.mock.camera import Camera
 from hyperarm_driver.mock.config import MockConfig, load_mock_config
 from hyperarm_driver.mock.joint_sim import JointSim
+from hyperarm_control.testing import wrap_postures
 
 from .perception import DetectionBuffer, camera_pose, matrix_to_quat
 
@@ -40,42 +40,6 @@ def work_cell(seed: int, hole_radius: float | None = None,
         base, world=dataclasses.replace(base.world, spec=spec),
         imperfections=dataclasses.replace(base.imperfections, seed=seed),
         camera=dataclasses.replace(base.camera, seed=seed))
-
-
-def wrap_postures(sim: JointSim, pole: PoleSpec, open_bend: float = 0.5,
-                  closed_bend: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
-    """Arm joint angles (rad, joint1..9) of an open and a closed wrap around the vertical
-    ``pole`` (a :class:`~hyperarm_description.world.PoleSpec`; the scene of
-    ``workcell_post.yaml`` and of the whole-arm compliance tests).
-
-    The flat arm (pitch joints 2, 4, 6, 8 at 0) bent by 90° at the yaw joints 5 and 7 is a U:
-    link3-link4, then link5-link6 (17 cm between joints 5 and 7), then link7 and the
-    upright link9. The U's inside, 8.3 cm from either side and 7.5 cm back from joint 5,
-    holds a post of about 55 mm radius. joint1 aims that point at the pole (its distance
-    from the base must match the pole's, within 3 mm: else ValueError). The open posture
-    bends joints 5 and 7 by ``open_bend``, the closed one by ``closed_bend`` (inside the
-    pole). Arm variant only (ValueError on rail_arm)."""
-    import pinocchio as pin
-
-    def bent(bend: float, joint1: float) -> np.ndarray:
-        q = np.zeros(9)
-        q[0], q[4], q[6] = joint1, bend, bend
-        return q
-    if sim.rail:
-        raise ValueError("wrap_postures: the arm variant only")
-    m = sim.model
-    d = m.createData()
-    pin.forwardKinematics(m, d, np.r_[bent(np.pi / 2, 0.0), np.zeros(m.nq - 9)])
-    at = {m.names[i]: d.oMi[i].translation for i in range(1, m.njoints)}
-    d4 = at["joint5"] - at["joint4"]
-    d56 = at["joint7"] - at["joint5"]
-    p = at["joint5"] + 0.083 * d56 / np.linalg.norm(d56) - 0.075 * d4 / np.linalg.norm(d4)
-    xy = np.asarray(pole.xy, dtype=float)
-    if abs(np.linalg.norm(p[:2]) - np.linalg.norm(xy)) > 0.003:
-        raise ValueError(f"the U's inside is {np.linalg.norm(p[:2]):.3f} m from the base, "
-                         f"the pole {np.linalg.norm(xy):.3f} m")
-    joint1 = float(np.arctan2(xy[1], xy[0]) - np.arctan2(p[1], p[0]))
-    return bent(open_bend, joint1), bent(closed_bend, joint1)
 
 
 class SimRobot:

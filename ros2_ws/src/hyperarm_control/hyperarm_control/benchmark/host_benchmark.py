@@ -10,11 +10,10 @@
    on the mock's simulation (``host_sim.mount_study``, several minutes): each run's truth
    RMS / max error and the mount's motion, and whether all are within 3 mm RMS, 8 mm max.
 
-4. ``--plots DIR``: the PNG figures of docs/host.md (tool error, reaction over time) from
-   the mock's simulation (``host_plots``), instead of the timings.
+The PNG figures of docs/host.md (tool error, reaction over time) from the mock's
+simulation: ``ros2 run hyperarm_tasks host_plots DIR`` (they run the figure-8 task).
 
 Usage: host_benchmark [--cycles N] [--samples N] [--only core|latency|mount] [--domain D]
-                      [--plots DIR]
 """
 from __future__ import annotations
 
@@ -146,20 +145,14 @@ def bench_latency(samples: int, domain: int) -> tuple[float, float, float]:
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(prog="host_benchmark", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="host_benchmark", description=__doc__.split("\n\n")[0],
+                                 epilog="The PNG figures of docs/host.md: "
+                                        "ros2 run hyperarm_tasks host_plots DIR")
     ap.add_argument("--cycles", type=int, default=2000)
     ap.add_argument("--samples", type=int, default=300)
     ap.add_argument("--only", choices=("core", "latency", "mount"))
     ap.add_argument("--domain", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", "0")))
-    ap.add_argument("--plots", type=Path, metavar="DIR",
-                    help="write the PNG figures into DIR (e.g. docs/benchmarks/img) and exit")
     a = ap.parse_args(argv)
-    if a.plots is not None:
-        from .host_plots import write_plots
-
-        for path in write_plots(a.plots):
-            print(f"wrote {path}")
-        return
     print(f"load average {os.getloadavg()[0]:.1f}")
     if a.only == "mount":
         from .host_sim import mount_study

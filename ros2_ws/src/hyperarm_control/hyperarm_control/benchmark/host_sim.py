@@ -11,18 +11,17 @@
   rail is streamed 0.2 m away from it at 0.1 m/s and back: the arm reaches full stretch
   (the goal goes out of reach) and leaves it. Returns every command sent, for the step
   invariant.
-- :func:`figure8_task`: the shipped figure-8 task (hyperarm_tasks, ``track_path``) run by
-  the task runner on the simulation, as shipped or with ``redundancy: min_reaction``; the
-  base moment over the figure-8's traversal, from the measured joint states.
 
-Needs hyperarm_driver (and hyperarm_tasks for the figure-8), imported when called.
+The shipped figure-8 task on this simulation (the task runner, above this package) is
+hyperarm_tasks.benchmarks.host_figure8, which uses :func:`_sim` and :data:`ARM`.
+
+Needs hyperarm_driver, imported when called.
 Units: s, m, rad, N, N·m.
 """
 from __future__ import annotations
 
 import dataclasses
 import math
-import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -38,8 +37,8 @@ from hyperarm_ik.kinematics import Kinematics, rotation_angle
 if TYPE_CHECKING:
     from hyperarm_driver.mock.host_motion import HostMotionSpec
 
-__all__ = ["rail_sweep", "rail_reach", "sway", "ordinary_postures", "mount_study", "figure8_task", "Q0", "Q_REACH", "Q_AHEAD_40",
-           "DT"]
+__all__ = ["rail_sweep", "rail_reach", "sway", "ordinary_postures", "mount_study", "Q0",
+           "Q_REACH", "DT"]
 
 ARM = [f"joint{i}" for i in range(1, 10)]
 #: tool0 pointing down 0.2 m in front of the base (reachable while the base moves)
@@ -47,8 +46,6 @@ Q0 = [1.367, 0.62, -1.871, 0.548, 1.726, -1.732, 1.335, -0.596, 0.726]
 DT = 0.01
 #: tool0 0.62 m ahead of the base, 0.1 m up, 10 deg below forward (IK, issue 24 item 1)
 Q_REACH = [0.141, 0.134, -0.305, -0.071, 0.137, 0.3, 0.145, -0.19, -0.113]
-#: tool0 0.40 m ahead, 0.1 m up, 10 deg below forward (IK, issue 24 item 5)
-Q_AHEAD_40 = None
 
 
 def _rail_setpoint(t: float, speed: float = 0.2, dwell: float = 0.3) -> float:
@@ -261,43 +258,3 @@ def mount_study(seeds=(0, 1, 2), postures: int = 10, duration: float = 10.0,
                         "deg": math.degrees(float(run["truth_orientation_error"].max())),
                         "mount": float(np.abs(run["mount"][:, :3]).max())})
     return out
-
-
-def figure8_task(redundancy: str | None = None) -> dict[str, object]:
-    """The figure-8 task on the simulation (see the module doc): ``t`` (s), ``moment``
-    (N·m, norm of the base moment) over the traversal, and the task's ``metrics``."""
-    from hyperarm_tasks.runner import Runner
-    from hyperarm_tasks.sequence import find_task, load_task
-    from hyperarm_tasks.testing import SimRobot
-
-    desc = load_description(variant="arm")
-    kin = Kinematics(variant="arm")
-    text = find_task("figure8").read_text()
-    if redundancy is not None:
-        text = text.replace("    min_reached:", f"    redundancy: {redundancy}\n    min_reached:",
-                            1)
-    sim = _sim(desc)
-    robot = SimRobot(sim)
-    phase = {"now": ""}
-    trace: list[tuple[float, np.ndarray, np.ndarray]] = []
-    idx = [sim.names.index(n) for n in ARM]
-    step = robot.sleep
-
-    def sleep(seconds: float) -> None:      # record the measured states while tracking
-        step(seconds)
-        if phase["now"] == "tracking":
-            s = sim.state()
-            trace.append((s.stamp, s.position[idx].copy(), s.velocity[idx].copy()))
-
-    robot.sleep = sleep
-    with tempfile.TemporaryDirectory() as tmp:
-        (Path(tmp) / "figure8_host.yaml").write_text(text)
-        task = load_task("figure8_host", desc, [tmp])
-    result = Runner(robot, kin, task, on_feedback=lambda fb: phase.update(now=fb.phase)).run()
-    if not result.success:
-        raise RuntimeError(f"figure-8 task failed: {result.message}")
-    reaction, accel = ReactionModel(kin), AccelerationEstimator()
-    moment = [float(np.linalg.norm(reaction.wrench(q, dq, accel.update(t, dq))[3:]))
-              for t, q, dq in trace]
-    t = np.array([tr[0] for tr in trace])
-    return {"t": t - t[0], "moment": np.array(moment), "metrics": dict(result.metrics)}

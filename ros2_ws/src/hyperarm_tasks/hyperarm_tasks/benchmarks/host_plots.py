@@ -1,6 +1,8 @@
-"""PNG figures of host-motion compensation (docs/host.md), from the mock's simulation.
+"""host_plots: PNG figures of host-motion compensation (docs/host.md) from the mock's simulation.
 
-``host_benchmark --plots DIR`` writes into DIR:
+    host_plots DIR
+
+writes into DIR (created if missing; the docs' copies are in docs/benchmarks/img):
 
 - ``host_tool_error.png``: tool0's position and orientation error over time, compensated
   by :class:`~hyperarm_control.host.CompensationLoop` on the mock's simulated servos: the rail
@@ -18,13 +20,17 @@ Runs in about 20 s (no ROS; the figure-8 task runs twice in simulated time).
 """
 from __future__ import annotations
 
+import argparse
 import math
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .host_sim import figure8_task, rail_sweep, sway
+from hyperarm_control.benchmark.host_sim import rail_sweep, sway
+
+from .host_figure8 import figure8_task
 
 if TYPE_CHECKING:
     from hyperarm_driver.mock.host_motion import HostMotionSpec
@@ -129,3 +135,17 @@ def _light_mount() -> HostMotionSpec:
         mass=0.5, inertia=(0.002, 0.002, 0.002),
         stiffness=(1200.0, 1200.0, 1200.0, 150.0, 150.0, 150.0),
         damping=(9.5, 9.5, 9.5, 0.6, 0.6, 0.6)))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="host_plots", description=__doc__.split("\n\n")[0])
+    ap.add_argument("dir", type=Path, metavar="DIR",
+                    help="write the PNG figures into DIR (e.g. docs/benchmarks/img)")
+    a = ap.parse_args(argv)
+    for path in write_plots(a.dir):
+        print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

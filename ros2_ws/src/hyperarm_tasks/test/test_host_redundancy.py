@@ -1,7 +1,7 @@
 """Core tier: the reaction-minimising redundancy option (issue 15) on the figure-8 task.
 
 The shipped figure-8 task (hyperarm_tasks, step ``track_path``) runs twice on the mock's
-simulation (no ROS, simulated time, repeatability 0; ``host_sim.figure8_task``): as
+simulation (no ROS, simulated time, repeatability 0; ``host_figure8.figure8_task``): as
 shipped, and with the step's ``redundancy: min_reaction`` (a task YAML a user would write). The base moment is what the
 node publishes on ``base_reaction``: :class:`ReactionModel` on the measured joint states
 (finite-difference accelerations), over the figure-8's traversal. The option must lower
@@ -36,7 +36,7 @@ def _figure8_task(tmp_path, desc, redundancy: str):
 
 @pytest.mark.slow
 def test_min_reaction_lowers_the_peak_base_moment_on_the_figure8():
-    from hyperarm_control.benchmark.host_sim import figure8_task
+    from hyperarm_tasks.benchmarks.host_figure8 import figure8_task
 
     runs = figure8_task(None), figure8_task("min_reaction")
     (base, m_base), (low, m_low) = ((r["metrics"], r["moment"]) for r in runs)
