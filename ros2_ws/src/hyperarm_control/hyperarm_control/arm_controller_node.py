@@ -38,8 +38,8 @@ from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import declare_robot_description, run_node
 
 from .messages import TrajectoryArgs, feedback, goal_tolerances, trajectory_args
-from .trajectory import (SUCCESSFUL, Follower, JointLimits, Tolerances, TrajectoryError,
-                         build_trajectory, start_time)
+from .trajectory import (SUCCESSFUL, CommanderWatch, Follower, InvalidGoal, JointLimits,
+                         Tolerances, TrajectoryError, build_trajectory, start_time)
 
 TRAJECTORY_TOPIC = contract.ARM_TRAJECTORY_TOPIC
 ACTION = contract.ARM_TRAJECTORY_ACTION
@@ -67,6 +67,10 @@ PARAMETERS: ParamSpec = {
     "profile_lead": (True, "add v|v|/(2a) to each command: the distance the servos' "
                      "acceleration-limited profile (Profile Acceleration = the description's "
                      "limit, as dynamixel_driver writes it) trails a moving goal", None),
+    "handover_quiet": (0.5, "s: a goal is refused while another node was heard on "
+                       "joint_command naming these joints less than this ago, and a running "
+                       "goal stops when one is heard (one commander at a time, "
+                       "docs/architecture.md); 0 = no check", Range(0.0, 10.0)),
     "max_state_age": (0.25, "s, joint_states older than this abort the running trajectory",
                       Range(0.01, 10.0)),
     "action_monitor_rate": (20.0, "Hz, FollowJointTrajectory feedback while a goal runs",
@@ -105,13 +109,15 @@ class ArmControllerNode(Node):
                                     np.full(n, p["goal_tolerance"]), np.zeros(n),
                                     p["goal_time"])
         self._start_tolerance = p["start_tolerance"]
+        self._watch = CommanderWatch(self._names, p["handover_quiet"])
+        self._last_sent = -math.inf      # node-clock time of the last joint_command sent, s
         self._states = JointStateCache()
         # per driver (its joint set): a message older than the newest used, or than
         # max_state_age, is not used (it would put an old position in the cache)
         self._state_gate = StampGate(contract.JOINT_STATES, p["max_state_age"])
         self._throttle = ReasonThrottle(5.0)
         self._counts = {"accepted": 0, "succeeded": 0, "aborted": 0, "stopped": 0,
-                        "rejected": 0, "bad_joint_states": 0}
+                        "rejected": 0, "bad_joint_states": 0, "yielded": 0}
         self._last_result = "no trajectory yet"
         self._reported = True        # the current goal's end has been logged
         self._active = False         # commanding (a goal runs, or the hold is not reached)
@@ -124,6 +130,9 @@ class ArmControllerNode(Node):
         self.create_subscription(JointState, contract.JOINT_STATES, self._on_state,
                                  qos_for(contract.JOINT_STATES))
         self.create_subscription(JointTrajectory, TRAJECTORY_TOPIC, self._on_trajectory, 10)
+        # the other commanders (one at a time; and where they left the arm)
+        self.create_subscription(JointState, contract.JOINT_COMMAND, self._on_command,
+                                 qos_for(contract.JOINT_COMMAND))
         # offered once joint_states of every joint have arrived (see _on_state): a client
         # waiting for the server (MoveIt does) then never sends a goal it must refuse
         self._server: ActionServer | None = None
@@ -176,8 +185,16 @@ class ArmControllerNode(Node):
     def _start(self, args: TrajectoryArgs, goal=None) -> None:
         """Check a goal and start following it (preempting the running one); raises
         TrajectoryError or JointStateError, with nothing changed, when it fails a check."""
+        if (busy := self._watch.busy(self._now())) is not None:
+            raise InvalidGoal(busy)
         q, v, _stamp = self._state()
         start, elapsed = start_time(args.stamp, args.duration, self._now())
+        reseed = False
+        if not self._active:         # the arm may have been moved by another commander
+            last = self._follower.last_command
+            reseed = (last is not None and (
+                self._watch.last_other > self._last_sent
+                or float(np.max(np.abs(q - last))) > self._start_tolerance))
         traj = build_trajectory(
             self._limits, args.joint_names, args.times, args.positions, args.velocities,
             args.accelerations, start_position=q, start_velocity=v, elapsed=elapsed,
@@ -187,11 +204,32 @@ class ArmControllerNode(Node):
         self._end_action(FollowJointTrajectory.Result.INVALID_GOAL,
                          "preempted by a new goal" if goal is not None else
                          f"preempted by a trajectory on {TRAJECTORY_TOPIC}", abort=True)
+        if reseed:
+            self._follower.reseed(q)
         self._follower.start(traj, tol, start)
         self._counts["accepted"] += 1
         self._active = True
         self._reported = False
         self._last_result = f"running ({traj.kind}, {traj.duration:.2f} s)"
+
+    def _on_command(self, msg: JointState) -> None:
+        if not self._watch.observe(msg.name, msg.position, self._now()):
+            return
+        if not self._active or self._watch.quiet <= 0.0:
+            return
+        # another commander while this one streams: stop at once, sending nothing more
+        running = self._follower.goal_status == "running"
+        self._follower.cancel()
+        self._follower.release()
+        self._active = False
+        self._counts["yielded"] += 1
+        text = (f"another node commanded {', '.join(self._watch.other_joints)} on "
+                f"joint_command: {'goal aborted, ' if running else ''}arm_controller "
+                "stopped commanding (one commander at a time)")
+        self._last_result = f"aborted (-1): {text}" if running else self._last_result
+        self._reported = True
+        self._end_action(FollowJointTrajectory.Result.INVALID_GOAL, text, abort=True)
+        self._warn(f"arm_controller: {text}", "yielded")
 
     def _rejected(self, exc: Exception) -> tuple[int, str]:
         self._counts["rejected"] += 1
@@ -278,6 +316,8 @@ class ArmControllerNode(Node):
             return
         msg = JointState(name=self._names, position=[float(x) for x in cyc.command])
         msg.header.stamp = now.to_msg()      # the instant the trajectory was sampled
+        self._watch.sent(msg.position)
+        self._last_sent = self._now()
         self._cmd_pub.publish(msg)
         self._monitor_action(cyc)
         if cyc.status != "running" and not self._reported:
@@ -294,7 +334,7 @@ class ArmControllerNode(Node):
                 self._end_action(cyc.failure.code, str(cyc.failure), abort=True)
         if cyc.status != "running" and np.array_equal(cyc.command, cyc.desired):
             self._active = False     # the hold is reached: the drivers keep it
-            self._follower.release()  # the next goal starts where the arm is then
+            self._follower.release()
 
     def _publish_diagnostics(self) -> None:
         level = 2 if self._last_result.startswith("aborted") else (

@@ -8,6 +8,7 @@ runs the cycle and the goal aborts on the stale state, holding."""
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -31,6 +32,7 @@ class PerfectDriver:
         self.q = np.zeros(len(NAMES))
         self.lock = threading.Lock()
         self.events: list[tuple[str, float]] = []     # ("state" | "command", node time)
+        self.commands: list[tuple[float, np.ndarray]] = []
         self.running = True
         self.pub = probe.create_publisher(JointState, contract.JOINT_STATES,
                                           qos_for(contract.JOINT_STATES))
@@ -42,10 +44,12 @@ class PerfectDriver:
         return self.probe.get_clock().now().nanoseconds * 1e-9
 
     def _on_command(self, msg: JointState) -> None:
+        if list(msg.name) != NAMES:
+            return                                  # the gripper: not this driver's
         with self.lock:
-            assert list(msg.name) == NAMES
             self.q = np.array(msg.position)
             self.events.append(("command", self._now()))
+            self.commands.append((self._now(), self.q.copy()))
 
     def _publish(self) -> None:
         if not self.running:
@@ -143,3 +147,62 @@ def test_stopped_joint_states_still_abort_on_the_timer(rclpy_context, executor, 
     held = driver.q.copy()
     wait_for(lambda: not node._active, 5.0, what="the hold")
     np.testing.assert_allclose(driver.q, held, atol=1e-12)
+
+
+def test_one_commander_at_a_time(rclpy_context, executor, wait_for):
+    """Another node on joint_command (naming arm joints): a goal within handover_quiet
+    (0.5 s) of it is refused, saying why; a gripper-only command is not another arm
+    commander; after the quiet time a goal runs, and when another commander speaks while it
+    runs, arm_controller stops at once (no command of its own after it)."""
+    node, probe, driver, traj_pub = _start(rclpy_context, executor, wait_for, True)
+    other = probe.create_publisher(JointState, contract.JOINT_COMMAND,
+                                   qos_for(contract.JOINT_COMMAND))
+
+    def other_says(q, names=NAMES):
+        other.publish(JointState(name=list(names), position=[float(x) for x in q]))
+
+    # a gripper command: another joint set, not a commander of the arm
+    other_says([0.3], ["gripper"])
+    time.sleep(0.2)
+    _send(probe, traj_pub, np.full(len(NAMES), 0.05), 1.0)
+    wait_for(lambda: node._follower.goal_status == "succeeded", 10.0, what="the first goal")
+    wait_for(lambda: not node._active, 5.0, what="the hold")
+    # another arm commander holds the arm: a goal now is refused, with the reason
+    # (its hold: where it measures the arm, not bit for bit arm_controller's last command,
+    # which would pass for arm_controller's own)
+    held = driver.q + 1e-4
+    other_says(held)
+    wait_for(lambda: node._watch.heard == 1, 5.0, what="the other commander heard")
+    _send(probe, traj_pub, np.full(len(NAMES), 0.1), 1.0)
+    wait_for(lambda: node._counts["rejected"] == 1, 5.0, what="the refusal")
+    assert "another node commands joint1" in node._last_result, node._last_result
+    assert node._follower.goal_status == "succeeded"      # nothing started
+    # after the quiet time it runs; the other commander speaks: it stops at once
+    time.sleep(0.6)
+    t0 = _send(probe, traj_pub, np.full(len(NAMES), -0.2), 2.0)
+    wait_for(lambda: node._follower.goal_status == "running"
+             and driver.between(t0, float("inf")).count("command") > 20, 5.0,
+             what="the second goal running")
+    mine = len(driver.between(0.0, float("inf")))
+    other_says(driver.q + 1e-4)
+    wait_for(lambda: node._counts["yielded"] == 1, 5.0, what="the yield")
+    assert node._follower.goal_status == "cancelled" and not node._active
+    assert "another node commanded joint1" in node._last_result, node._last_result
+    n = driver.between(0.0, float("inf")).count("command")
+    time.sleep(0.5)
+    # no command of arm_controller's after the other's (the other's own is counted once)
+    assert driver.between(0.0, float("inf")).count("command") == n, (mine, n)
+
+    # the other commander moves the arm 0.3 rad away in small steps and stops; a goal
+    # 0.5 s later starts from where the arm is, not from arm_controller's last command
+    last_mine = driver.q - 1e-4
+    for k in range(1, 31):
+        other_says(last_mine + 0.01 * k)
+        time.sleep(0.01)
+    wait_for(lambda: np.allclose(driver.q, last_mine + 0.3), 5.0, what="the arm moved")
+    time.sleep(0.6)
+    t1 = _send(probe, traj_pub, driver.q + 0.05, 1.0)
+    wait_for(lambda: node._follower.goal_status == "succeeded", 10.0, what="the third goal")
+    first = next(q for t, q in driver.commands if t >= t1)
+    step = np.abs(first - (last_mine + 0.3)).max()
+    assert step <= 3.0 / 100.0 + 1e-9, step            # one velocity step of the arm

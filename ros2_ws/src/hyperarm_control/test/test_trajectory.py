@@ -368,8 +368,10 @@ def test_cancel_holds_the_last_command_and_a_preemption_starts_from_it():
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_after_release_the_next_goal_starts_where_the_arm_was_moved(seed):
-    # goal 1 ends at its hold; the controller releases the arm; another commander moves
-    # it; goal 2's commands start at the measured position, not at goal 1's hold
+    # goal 1 ends at its hold; the controller releases the arm. A next goal from there
+    # continues from the last command (the step invariant across goals); after another
+    # commander moved the arm, reseed: goal 2's commands start at the measured position,
+    # not at goal 1's hold
     rng = np.random.default_rng(seed)
     f = Follower(LIM, PERIOD)
     end1 = rng.uniform(-0.3, 0.3, N)
@@ -378,19 +380,30 @@ def test_after_release_the_next_goal_starts_where_the_arm_was_moved(seed):
     assert out[-1].status == "succeeded"
     hold = f.step(3.0, end1, 3.0)
     assert np.array_equal(hold.command, hold.desired)
-    with pytest.raises(TrajectoryError):      # never while a goal runs
-        f2 = Follower(LIM, PERIOD)
-        f2.start(_build(list(LIM.names), [1.0], end1[None, :]), DEFAULTS, 0.0)
-        f2.release()
+    for call in (lambda g: g.release(), lambda g: g.reseed(np.zeros(N))):
+        g = Follower(LIM, PERIOD)                   # never while a goal runs
+        g.start(_build(list(LIM.names), [1.0], end1[None, :]), DEFAULTS, 0.0)
+        with pytest.raises(TrajectoryError):
+            call(g)
     f.release()
+    assert np.array_equal(f.last_command, hold.command)
     moved = end1 + rng.uniform(0.4, 0.8, N) * rng.choice([-1.0, 1.0], N)
     moved = np.clip(moved, LIM.lower, LIM.upper)
     end2 = moved + 0.05
+    # without reseed: one velocity step from the hold (the old behaviour, heading back)
+    g = Follower(LIM, PERIOD)
+    g._last = hold.command.copy()
+    g.start(_build(list(LIM.names), [1.0], end2[None, :], q0=moved), DEFAULTS, 5.0)
+    assert np.all(np.abs(g.step(5.0, moved, 5.0).command - hold.command)
+                  <= LIM.velocity * PERIOD + 1e-12)
+    f.reseed(moved)
     f.start(_build(list(LIM.names), [1.0], end2[None, :], q0=moved), DEFAULTS, 5.0)
     first = f.step(5.0, moved, 5.0)
     # within one velocity-limit step of where the arm is (not heading back to end1)
     assert np.all(np.abs(first.command - moved) <= LIM.velocity * PERIOD + 1e-12)
     assert np.all(np.abs(first.command - end1) > 0.3)
+    with pytest.raises(TrajectoryError):
+        Follower(LIM, PERIOD).reseed(np.full(N, np.nan))
 
 
 
@@ -493,3 +506,27 @@ def test_a_state_is_judged_against_the_path_where_it_was_measured():
     # tolerance (0.1 rad): it would have aborted
     assert max(np.abs(traj.sample(t)[0] - traj.sample(t - 0.15)[0]).max()
                for t in np.arange(0.15, 1.5, 0.01)) > DEFAULTS.path[0]
+
+
+def test_commander_watch_tells_its_own_commands_from_another_commanders():
+    from hyperarm_control.trajectory import CommanderWatch
+
+    names = list(LIM.names)
+    w = CommanderWatch(names, quiet=0.5, memory=4)
+    mine = [np.full(N, 0.1 * k) for k in range(6)]
+    for q in mine:
+        w.sent(q)
+    assert not w.observe(names, mine[-1], 1.0)             # its own, back bit for bit
+    assert not w.observe(names, mine[2], 1.0)              # still remembered (4)
+    assert w.busy(1.0) is None
+    assert w.observe(names, mine[0], 2.0)                  # forgotten: another's
+    assert not w.observe(["gripper"], [0.2], 2.5)          # another joint set
+    assert w.observe(["joint3"], [0.0], 3.0)               # a part of its joints
+    assert w.other_joints == ("joint3",) and w.heard == 2
+    assert "joint3" in w.busy(3.2) and "0.200 s ago" in w.busy(3.2)
+    assert w.busy(3.5) is None                             # quiet for 0.5 s
+    assert w.observe(names, mine[-1] + 1e-12, 4.0)         # not exactly its own
+    assert CommanderWatch(names, quiet=0.0).busy(0.0) is None
+    for bad in (-1.0, math.nan, math.inf):
+        with pytest.raises(ValueError):
+            CommanderWatch(names, quiet=bad)

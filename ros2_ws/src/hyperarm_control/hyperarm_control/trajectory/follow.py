@@ -28,8 +28,9 @@
   old state says it was).
 - **Preemption and cancel**: :meth:`Follower.start` replaces a running goal (from the
   present command, no jump); :meth:`Follower.cancel` holds at the last command;
-  :meth:`Follower.release` (the controller stops commanding) makes the next goal start
-  from the arm's measured position.
+  :meth:`Follower.release` (the controller stops commanding) drops the hold;
+  :meth:`Follower.reseed` makes the next goal start from the arm's measured position when
+  another commander moved it (the caller decides when).
 
 **The invariant**: whatever the trajectory, the state or an abort does, no command moves a
 joint further from the previous command than its velocity limit x ``period``, and no
@@ -200,13 +201,30 @@ class Follower:
             self._goal.status = "cancelled"
         self._hold = self._last.copy() if self._last is not None else None
 
+    @property
+    def last_command(self) -> np.ndarray | None:
+        """The last command given (a copy), or None before the first."""
+        return None if self._last is None else self._last.copy()
+
     def release(self) -> None:
-        """The controller stops commanding (its hold is reached): forget the last command,
-        so the next goal's first command starts where the arm is measured then, not where
-        this controller last left it (another commander may have moved the arm since)."""
+        """The controller stops commanding (its hold is reached): no hold is kept. The next
+        goal's commands continue from the last command (the invariant holds across goals)
+        unless :meth:`reseed` says the arm is elsewhere."""
         if self._goal is not None and self._goal.status == "running":
             raise TrajectoryError("release() while a goal runs")
-        self._last = None
+        self._hold = None
+
+    def reseed(self, q: np.ndarray) -> None:
+        """Between goals: the arm is at ``q`` (rad), not where this follower left it (another
+        commander moved it): the next commands start from ``q`` (clipped to the limits),
+        not one velocity step at a time from the old last command."""
+        if self._goal is not None and self._goal.status == "running":
+            raise TrajectoryError("reseed() while a goal runs")
+        q = np.asarray(q, dtype=float).reshape(-1)
+        if q.shape != self.limits.velocity.shape or not np.all(np.isfinite(q)):
+            raise TrajectoryError(f"reseed: expected {len(self.limits.names)} finite "
+                                  "positions")
+        self._last = np.clip(q, self.limits.lower, self.limits.upper)
         self._hold = None
 
     def _abort(self, goal: _Goal, failure: TrajectoryError, q: np.ndarray) -> None:
