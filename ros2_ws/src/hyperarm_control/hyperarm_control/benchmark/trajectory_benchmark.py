@@ -11,7 +11,9 @@ prints:
   draws desired and measured positions and the error;
 - **latency**: from a setpoint's time (the instant the controller samples the trajectory,
   which it writes in joint_command's header stamp) to the ``joint_command`` carrying it
-  arriving here, p50/p99/max over every command of the run.
+  arriving here, p50/p99/max over every command of the run;
+- **loop**: from a joint_states message arriving here to the joint_command that the
+  controller, cycling on it, sends arriving here (both measured by this probe).
 
 Usage: ``trajectory_benchmark [--speed 0.8] [--repeats 3] [--plot docs/benchmarks/img/
 arm_controller_tracking.png]``. Figures: docs/benchmarks.md."""
@@ -93,6 +95,8 @@ def main(argv: list[str] | None = None) -> int:
     node = rclpy.create_node("trajectory_benchmark", namespace=contract.DEFAULT_NAMESPACE)
     states: dict[str, float] = {}
     latency: list[float] = []
+    loop: list[float] = []
+    last_state = [None]       # arrival time of the last arm joint_states, s
     lock = threading.Lock()
 
     def on_command(msg: JointState) -> None:
@@ -100,9 +104,15 @@ def main(argv: list[str] | None = None) -> int:
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         with lock:
             latency.append(now - stamp)
+            if last_state[0] is not None:
+                loop.append(now - last_state[0])
 
-    node.create_subscription(JointState, contract.JOINT_STATES,
-                             lambda m: states.update(zip(m.name, m.position)),
+    def on_state(msg: JointState) -> None:
+        states.update(zip(msg.name, msg.position))
+        with lock:
+            last_state[0] = node.get_clock().now().nanoseconds * 1e-9
+
+    node.create_subscription(JointState, contract.JOINT_STATES, on_state,
                              qos_for(contract.JOINT_STATES))
     node.create_subscription(JointState, contract.JOINT_COMMAND, on_command,
                              qos_for(contract.JOINT_COMMAND))
@@ -152,6 +162,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"latency, setpoint time -> joint_command received: p50 "
               f"{np.percentile(lat, 50):.2f} ms, p99 {np.percentile(lat, 99):.2f} ms, max "
               f"{lat.max():.2f} ms over {len(lat)} commands (target p50 < 2 ms)")
+        with lock:
+            lp = np.array(loop) * 1e3
+        if len(lp):
+            print(f"loop, joint_states received -> the joint_command it caused received "
+                  f"(same probe; cycle_on_joint_states): p50 {np.percentile(lp, 50):.2f} ms, "
+                  f"p99 {np.percentile(lp, 99):.2f} ms over {len(lp)} commands (issue 28: "
+                  "p50 < 1 ms, p99 < 2 ms)")
         if args.plot:
             _plot(args.plot, runs[-1], names)
             print(f"plot: {args.plot}")
