@@ -149,6 +149,8 @@ def test_compose_files(name):
         assert (ROOT / "docker" / build["context"] / build["dockerfile"]).resolve() == DOCKERFILE
         _exists_in_workspace(svc["command"])
     if name == "compose.mock.yaml":  # issue 24.8: the IK avoids the cell the mock simulates
+        # the controllers, as the launch files start them (issue 26)
+        assert {"arm_controller", "gripper_controller"} <= set(data["services"])
         ik = data["services"]["ik_service"]["command"]
         assert "world_file:=/opt/hyperarm/ros2_ws/install/hyperarm_driver/share/" \
                "hyperarm_driver/config/workcell.yaml" in ik, ik
