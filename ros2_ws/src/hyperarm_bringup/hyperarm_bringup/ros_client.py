@@ -444,19 +444,33 @@ class HyperarmClient:
             seen[0] = len(fb)
             return client.done()
 
+        from rclpy.signals import (get_current_signal_handlers_options,
+                                   install_signal_handlers, uninstall_signal_handlers)
+
+        # rclpy's SIGINT handler shuts the context down: the cancel could not be confirmed
+        # (RCLError 'the given context is not valid'). Python's own handler meanwhile.
+        options = get_current_signal_handlers_options()
+        uninstall_signal_handlers()
         client.send(goal)
         try:
             if not self._spin_until(progress, duration + timeout):
                 client.cancel()
                 self._spin_until(client.done, 1.5)
                 raise ClientError(f"no result from {name} within {duration + timeout:g} s "
-                                  "(the trajectory's duration + --timeout): cancelled")
+                                  "(the trajectory's duration + --timeout; is arm_controller "
+                                  "still running?): cancel sent")
         except KeyboardInterrupt:
             print("Ctrl-C: cancelling the trajectory (the arm holds)", file=sys.stderr,
                   flush=True)
             client.cancel()
-            self._spin_until(client.done, 1.5)
+            if self._spin_until(client.done, 1.5):
+                status, result = client.result()
+                text = result.error_string if result is not None else ""
+                print(f"arm_controller: {'canceled' if status == 5 else f'status {status}'}"
+                      f"{': ' + text if text else ''}", file=sys.stderr, flush=True)
             raise
+        finally:
+            install_signal_handlers(options)
         if client.accepted() is False:
             raise ClientError(f"{name} rejected the goal")
         status, result = client.result()

@@ -68,6 +68,17 @@ def test_traj_sends_a_file_refuses_bad_ones_and_cancels_on_ctrl_c(
     assert r.returncode == 1, r.stdout + r.stderr
     assert "refused, nothing sent" in r.stderr and "points/0" in r.stderr, r.stderr
 
+    # not finite, too long, a YAML 1.1 exponent read as text: refused, saying where
+    for text, said in (("time: .nan", "points/0/time: nan is not a finite number"),
+                       ("time: .inf", "points/0/time"),
+                       ("time: 3.0e+9", "points/0/time: 3000000000.0 is greater than"),
+                       ("time: 1e12", "write the number with a dot")):
+        bad.write_text(f"joint_names: [joint1]\npoints: [{{{text}, positions: [0.1]}}]\n")
+        r = _run(executable, "traj", str(bad))
+        assert r.returncode == 1 and "refused, nothing sent" in r.stderr, r.stderr
+        assert said in r.stderr and "Traceback" not in r.stderr, (text, r.stderr)
+    assert not commands
+
     # the wave: succeeded, ends at its last point (within the file's goal tolerance)
     r = _run(executable, "traj", str(_wave()), "--timeout", "30")
     assert r.returncode == 0, r.stdout + r.stderr
@@ -103,6 +114,7 @@ def test_traj_sends_a_file_refuses_bad_ones_and_cancels_on_ctrl_c(
     stdout, stderr = proc.communicate(timeout=10.0)
     assert proc.returncode == 130, stdout + stderr
     assert "Ctrl-C: cancelling the trajectory" in stderr
+    assert "arm_controller: canceled" in stderr and "RCLError" not in stderr, stderr
     time.sleep(0.5)
     held, m = q(), len(commands)
     time.sleep(0.5)

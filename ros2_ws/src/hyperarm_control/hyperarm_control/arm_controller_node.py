@@ -34,12 +34,13 @@ from hyperarm_description.freshness import StampGate, stamp_seconds
 from hyperarm_description.joints import JointStateCache, JointStateError
 from hyperarm_description.log_throttle import ReasonThrottle
 from hyperarm_description.params import ParamSpec, Range, declare_parameters
-from hyperarm_description.qos import qos_for
+from hyperarm_description.qos import action_server_qos, qos_for
 from hyperarm_description.ros_main import declare_robot_description, run_node
 
 from .messages import TrajectoryArgs, feedback, goal_tolerances, trajectory_args
 from .trajectory import (SUCCESSFUL, CommanderWatch, Follower, InvalidGoal, JointLimits,
-                         Tolerances, TrajectoryError, build_trajectory, start_time)
+                         StateCheck, Tolerances, TrajectoryError, build_trajectory,
+                         start_time)
 
 TRAJECTORY_TOPIC = contract.ARM_TRAJECTORY_TOPIC
 ACTION = contract.ARM_TRAJECTORY_ACTION
@@ -114,7 +115,11 @@ class ArmControllerNode(Node):
         self._states = JointStateCache()
         # per driver (its joint set): a message older than the newest used, or than
         # max_state_age, is not used (it would put an old position in the cache)
-        self._state_gate = StampGate(contract.JOINT_STATES, p["max_state_age"])
+        # (0.1 s into the future at most: a state from the future would make the real ones
+        # "out of order"); then per joint: finite, in order, no faster than its limit
+        self._state_gate = StampGate(contract.JOINT_STATES, p["max_state_age"],
+                                     max_future=0.1)
+        self._state_check = StateCheck(self._names, self._limits.velocity)
         self._throttle = ReasonThrottle(5.0)
         self._counts = {"accepted": 0, "succeeded": 0, "aborted": 0, "stopped": 0,
                         "rejected": 0, "bad_joint_states": 0, "yielded": 0}
@@ -156,6 +161,12 @@ class ArmControllerNode(Node):
             self._counts["bad_joint_states"] += 1
             self._warn(rejection.text, f"joint_states_{rejection.reason}")
             return
+        why = self._state_check.check(msg.name, msg.position, msg.velocity,
+                                      stamp_seconds(msg.header.stamp))
+        if why is not None:
+            self._counts["bad_joint_states"] += 1
+            self._warn(f"joint_states ignored: {why}", "joint_states_implausible")
+            return
         try:
             self._states.update(msg.name, msg.position, msg.velocity, (),
                                 stamp_seconds(msg.header.stamp))
@@ -172,7 +183,8 @@ class ArmControllerNode(Node):
             self._server = ActionServer(self, FollowJointTrajectory, ACTION,
                                         execute_callback=self._execute,
                                         goal_callback=lambda _goal: GoalResponse.ACCEPT,
-                                        cancel_callback=lambda _handle: CancelResponse.ACCEPT)
+                                        cancel_callback=lambda _handle: CancelResponse.ACCEPT,
+                                        **action_server_qos())
             self.get_logger().info(f"arm_controller: joint_states of every joint received; "
                                    f"serving {ACTION}")
 
@@ -277,6 +289,17 @@ class ArmControllerNode(Node):
         else:
             owner.handle.succeed()
         owner.done.set_result(FollowJointTrajectory.Result(error_code=code, error_string=text))
+
+    def before_shutdown(self) -> None:
+        """On SIGINT/SIGTERM (run_node): a running goal is aborted, saying so, so that its
+        client gets a result; the drivers keep the last command (the arm holds)."""
+        if self._owner is not None or self._follower.goal_status == "running":
+            self._follower.cancel()
+            self._active = False
+            self._last_result = "aborted (-1): arm_controller shutting down"
+            self._end_action(FollowJointTrajectory.Result.INVALID_GOAL,
+                             "arm_controller shutting down: goal aborted, the arm holds "
+                             "its last command", abort=True)
 
     def _monitor_action(self, cyc) -> None:
         owner = self._owner

@@ -66,6 +66,8 @@ def goal_from_points(joint_names: Sequence[str], times: Sequence[float],
     return goal
 
 
+# a point's time and goal_time_tolerance, s: the controller refuses goals over 1 h anyway
+MAX_FILE_TIME = 3600.0
 TRAJECTORY_SCHEMA = {
     "type": "object",
     "required": ["joint_names", "points"],
@@ -75,14 +77,26 @@ TRAJECTORY_SCHEMA = {
         "points": {"type": "array", "minItems": 1, "items": {
             "type": "object", "required": ["time", "positions"], "additionalProperties": False,
             "properties": {
-                "time": {"type": "number", "minimum": 0},
+                "time": {"type": "number", "minimum": 0, "maximum": MAX_FILE_TIME},
                 "positions": {"type": "array", "items": {"type": "number"}},
                 "velocities": {"type": "array", "items": {"type": "number"}}}}},
         "goal_tolerance": {"type": "object", "additionalProperties": {"type": "number"}},
         "path_tolerance": {"type": "object", "additionalProperties": {"type": "number"}},
-        "goal_time_tolerance": {"type": "number", "minimum": 0},
+        "goal_time_tolerance": {"type": "number", "minimum": 0, "maximum": MAX_FILE_TIME},
     },
 }
+
+
+def _numbers(data, where: str = ""):
+    """(path, value) of every number in a loaded YAML document."""
+    if isinstance(data, dict):
+        for k, v in data.items():
+            yield from _numbers(v, f"{where}/{k}" if where else str(k))
+    elif isinstance(data, list):
+        for i, v in enumerate(data):
+            yield from _numbers(v, f"{where}/{i}")
+    elif isinstance(data, float):
+        yield where, data
 
 
 def goal_from_file(path: str | Path) -> FollowJointTrajectory.Goal:
@@ -99,7 +113,18 @@ def goal_from_file(path: str | Path) -> FollowJointTrajectory.Goal:
         jsonschema.validate(data, TRAJECTORY_SCHEMA)
     except jsonschema.ValidationError as exc:
         where = "/".join(str(p) for p in exc.absolute_path) or "(top level)"
-        raise TrajectoryFileError(f"{path}: {where}: {exc.message}") from exc
+        hint = ""
+        if isinstance(exc.instance, str):
+            try:
+                float(exc.instance)
+                hint = (f" (YAML reads {exc.instance} as text: write the number with a dot "
+                        "and a signed exponent, e.g. 1.0e+3)")
+            except ValueError:
+                pass
+        raise TrajectoryFileError(f"{path}: {where}: {exc.message}{hint}") from exc
+    for where, value in _numbers(data):       # the schema's "number" takes .nan and .inf
+        if not math.isfinite(value):
+            raise TrajectoryFileError(f"{path}: {where}: {value} is not a finite number")
     points = data["points"]
     vel = [p.get("velocities", []) for p in points]
     return goal_from_points(data["joint_names"], [p["time"] for p in points],

@@ -29,7 +29,7 @@ from hyperarm_description import contract
 from hyperarm_description.freshness import StampGate, stamp_seconds
 from hyperarm_description.log_throttle import ReasonThrottle
 from hyperarm_description.params import ParamSpec, Range, declare_parameters
-from hyperarm_description.qos import qos_for
+from hyperarm_description.qos import action_server_qos, qos_for
 from hyperarm_description.ros_main import declare_robot_description, run_node
 
 from .gripper import (GripperError, GripperJudge, GripperLimits, GripperParams,
@@ -140,7 +140,7 @@ class GripperControllerNode(Node):
             self._server = ActionServer(
                 self, GripperCommand, ACTION, execute_callback=self._execute,
                 goal_callback=lambda _goal: GoalResponse.ACCEPT,
-                cancel_callback=lambda _handle: CancelResponse.ACCEPT)
+                cancel_callback=lambda _handle: CancelResponse.ACCEPT, **action_server_qos())
             self.get_logger().info(f"gripper_controller: {self._joint}'s joint_states "
                                    f"received; serving {ACTION}")
 
@@ -195,6 +195,16 @@ class GripperControllerNode(Node):
         else:
             owner.handle.abort()
         owner.done.set_result(self._result(st))
+
+    def before_shutdown(self) -> None:
+        """On SIGINT/SIGTERM (run_node): a running goal is aborted, saying so, so that its
+        client gets a result; the driver keeps the last goal."""
+        if self._owner is not None and self._judge.running:
+            q, e = self._measured()
+            st = self._judge.cancel(q, e)
+            self._end(GripperStatus("aborted", st.position, st.effort, reason=(
+                "gripper_controller shutting down: goal aborted, the gripper keeps its "
+                "last goal")))
 
     def _finish(self, st: GripperStatus) -> None:
         """Count, log and report a goal that ended in the judge."""

@@ -169,3 +169,44 @@ def test_late_and_out_of_order_joint_states_are_not_used(launch, rclpy_context, 
     traj.publish(_trajectory(NAMES, [(1.0, pub_goal)]))
     wait_for(lambda: commands, 10.0, what="a command")
     assert np.allclose(commands[0], 0.1, atol=0.01), commands[0]   # from 0.1, not 0.9/0.5
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_goal_running_at_shutdown_is_aborted_saying_so(launch, rclpy_context, executor,
+                                                         wait_for, sig):
+    """SIGINT/SIGTERM to arm_controller while an action goal runs: the client gets the
+    result (aborted, "arm_controller shutting down"), the process exits 0, the arm holds."""
+    import rclpy
+    from sensor_msgs.msg import JointState
+
+    from hyperarm_control.client import TrajectoryClient, goal_from_points
+    from hyperarm_description import contract
+    from hyperarm_description.qos import qos_for
+
+    launch("hyperarm_driver", "mock_driver")
+    ctl = launch("hyperarm_control", "arm_controller")
+    probe = rclpy.create_node("arm_controller_probe3", namespace=contract.DEFAULT_NAMESPACE,
+                              context=rclpy_context)
+    states: dict[str, float] = {}
+    commands: list = []
+    probe.create_subscription(JointState, contract.JOINT_STATES,
+                              lambda m: states.update(zip(m.name, m.position)),
+                              qos_for(contract.JOINT_STATES))
+    probe.create_subscription(JointState, contract.JOINT_COMMAND, commands.append,
+                              qos_for(contract.JOINT_COMMAND))
+    client = TrajectoryClient(probe)
+    executor.add_node(probe)
+    wait_for(lambda: client.server_ready() and all(n in states for n in NAMES), 60.0,
+             what=f"arm_controller up\n{ctl.output()}")
+    q0 = np.array([states[n] for n in NAMES])
+    client.send(goal_from_points(NAMES, [4.0], [q0 + 0.4]))
+    wait_for(lambda: client.accepted() and len(commands) > 30, 10.0, what="the goal running")
+    ctl.proc.send_signal(sig)
+    wait_for(client.done, 5.0, what="the result after the signal")
+    status, result = client.result()
+    assert status == 6 and "arm_controller shutting down" in result.error_string, \
+        (status, result)
+    assert ctl.proc.wait(timeout=10.0) == 0, ctl.output()[-2000:]
+    held = np.array([states[n] for n in NAMES])
+    time.sleep(0.5)
+    assert np.abs(np.array([states[n] for n in NAMES]) - held).max() < 0.01

@@ -7,6 +7,7 @@ own timer it sends two commands per state. When joint_states stop, the rate time
 runs the cycle and the goal aborts on the stale state, holding."""
 from __future__ import annotations
 
+import math
 import threading
 import time
 
@@ -206,3 +207,34 @@ def test_one_commander_at_a_time(rclpy_context, executor, wait_for):
     first = next(q for t, q in driver.commands if t >= t1)
     step = np.abs(first - (last_mine + 0.3)).max()
     assert step <= 3.0 / 100.0 + 1e-9, step            # one velocity step of the arm
+
+
+@pytest.mark.parametrize("fake", ["future", "subset_past", "jump", "nan"])
+def test_a_wrong_joint_states_message_is_not_used(rclpy_context, executor, wait_for, fake):
+    """While a goal runs, one joint_states message that is not the arm (stamped 0.3 s in the
+    future; naming joint1..5 only, stamped 0.1 s before the driver's last; all joints
+    at 1.0 rad now; a NaN): not used (counted as bad_joint_states), and the goal goes on and
+    succeeds; no command ever heads for the fake position."""
+    node, probe, driver, traj_pub = _start(rclpy_context, executor, wait_for, True)
+    fake_pub = probe.create_publisher(JointState, contract.JOINT_STATES,
+                                      qos_for(contract.JOINT_STATES))
+    t0 = _send(probe, traj_pub, np.full(len(NAMES), 0.3), 2.0)
+    wait_for(lambda: driver.between(t0, float("inf")).count("command") > 20, 5.0,
+             what="the goal under way")
+    bad_before = node._counts["bad_joint_states"]
+    msg = JointState()
+    now = probe.get_clock().now().nanoseconds * 1e-9
+    stamp = {"future": now + 0.3, "subset_past": now - 0.1 - STATE_PERIOD}.get(fake, now)
+    msg.header.stamp.sec = int(stamp)
+    msg.header.stamp.nanosec = int((stamp % 1) * 1e9)
+    # (the driver here names the arm joints: other name sets are other sources to the
+    # stamp gate; only the per-joint check sees them)
+    msg.name = NAMES[:5] if fake == "subset_past" else NAMES + ["gripper"]
+    msg.position = [math.nan if fake == "nan" else 1.0] * len(msg.name)
+    fake_pub.publish(msg)
+    wait_for(lambda: node._counts["bad_joint_states"] > bad_before, 5.0,
+             what="the wrong state counted")
+    wait_for(lambda: node._follower.goal_status == "succeeded", 10.0,
+             what=f"the goal to succeed ({node._last_result})")
+    qs = np.array([q for t, q in driver.commands if t >= t0])
+    assert qs.max() <= 0.3 + 1e-9, qs.max()               # never towards the fake 1.0

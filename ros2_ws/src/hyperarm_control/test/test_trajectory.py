@@ -290,8 +290,8 @@ def test_a_joint_held_back_aborts_on_its_path_tolerance_and_the_arm_holds_there(
     assert "joint5 is 0.1" in str(out[-1].failure) and "path tolerance 0.1" in str(
         out[-1].failure)
     at = out[-1].actual
-    for _ in range(200):     # held where the arm was at the abort
-        cyc = f.step(10.0, at, 10.0)
+    for k in range(200):     # held where the arm was at the abort
+        cyc = f.step(10.0 + k * PERIOD, at, 10.0 + k * PERIOD)
     assert cyc.status == "aborted" and np.allclose(cyc.command, at)
 
 
@@ -530,3 +530,53 @@ def test_commander_watch_tells_its_own_commands_from_another_commanders():
     for bad in (-1.0, math.nan, math.inf):
         with pytest.raises(ValueError):
             CommanderWatch(names, quiet=bad)
+
+
+
+def test_early_cycles_step_by_the_time_since_the_last_command():
+    """Cycles closer together than the period (a driver's burst) step a joint by at most
+    its velocity limit x the time since the last command: the arm is never told to move
+    faster than its limits, whatever the cycle times."""
+    rng = np.random.default_rng(5)
+    f = Follower(LIM, PERIOD)
+    f.start(_build(list(LIM.names), [0.8], np.full((1, N), 1.0)), DEFAULTS, 0.0)
+    t, q, last = 0.0, np.zeros(N), None
+    for _ in range(300):
+        t += rng.choice([0.001, 0.004, 0.0075, 0.01, 0.02])
+        cyc = f.step(t, q, t)
+        if last is not None:
+            lt, lq = last
+            assert np.all(np.abs(cyc.command - lq)
+                          <= LIM.velocity * min(t - lt, PERIOD) + 1e-12)
+        last = (t, cyc.command)
+        q = cyc.command
+
+
+def test_state_check_refuses_states_that_are_not_the_arm():
+    from hyperarm_control.trajectory import StateCheck
+
+    names = list(LIM.names)
+    c = StateCheck(names, LIM.velocity)                    # 3 rad/s, x2, + 0.02 rad
+    q = np.zeros(N)
+    assert c.check(names + ["gripper"], list(q) + [0.5], [], 1.00) is None
+    assert c.check(names, list(q + 0.05), [], 1.01) is None     # 5 rad/s < 6 + slack
+    # a jump of 0.9 rad in 10 ms: refused, naming the joint; the last state stays
+    why = c.check(names, list(q + 0.95), [], 1.02)
+    assert why is not None and why.startswith("joint1: 0.9500 is 0.9000 from its last")
+    assert c.check(names, list(q + 0.06), [], 1.02) is None
+    # a subset message stamped before the newest used for those joints: refused per joint
+    why = c.check(names[:3], [0.06] * 3, [], 1.015)
+    assert why is not None and "joint1: stamped 0.005 s before" in why
+    # non-finite values: refused
+    bad = list(q + 0.06)
+    bad[4] = math.nan
+    assert "joint5: non-finite" in c.check(names, bad, [], 1.03)
+    assert "joint2: non-finite" in c.check(names, list(q + 0.06), [0.0, math.inf], 1.03)
+    # other joints only (the rail's driver, the gripper): nothing to check
+    assert c.check(["rail"], [5.0], [], 0.0) is None
+    # a long gap allows a long move (a driver back after a pause)
+    assert c.check(names, list(q + 1.0), [], 2.0) is None
+    for bad_args in ((names, np.zeros(N)), (names, np.full(N, 3.0), 0.5),
+                     (names, np.full(N, 3.0), 2.0, -1.0)):
+        with pytest.raises(ValueError):
+            StateCheck(*bad_args)

@@ -29,3 +29,15 @@ def qos_for(topic: str) -> QoSProfile:
         raise KeyError(f"no QoS in the contract for topic {topic!r}") from None
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=int(s["depth"]),
                       reliability=_REL[s["reliability"]], durability=_DUR[s["durability"]])
+
+
+def action_server_qos() -> dict[str, QoSProfile]:
+    """Keyword arguments for an rclpy ActionServer: its goal, cancel and result services
+    with a request queue of 100 (the default 10 lost goals and result requests of a client
+    that sent 50 at once: their callers waited forever), reliable and volatile as the
+    services' default."""
+    deep = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+    return {"goal_service_qos_profile": deep, "cancel_service_qos_profile": deep,
+            "result_service_qos_profile": deep}

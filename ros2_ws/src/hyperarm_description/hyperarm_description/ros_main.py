@@ -50,6 +50,7 @@ ROBOT_PARAMETERS: ParamSpec = {
 }
 
 _SPIN_PERIOD = 0.1  # s: how often the spin loop looks at the stop flag
+_FLUSH_TIME = 0.2    # s: spins after a node's before_shutdown() (its results go out)
 
 #: s: a clean-up that takes longer prints its phases' durations on stderr
 SLOW_SHUTDOWN = 1.0
@@ -141,6 +142,10 @@ class _Stop:
             raise KeyboardInterrupt
 
 
+def spinner_alive(spinner: threading.Thread | None) -> bool:
+    return spinner is not None and spinner.is_alive()
+
+
 def run_node(factory: Callable[[], Node], args: list[str] | None = None,
              executor: Callable[[], Executor] | str | None = None, *,
              parameters: ParamSpec | None = None, summary: str | None = None,
@@ -154,8 +159,10 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None,
 
     The executor spins in a thread of its own; the main thread only waits for a signal (a
     thread blocked in rcl's wait set would not run Python's signal handlers), then wakes the
-    executor with a guard condition, waits for the callbacks in flight, destroys the node
-    (its shutdown policy) and shuts rclpy down."""
+    executor with a guard condition, waits for the callbacks in flight, calls the node's
+    ``before_shutdown()`` if it has one (e.g. abort a running action goal so that its client
+    gets a result) and spins 0.2 s more to send what it produced, destroys the node (its
+    shutdown policy) and shuts rclpy down."""
     if wants_help(args):
         prog = os.path.basename((sys.argv if args is None else args or ["node"])[0])
         text = summary if summary is not None else _module_summary(factory)
@@ -220,6 +227,15 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None,
                 wake()
             spinner.join(timeout=2.0)
             phases.done("spin thread")
+        if (ex is not None and node is not None and not spinner_alive(spinner)
+                and context.ok() and callable(getattr(node, "before_shutdown", None))):
+            # the node ends what clients wait for (an action goal: aborted, saying so);
+            # a few spins here send it out while the context is still up
+            node.before_shutdown()
+            end = time.monotonic() + _FLUSH_TIME
+            while time.monotonic() < end:
+                ex.spin_once(timeout_sec=0.01)
+            phases.done("before_shutdown")
         if ex is not None:
             ex.shutdown(timeout_sec=2.0)
             _wait_callbacks_in_flight(ex, timeout=2.0)

@@ -6,10 +6,11 @@ from .errors import (SUCCESSFUL, GoalToleranceViolated, InvalidGoal, InvalidJoin
                      OldHeaderTimestamp, PathToleranceViolated, TrajectoryError)
 from .follow import Cycle, Follower, Tolerances, resolve_tolerance
 from .handover import CommanderWatch
+from .state_check import StateCheck
 from .goal import JointLimits, Trajectory, build_trajectory, start_time
 
 __all__ = ["SUCCESSFUL", "GoalToleranceViolated", "InvalidGoal", "InvalidJoints",
            "OldHeaderTimestamp", "PathToleranceViolated", "TrajectoryError", "Cycle",
-           "CommanderWatch",
+           "CommanderWatch", "StateCheck",
            "Follower", "Tolerances", "resolve_tolerance", "JointLimits", "Trajectory",
            "build_trajectory", "start_time"]

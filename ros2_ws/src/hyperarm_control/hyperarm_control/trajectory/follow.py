@@ -33,8 +33,9 @@
   another commander moved it (the caller decides when).
 
 **The invariant**: whatever the trajectory, the state or an abort does, no command moves a
-joint further from the previous command than its velocity limit x ``period``, and no
-command leaves the joint limits. It is applied last, on every command.
+joint further from the previous command than its velocity limit x the time since it (at
+most ``period``), and no command leaves the joint limits. It is applied last, on every
+command.
 
 Tolerances follow ``control_msgs/JointTolerance`` as joint_trajectory_controller reads them:
 a value > 0 is the tolerance, 0 takes the controller's default, -1 means none, any other
@@ -112,8 +113,12 @@ class Tolerances:
                     raise InvalidGoal(f"tolerance for {name!r}: not a joint of this "
                                       f"controller ({', '.join(names)})")
                 i = list(names).index(name)
-                out[pos_key][i] = resolve_tolerance(float(position), out[pos_key][i])
-                out[vel_key][i] = resolve_tolerance(float(velocity), out[vel_key][i])
+                for key, value in ((pos_key, position), (vel_key, velocity)):
+                    try:
+                        out[key][i] = resolve_tolerance(float(value), out[key][i])
+                    except InvalidGoal as exc:
+                        what = key.replace("_", " ")
+                        raise InvalidGoal(f"{name}: {what} {exc}") from None
         if not math.isfinite(goal_time) or (goal_time < 0 and goal_time != -1.0):
             raise InvalidGoal(f"goal_time_tolerance {goal_time!r}: >= 0 or -1")
         t = defaults.goal_time if goal_time == 0 else (math.inf if goal_time < 0
@@ -181,6 +186,7 @@ class Follower:
         self.profile_acceleration = profile_acceleration
         self._step = limits.velocity * period
         self._last: np.ndarray | None = None
+        self._last_now: float | None = None     # the cycle time of the last command, s
         self._hold: np.ndarray | None = None
         self._goal: _Goal | None = None
 
@@ -300,19 +306,25 @@ class Follower:
             if goal.status != "running":
                 desired, dv, da = self._hold, zeros, zeros
                 target = desired
-        command = self._limit(target)
+        # the step limit by the time since the last command (at most one period): cycles
+        # that come early (a driver's burst) do not move the arm faster than its limits
+        gap = self.period if self._last_now is None else min(max(now - self._last_now, 0.0),
+                                                                self.period)
+        command = self._limit(target, gap)
+        self._last_now = now
         return Cycle(command, np.asarray(desired, dtype=float).copy(), dv, da, q,
                      np.asarray(desired, dtype=float) - q, self.goal_status,
                      goal.failure if goal is not None else None, t_state,
                      np.asarray(target, dtype=float).copy())
 
-    def _limit(self, target: np.ndarray) -> np.ndarray:
-        """The invariant: within one velocity-limit step of the previous command and
-        inside the joint limits."""
+    def _limit(self, target: np.ndarray, gap: float) -> np.ndarray:
+        """The invariant: within velocity limit x ``gap`` (s, at most one period) of the
+        previous command and inside the joint limits."""
         assert self._last is not None
         if not np.all(np.isfinite(target)):
             raise TrajectoryError(f"non-finite command {np.asarray(target).tolist()}")
-        cmd = np.clip(target, self._last - self._step, self._last + self._step)
+        step = self._step if gap >= self.period else self.limits.velocity * gap
+        cmd = np.clip(target, self._last - step, self._last + step)
         cmd = np.clip(cmd, self.limits.lower, self.limits.upper)
         self._last = cmd
         return cmd.copy()
