@@ -66,6 +66,8 @@ def goal_from_points(joint_names: Sequence[str], times: Sequence[float],
     return goal
 
 
+# s after a client is made before its first goal goes out (see TrajectoryClient.send)
+DISCOVERY_SETTLE = 0.5
 # a point's time and goal_time_tolerance, s: the controller refuses goals over 1 h anyway
 MAX_FILE_TIME = 3600.0
 TRAJECTORY_SCHEMA = {
@@ -139,6 +141,7 @@ class TrajectoryClient:
     def __init__(self, node: Node, action: str = ACTION) -> None:
         self._node = node
         self._client = ActionClient(node, FollowJointTrajectory, action)
+        self._created = time.monotonic()
         self._lock = threading.Lock()
         self._handle = None
         self._result_future = None
@@ -153,6 +156,11 @@ class TrajectoryClient:
         with self._lock:
             self._handle, self._result_future, self._rejected = None, None, False
             self._feedback = []
+        # the server must have discovered this client's response reader too (the client
+        # finding the server is one direction): rmw_fastrtps drops a response to a reader it
+        # has not matched yet, and the goal would run unanswered (DDS discovers in its own
+        # threads: a sleep is enough)
+        time.sleep(max(0.0, self._created + DISCOVERY_SETTLE - time.monotonic()))
         fut = self._client.send_goal_async(goal, feedback_callback=self._on_feedback)
         fut.add_done_callback(self._on_response)
 

@@ -63,6 +63,8 @@ def _passive_rules(probe, proc, wait_for, kin) -> None:
     probe.q = Q_SAFE.copy()
     probe.driving = True
     wait_for(lambda: probe.mode() == "disabled", 20.0, what="hybrid_force diagnostics")
+    # and reading the probe's joint_states (an ee_wrench on each): enable can work
+    wait_for(lambda: probe.wrench, 20.0, what="ee_wrench (hybrid_force's joint_states)")
     assert not probe.commands                                    # silent while disabled
     t = kin.forward(Q_SAFE)
     p, r = t[:3, 3], t[:3, :3]

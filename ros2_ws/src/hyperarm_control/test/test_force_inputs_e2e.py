@@ -75,6 +75,8 @@ def test_late_out_of_order_and_malformed_inputs_are_dropped(launch, rclpy_contex
         probe.q = Q_SAFE.copy()
         probe.driving = True
         wait_for(lambda: probe.mode() == "disabled", 20.0, what="hybrid_force diagnostics")
+        # and reading the probe's joint_states (an ee_wrench on each): enable can work
+        wait_for(lambda: probe.wrench, 20.0, what="ee_wrench (hybrid_force's joint_states)")
         assert probe.enable(True).success
         wait_for(lambda: len(probe.commands) > 10, 5.0, what="joint_command while enabled")
         t = kin.forward(Q_SAFE)

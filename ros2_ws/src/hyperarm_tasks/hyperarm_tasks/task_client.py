@@ -24,6 +24,9 @@ from rclpy.node import Node
 from hyperarm_description import contract
 from hyperarm_interfaces.action import RunTask
 
+# s after a client is made before its first goal goes out (see TaskClient.send)
+DISCOVERY_SETTLE = 0.5
+
 __all__ = ["TaskResult", "TaskClient"]
 
 
@@ -43,6 +46,7 @@ class TaskClient:
         self._node = node
         self._spin_once = spin or (lambda n, t: rclpy.spin_once(n, timeout_sec=t))
         self._client = ActionClient(node, RunTask, action_name)
+        self._created = time.monotonic()
         self._goal_handle = None
         self._send_future = None
         self._result_future = None
@@ -68,6 +72,12 @@ class TaskClient:
             self.message = f"action server {self._client._action_name!r} not available"
             self._state = TaskResult.REJECTED
             return False
+        # the server must have discovered this client's response reader too (found the
+        # server is one direction): rmw_fastrtps drops a response to a reader it has not
+        # matched yet ("failed to send response (timeout)"), and the goal would run while
+        # this client waits for an answer that never comes
+        while time.monotonic() < self._created + DISCOVERY_SETTLE:
+            self._spin(0.02)
         self._send_future = self._client.send_goal_async(RunTask.Goal(task=task),
                                                          feedback_callback=self._on_feedback)
         deadline = time.monotonic() + timeout
