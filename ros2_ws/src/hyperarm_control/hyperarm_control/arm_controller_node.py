@@ -103,6 +103,7 @@ class ArmControllerNode(Node):
         self._period = 1.0 / p["rate"]
         self._on_states = p["cycle_on_joint_states"]
         self._last_cycle = -math.inf     # node-clock time of the last control cycle, s
+        self._last_timer = math.inf      # node-clock time of the last rate timer tick, s
         self._follower = Follower(self._limits, self._period, p["max_state_age"],
                                   p["command_lead"],
                                   self._limits.acceleration if p["profile_lead"] else None)
@@ -318,8 +319,15 @@ class ArmControllerNode(Node):
                 self.get_clock().now().to_msg()))
 
     def _on_timer(self) -> None:
+        now = self._now()
+        late, self._last_timer = now - self._last_timer > 2.0 * self._period, now
+        if late:
+            # this node was not scheduled for a while (a loaded machine): the executor runs
+            # the timer before the joint_states that queued meanwhile, so the state would
+            # look stale; the next tick, after them, judges it
+            return
         if (self._on_states
-                and self._now() - self._last_cycle < 2.5 * self._period):
+                and now - self._last_cycle < 2.5 * self._period):
             return                   # joint_states drive the cycles
         self._cycle()
 

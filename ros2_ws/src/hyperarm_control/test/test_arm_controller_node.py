@@ -238,3 +238,43 @@ def test_a_wrong_joint_states_message_is_not_used(rclpy_context, executor, wait_
              what=f"the goal to succeed ({node._last_result})")
     qs = np.array([q for t, q in driver.commands if t >= t0])
     assert qs.max() <= 0.3 + 1e-9, qs.max()               # never towards the fake 1.0
+
+
+def test_a_stall_of_the_controller_itself_is_not_taken_for_stale_states(
+        rclpy_context, executor, wait_for):
+    """The controller's executor is blocked 0.3 s (more than max_state_age) while the
+    driver, in a thread of its own, goes on publishing: when the executor runs again, the
+    rate timer must not judge the old state before the queued fresh ones (it aborted the
+    goal: "joint_states are 0.3 s old")."""
+    node, probe, driver, traj_pub = _start(rclpy_context, executor, wait_for, True)
+    driver.running = False                   # states from a thread instead (below)
+    pub = probe.create_publisher(JointState, contract.JOINT_STATES,
+                                 qos_for(contract.JOINT_STATES))
+    stop = threading.Event()
+
+    def stream():
+        while not stop.is_set():
+            msg = JointState()
+            msg.header.stamp = probe.get_clock().now().to_msg()
+            msg.name = NAMES
+            with driver.lock:
+                msg.position = [float(x) for x in driver.q]
+            msg.velocity = [0.0] * len(NAMES)
+            pub.publish(msg)
+            time.sleep(0.01)
+
+    thread = threading.Thread(target=stream, daemon=True)
+    thread.start()
+    try:
+        _send(probe, traj_pub, np.full(len(NAMES), 0.2), 2.0)
+        wait_for(lambda: node._follower.goal_status == "running" and len(driver.commands) > 20,
+                 5.0, what="the goal running")
+        blocked = threading.Event()
+        probe.create_timer(0.01, lambda: None if blocked.is_set() else (
+            blocked.set(), time.sleep(0.3)))          # the executor stalls once
+        wait_for(blocked.is_set, 5.0, what="the stall")
+        wait_for(lambda: node._follower.goal_status != "running", 10.0, what="the end")
+        assert node._follower.goal_status == "succeeded", node._last_result
+    finally:
+        stop.set()
+        thread.join(timeout=2.0)
