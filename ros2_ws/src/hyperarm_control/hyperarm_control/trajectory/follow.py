@@ -49,6 +49,8 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from hyperarm_description.limits import limit_step
+
 from .errors import (GoalToleranceViolated, InvalidGoal, PathToleranceViolated,
                      TrajectoryError)
 from .goal import JointLimits, Trajectory
@@ -184,7 +186,6 @@ class Follower:
                 raise ValueError(f"profile_acceleration: {len(limits.names)} finite values > 0"
                                  f" rad/s², got {profile_acceleration.tolist()}")
         self.profile_acceleration = profile_acceleration
-        self._step = limits.velocity * period
         self._last: np.ndarray | None = None
         self._last_now: float | None = None     # the cycle time of the last command, s
         self._hold: np.ndarray | None = None
@@ -323,8 +324,10 @@ class Follower:
         assert self._last is not None
         if not np.all(np.isfinite(target)):
             raise TrajectoryError(f"non-finite command {np.asarray(target).tolist()}")
-        step = self._step if gap >= self.period else self.limits.velocity * gap
-        cmd = np.clip(target, self._last - step, self._last + step)
-        cmd = np.clip(cmd, self.limits.lower, self.limits.upper)
+        if gap > 0.0:        # the project's step limit (hyperarm_description.limits)
+            cmd = limit_step(target, self._last, self.limits.velocity,
+                             min(gap, self.period), self.limits.lower, self.limits.upper)
+        else:                # no time since the last command: no step
+            cmd = self._last.copy()
         self._last = cmd
         return cmd.copy()
