@@ -79,17 +79,23 @@ SERVO_MODES = ("position", "current_based_position", "current", "off")
 _ROBOT_GROUP, _WORLD_GROUP, _BLOCK_GROUP = 0, 1, 2
 
 #: Contact bits (MuJoCo collides two geoms when contype of one & conaffinity of the other):
-#: robot capsules (arm links, base, carriage) touch each other, the world and the block; the
-#: gripper's capsule (an envelope of palm and closed fingers) touches the links and the
-#: world but not the block, which the finger pads hold; the pads touch the block and the
-#: world; the world's geoms (table, pegs, poles) touch everything but each other.
-_BIT_ROBOT, _BIT_WORLD, _BIT_BLOCK, _BIT_HAND, _BIT_PAD = 1, 2, 4, 8, 16
+#: robot capsules (arm links, base, carriage) touch each other, the poles, the table, the
+#: pegs and the block. The hand (the last link's capsule and the gripper's, envelopes of
+#: the wrist, palm and closed fingers) touches the links and the poles only: the pegs pass
+#: between the fingers into the held block's hole, and the finger pads, which hold the
+#: block, meet the block, the table, the pegs and the poles for the hand. The work cell's
+#: geoms (table, pegs, poles) do not touch each other.
+_BIT_ROBOT, _BIT_POLE, _BIT_BLOCK, _BIT_HAND, _BIT_PAD, _BIT_PEG, _BIT_TABLE = \
+    1, 2, 4, 8, 16, 32, 64
+_CELL = _BIT_ROBOT | _BIT_BLOCK | _BIT_PAD
 _CONTACT = {
     "robot": {"contype": _BIT_ROBOT, "conaffinity": _BIT_ROBOT},
-    "hand": {"contype": _BIT_HAND, "conaffinity": _BIT_ROBOT | _BIT_WORLD},
-    "pad": {"contype": _BIT_PAD, "conaffinity": _BIT_BLOCK | _BIT_WORLD},
-    "world": {"contype": _BIT_WORLD, "conaffinity": _BIT_ROBOT | _BIT_BLOCK},
-    "block": {"contype": _BIT_BLOCK, "conaffinity": _BIT_ROBOT | _BIT_WORLD | _BIT_BLOCK},
+    "hand": {"contype": _BIT_HAND, "conaffinity": _BIT_ROBOT | _BIT_POLE},
+    "pad": {"contype": _BIT_PAD, "conaffinity": _BIT_BLOCK},
+    "pole": {"contype": _BIT_POLE, "conaffinity": _CELL},
+    "peg": {"contype": _BIT_PEG, "conaffinity": _CELL},
+    "table": {"contype": _BIT_TABLE, "conaffinity": _CELL},
+    "block": {"contype": _BIT_BLOCK, "conaffinity": _BIT_ROBOT | _BIT_BLOCK},
 }
 
 #: The finger pads (assumptions: the description gives only the opening): boxes of these
@@ -209,7 +215,8 @@ def _capsules(body: ET.Element, desc: RobotDescription, frame: str) -> None:
         a, b = cap.endpoints()
         _el(body, "geom", name=f"capsule_{cap.name}", type="capsule", size=[cap.radius],
             fromto=[*a, *b], group=_ROBOT_GROUP, rgba=_ROBOT_RGBA, mass=0.0,
-            **_CONTACT["hand" if frame == desc.tool_frame else "robot"])
+            **_CONTACT["hand" if frame in (desc.tool_frame, f"link{len(desc.joints)}")
+                       else "robot"])
 
 
 def _joint(body: ET.Element, name: str, kind: str, axis: Sequence[float], lower: float,
@@ -460,19 +467,19 @@ def _world(asset: ET.Element, worldbody: ET.Element, world: WorldSpec,
             size=[0.5 * (t.x_range[1] - t.x_range[0]), 0.5 * (t.y_range[1] - t.y_range[0]),
                   0.5 * thick],
             pos=[0.5 * sum(t.x_range), 0.5 * sum(t.y_range), t.height - 0.5 * thick],
-            group=_WORLD_GROUP, material="table", **_CONTACT["world"])
+            group=_WORLD_GROUP, material="table", **_CONTACT["table"])
     else:
         _el(worldbody, "geom", name="table", type="plane", size=[0.0, 0.0, 0.05],
             pos=[0.0, 0.0, t.height], group=_WORLD_GROUP, material="table",
-            **_CONTACT["world"])
+            **_CONTACT["table"])
     for p in world.pegs:
         _el(worldbody, "geom", name=f"peg_{p.name}", type="cylinder",
             size=[p.radius, 0.5 * p.height], pos=[*p.xy, t.height + 0.5 * p.height],
-            group=_WORLD_GROUP, rgba=grey, **_CONTACT["world"])
+            group=_WORLD_GROUP, rgba=grey, **_CONTACT["peg"])
     for p in world.poles:
         _el(worldbody, "geom", name=f"pole_{p.name}", type="cylinder",
             size=[p.radius, 0.5 * p.height], pos=[*p.xy, 0.5 * (p.z_min + p.z_max)],
-            group=_WORLD_GROUP, rgba=[0.8, 0.3, 0.2, 1.0], **_CONTACT["world"])
+            group=_WORLD_GROUP, rgba=[0.8, 0.3, 0.2, 1.0], **_CONTACT["pole"])
     b = world.block
     if b is None:
         return
@@ -523,7 +530,10 @@ def generate_mjcf(desc: RobotDescription, world: WorldSpec | None = None,
                            f"generate_mjcf. "))
     _el(root, "compiler", angle="radian", autolimits="true")
     _el(root, "option", timestep=opts.timestep, cone="elliptic", integrator="implicitfast")
-    _el(_el(root, "default"), "geom", friction=[opts.friction, opts.torsional_friction, 1e-4])
+    # contacts as stiff as MuJoCo allows at this timestep (time constant 2 steps; its default
+    # 0.02 s let the 10 g fingers sink 1.2 mm into the block they squeeze)
+    _el(_el(root, "default"), "geom", friction=[opts.friction, opts.torsional_friction, 1e-4],
+        solref=[2.0 * opts.timestep, 1.0])
     _el(_el(root, "visual"), "global", offwidth=1280, offheight=960)
     asset = _el(root, "asset")
     _el(asset, "texture", name="sky", type="skybox", builtin="gradient", rgb1=[0.6, 0.7, 0.8],

@@ -707,7 +707,12 @@ class JointSim:
             motor = self.effort + np.where(moving, np.sign(self.velocity) * self.coulomb, 0.0)
         else:
             motor = self.effort + 0.0      # (as above: -0.0 + 0.0 is 0.0)
-        out = self._quantize(motor / self.kt_ratio, None)
+        self._set_reported(self._quantize(motor / self.kt_ratio, None), gapped)
+
+    def _set_reported(self, out: np.ndarray, gapped: np.ndarray | None) -> None:
+        """``reported_effort`` := ``out`` (the motors' efforts as the servos measure them),
+        but the commanded current in current mode, 0 with torque off or in a mode switch's
+        gap, the rail's force as it is."""
         sets = self._modes()
         torque = sets.torque
         if torque:

@@ -19,10 +19,45 @@ __all__ = ["DOWN", "tool_down_ik", "Scenario"]
 DOWN = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
 
+#: Seeds tried in turn when a solution from the given seed makes the arm touch itself
+#: (simulations on MuJoCo model the links' capsules against each other): gentle arcs.
+ARC_SEEDS = (np.array([0.0, 0.35, 0.0, 0.35, 0.0, 0.35, 0.0, 0.35, 0.0]),
+             np.array([0.0, 0.5, 0.0, 0.5, 0.0, 0.5, 0.0, 0.3, 0.0]),
+             np.array([0.0, 0.25, 0.0, 0.25, 0.0, 0.25, 0.0, 0.25, 0.0]))
+
+
+def self_contacts(sim, q: np.ndarray) -> list[tuple[str, str]]:
+    """Pairs of the arm's capsules that touch at arm joints ``q`` (rad) in a simulation on
+    MuJoCo (``sim.physics``); [] for a simulation without one."""
+    physics = getattr(sim, "physics", None)
+    if physics is None:
+        return []
+    return physics.self_contacts(np.r_[sim.position[:sim.nk - len(q)], q])
+
+
 def tool_down_ik(sim: JointSim, xyz, seed: np.ndarray | None = None,
                  rot: np.ndarray = DOWN, iterations: int = 2000) -> np.ndarray:
     """Arm joint angles (rad) putting tool0 at ``xyz`` (m, root frame) with orientation
-    ``rot``; raises RuntimeError if it does not converge to 1e-6."""
+    ``rot``, the arm not touching itself (on MuJoCo: else from :data:`ARC_SEEDS`); raises
+    RuntimeError if it does not converge to 1e-6 (or only to postures touching
+    themselves)."""
+    seeds = [seed] + list(ARC_SEEDS)
+    last = ""
+    for s in seeds:
+        try:
+            q = _dls(sim, xyz, s, rot, iterations)
+        except RuntimeError as e:
+            last = str(e)
+            continue
+        hits = self_contacts(sim, q)
+        if not hits:
+            return q
+        last = f"tool_down_ik: {xyz}: the arm touches itself ({hits})"
+    raise RuntimeError(last)
+
+
+def _dls(sim: JointSim, xyz, seed: np.ndarray | None, rot: np.ndarray,
+         iterations: int) -> np.ndarray:
     model, data, fid = sim.model, sim.model.createData(), sim.tool_id
     lo, hi = sim.lower[:sim.nk] * 0.95, sim.upper[:sim.nk] * 0.95
     q = np.zeros(sim.nk) if seed is None else np.asarray(seed, dtype=float).copy()

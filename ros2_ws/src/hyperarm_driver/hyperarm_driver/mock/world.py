@@ -36,7 +36,7 @@ import numpy as np
 from .config import MockError, WorldConfig
 
 __all__ = ["WorldError", "BlockState", "Contact", "WorldEvent", "World",
-           "segment_closest_points"]
+           "segment_closest_points", "rim_offsets"]
 
 # Depth (m) below a peg's top that the block's bottom must reach, aligned, to be threaded
 # (more than the penalty penetration of a pressing contact, so pressing never threads).
@@ -117,6 +117,17 @@ def segment_closest_points(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: n
             elif t > 1.0:
                 s, t = min(max((b - c) / a, 0.0), 1.0), 1.0
     return a0 + d1 * s, b0 + d2 * t
+
+
+def rim_offsets(peg_xy, half_height: float, block_pose: np.ndarray) -> tuple[float, float]:
+    """Horizontal distances (m) of a block's hole rims (its z axis at ±``half_height`` from
+    its centre) from the vertical axis through ``peg_xy`` (m)."""
+    axis = block_pose[:3, 2] * half_height
+    out = []
+    for sign in (1.0, -1.0):
+        rim = block_pose[:3, 3] + sign * axis
+        out.append(math.hypot(float(rim[0]) - peg_xy[0], float(rim[1]) - peg_xy[1]))
+    return out[0], out[1]
 
 
 def _yaw_only(rot: np.ndarray) -> np.ndarray:
@@ -239,13 +250,7 @@ class World:
     def rim_offsets(self, peg: str, block_pose: np.ndarray) -> tuple[float, float]:
         """Horizontal distances (m) of the hole's two rims (its axis, the block's z, at the
         block's top and bottom faces) from peg ``peg``'s axis."""
-        p = self._pegs[peg]
-        axis = block_pose[:3, 2] * self._half[2]
-        out = []
-        for sign in (1.0, -1.0):
-            rim = block_pose[:3, 3] + sign * axis
-            out.append(math.hypot(float(rim[0]) - p.xy[0], float(rim[1]) - p.xy[1]))
-        return out[0], out[1]
+        return rim_offsets(self._pegs[peg].xy, float(self._half[2]), block_pose)
 
     def accepts(self, peg: str, block_pose: np.ndarray) -> bool:
         """Whether peg ``peg`` fits through the block's hole at this pose: both rims within
