@@ -17,7 +17,7 @@ from hyperarm_description.mjcf import FINGER_MASS, finger_travel
 from hyperarm_description.model import load_description
 from hyperarm_driver.mock.config import load_mock_config
 from hyperarm_driver.mock.joint_sim import ControlMode
-from hyperarm_driver.mock.mujoco_sim import MujocoSim
+from hyperarm_driver.mock.joint_sim import JointSim as MujocoSim
 from hyperarm_driver.mock.scenario import Scenario, self_contacts, tool_down_ik
 from hyperarm_driver.mock.world import BlockState
 
