@@ -576,9 +576,12 @@ class ServoBank:
         v_new = np.where(done, e / dt, v_new)
         self._prof_p = np.where(held, p_new, self._prof_p)
         self._prof_v = np.where(held, v_new, 0.0)
-        # the reference is the profile (no lag of its own: the physics lags the joint)
-        self._ref_v = self._prof_v.copy()
-        self._ref = np.where(held, self._prof_p, self._ref)
+        # the reference is the profile (no lag of its own: the physics lags the joint); its
+        # velocity the difference (the profile's own, or a trajectory's the controller runs
+        # itself: set_profile_position)
+        ref = np.where(held, self._prof_p, self._ref)
+        self._ref_v = np.where(held, (ref - self._ref) / dt, 0.0)
+        self._ref = ref
 
     def _overload(self, dt: float, held: np.ndarray) -> None:
         """A position-class servo (arm, gripper; rail) whose limit is its stall torque, at it
