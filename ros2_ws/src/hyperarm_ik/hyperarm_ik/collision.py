@@ -147,16 +147,19 @@ class CollisionModel:
                 if abs(ja - jb) <= 1 or (a, b) in touching:
                     continue  # same or adjacent links, or parts that share a joint
                 self_pairs.append((a, b))
-        world_pairs = [(a, w) for a in self._robot for w in self._world]
         holders = {n for n in ("gripper", f"link{len(self.kin.desc.joints)}") if n in order}
+        # the hand (the last link's capsule and the gripper's, envelopes of the wrist, palm
+        # and closed fingers) meets neither a peg nor the table, as in the MuJoCo model the
+        # mock steps (hyperarm_description.mjcf): the peg passes between the fingers into
+        # the block's hole, and the finger pads (not modelled here) meet the table, the
+        # envelope reaching 5 mm below them
+        passed = {w for w in self._world if names[w].startswith("peg ") or names[w] == "table"}
+        world_pairs = [(a, w) for a in self._robot for w in self._world
+                       if not (names[a] in holders and w in passed)]
         block_pairs = [(blk, w) for blk in self._block for w in self._world]
         block_pairs += [(blk, a) for blk in self._block for a in self._robot
                         if names[a] not in holders]
-        # while the block is held, the peg it threads passes through the space between the
-        # fingers that the gripper's capsule fills: the block's hole model stands in for it
-        pegs = {w for w in self._world if names[w].startswith("peg ")}
-        self._hand_pegs = [(a, w) for a, w in world_pairs
-                           if names[a] == "gripper" and w in pegs] if self._block else []
+        self._hand_pegs: list[tuple[int, int]] = []
         self._groups = {"self": self_pairs, "world": world_pairs, "block": block_pairs}
         for a, b in self_pairs + world_pairs + block_pairs:
             gm.addCollisionPair(pin.CollisionPair(a, b))
