@@ -198,7 +198,11 @@ class JointSim(ServoBank):
         self._profile(h, held)
         self._sync_actuators()
         ph = self.physics
-        pos = ph.position_ctrl(self._ref + self.offset, self._ref_v, self._feedforward())
+        # the joint now (the step's start) against the reference now: the profile's point
+        # before this step's (_ref is the step's end) and its velocity over the last step
+        # (compared with _ref, the joint led its profile by a step: 3 mrad at 3 rad/s)
+        pos = ph.position_ctrl(self._ref - self._ref_v * h + self.offset, self._prev_ref_v,
+                               self._feedforward())
         if self._is_current.any():
             torque = self.kt_ratio * self._quantize(self.tau_cmd, None)
             pos = np.where(self._is_current, torque, pos)
