@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from typing import Mapping
 
+import mujoco
 import numpy as np
 
 from hyperarm_description import mjcf
@@ -174,6 +175,13 @@ class JointSim(ServoBank):
         self._debt -= steps * h
         for _ in range(steps):
             self._substep(h)
+        if steps:
+            # the bodies' poses at the joints' new positions (mj_step leaves those of its
+            # start: the truth would trail joint_states by a timestep)
+            mujoco.mj_kinematics(ph.model, ph.data)
+            mujoco.mj_comPos(ph.model, ph.data)
+            if self._host is not None:
+                self._host.after_step(0.0)
         contacts = ph.contacts(everything=self.world.state is BlockState.HELD)
         self.penetration = ph.max_penetration()
         g = self.g
