@@ -92,7 +92,6 @@ class JointSim(ServoBank):
         self._kv = np.array([o.rail_kv if n == self.rail else
                              o.gripper_kv if i == self.g else o.arm_kv
                              for i, n in enumerate(self.names)])
-        self._emf = self.stall / self.vmax
         self._act_key: list[tuple] = [()] * self.n
         self._act_sig: tuple = ()
         ph.set_positions(self.position + self.offset)
@@ -136,7 +135,7 @@ class JointSim(ServoBank):
                 if key[0] == "off":
                     ph.set_servo(i, "off", 0.0)
                 elif key[0] == "current":
-                    ph.set_servo(i, "current", key[1], back_emf=self._emf[i])
+                    ph.set_servo(i, "current", key[1])
                 else:
                     ph.set_servo(i, "position", key[1], self._kp[i], self._kv[i])
         self._is_current = np.array([k == "current" for k in ph.kind])
@@ -212,8 +211,15 @@ class JointSim(ServoBank):
         pos = ph.position_ctrl(self._ref - self._ref_v * h + self.offset, self._prev_ref_v,
                                self._feedforward())
         if self._is_current.any():
+            # the current loop exerts the commanded current; the motor's torque-speed line
+            # (back-EMF, the velocity limit as no-load speed) caps it along the motion:
+            # stall·(1 - |v|/v_max) that way, the stall torque against it
             torque = self.kt_ratio * self._quantize(self.tau_cmd, None)
-            pos = np.where(self._is_current, torque, pos)
+            stall = self.stall * self.kt_ratio
+            along = stall * (1.0 - np.abs(ph.qd) / self.vmax)
+            hi = np.where(ph.qd > 0.0, along, stall)
+            lo = np.where(ph.qd < 0.0, -along, -stall)
+            pos = np.where(self._is_current, np.minimum(np.maximum(torque, lo), hi), pos)
         ctrl = pos
         ph.step(ctrl)
         self.position = ph.q - self.offset
