@@ -23,6 +23,7 @@ from rclpy.action import ActionClient
 from rclpy.node import Node
 
 from hyperarm_description import contract
+from hyperarm_description.qos import discovery_settle_left
 
 from .messages import point
 
@@ -66,8 +67,6 @@ def goal_from_points(joint_names: Sequence[str], times: Sequence[float],
     return goal
 
 
-# s after a client is made before its first goal goes out (see TrajectoryClient.send)
-DISCOVERY_SETTLE = 0.5
 # a point's time and goal_time_tolerance, s: the controller refuses goals over 1 h anyway
 MAX_FILE_TIME = 3600.0
 TRAJECTORY_SCHEMA = {
@@ -156,11 +155,9 @@ class TrajectoryClient:
         with self._lock:
             self._handle, self._result_future, self._rejected = None, None, False
             self._feedback = []
-        # the server must have discovered this client's response reader too (the client
-        # finding the server is one direction): rmw_fastrtps drops a response to a reader it
-        # has not matched yet, and the goal would run unanswered (DDS discovers in its own
-        # threads: a sleep is enough)
-        time.sleep(max(0.0, self._created + DISCOVERY_SETTLE - time.monotonic()))
+        # the server must also have matched this client's response reader (DDS discovers
+        # in its own threads: a sleep is enough)
+        time.sleep(discovery_settle_left(self._created, time.monotonic()))
         fut = self._client.send_goal_async(goal, feedback_callback=self._on_feedback)
         fut.add_done_callback(self._on_response)
 

@@ -6,7 +6,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from .contract import QOS
 
-__all__ = ["qos_for", "NO_PUB_EVENTS", "NO_SUB_EVENTS"]
+__all__ = ["qos_for", "NO_PUB_EVENTS", "NO_SUB_EVENTS", "DISCOVERY_SETTLE",
+           "discovery_settle_left"]
 
 #: ``event_callbacks`` for a publisher / subscription with no QoS event handlers. rclpy's
 #: default handlers only log an incompatible peer's QoS, and each is a waitable that the
@@ -41,3 +42,17 @@ def action_server_qos() -> dict[str, QoSProfile]:
                       durability=DurabilityPolicy.VOLATILE)
     return {"goal_service_qos_profile": deep, "cancel_service_qos_profile": deep,
             "result_service_qos_profile": deep}
+
+
+#: s an action client waits after it is made before its first goal: the server must also
+#: have discovered the client's response reader (the client finding the server is one
+#: direction); rmw_fastrtps drops a response to a reader it has not matched yet ("failed to
+#: send response (timeout)") and the goal runs while the client waits for an answer
+DISCOVERY_SETTLE = 0.5
+
+
+def discovery_settle_left(created: float, now: float) -> float:
+    """Seconds (>= 0) a client made at ``created`` (monotonic s) still waits at ``now``
+    before its first goal (:data:`DISCOVERY_SETTLE`)."""
+    return max(0.0, created + DISCOVERY_SETTLE - now)
+

@@ -22,10 +22,8 @@ from rclpy.action import ActionClient
 from rclpy.node import Node
 
 from hyperarm_description import contract
+from hyperarm_description.qos import discovery_settle_left
 from hyperarm_interfaces.action import RunTask
-
-# s after a client is made before its first goal goes out (see TaskClient.send)
-DISCOVERY_SETTLE = 0.5
 
 __all__ = ["TaskResult", "TaskClient"]
 
@@ -72,11 +70,8 @@ class TaskClient:
             self.message = f"action server {self._client._action_name!r} not available"
             self._state = TaskResult.REJECTED
             return False
-        # the server must have discovered this client's response reader too (found the
-        # server is one direction): rmw_fastrtps drops a response to a reader it has not
-        # matched yet ("failed to send response (timeout)"), and the goal would run while
-        # this client waits for an answer that never comes
-        while time.monotonic() < self._created + DISCOVERY_SETTLE:
+        # the server must also have matched this client's response reader
+        while discovery_settle_left(self._created, time.monotonic()) > 0.0:
             self._spin(0.02)
         self._send_future = self._client.send_goal_async(RunTask.Goal(task=task),
                                                          feedback_callback=self._on_feedback)
