@@ -248,6 +248,48 @@ def test_a_mode_switch_gap_lasts_its_configured_time_not_a_whole_step(kin):
     assert abs(sags[0.01] - sags[0.001]) < 0.3 * sags[0.001], sags
 
 
+@pytest.mark.parametrize("spread", [1, 3, 5])
+def test_the_switch_gaps_impulse_is_added_back_over_switch_spread_commands(kin, spread):
+    """'torque' output, states every 10 ms at a rest posture: over the first
+    ``switch_spread`` commands (n) after the enable each carries 1/n of the gap's impulse,
+    its law torque x gap / n (the extra torque, command - law torque, times the time it
+    acts: the first T - gap, the rest T), so together they carry tau x gap on every joint;
+    later commands are the law's own torques."""
+    from hyperarm_control.force.controller import ForceController
+    from hyperarm_control.force.parameters import PARAMETERS, build
+    from hyperarm_control.force.wrench import WrenchEstimator
+
+    values = {name: v[0] for name, v in PARAMETERS.items()}
+    values.update(output="torque", switch_spread=spread)
+    law_cfg, est_cfg, ctl_cfg = build(values)
+    law = HybridLaw(kin, law_cfg)
+    ctl = ForceController(law, WrenchEstimator(law.na, est_cfg), None, ctl_cfg)
+    q = np.array([0.3, 0.6, -0.2, 0.9, 0.1, 0.5, -0.3, 0.4, 0.0])
+    zero = np.zeros(9)
+    t, period, gap = 1.0, 0.01, ctl_cfg.switch_gap
+    for _ in range(30):                     # the period estimate settles on 10 ms
+        t += period
+        ctl.step(t, q, zero, zero)
+    ctl.enable(True, t)
+    extra, owed = np.zeros(9), np.zeros(9)
+    for i in range(spread + 2):
+        t += period
+        out, event = ctl.step(t, q, zero, zero)
+        assert event is None and out.positions is None
+        tau = out.command.tau
+        big = np.abs(tau) > 0.05
+        ratio = np.asarray(out.efforts)[big] / tau[big]
+        if i < spread:
+            assert np.ptp(ratio) < 1e-9, ratio          # one factor on every joint
+            extra[big] += (ratio - 1.0) * tau[big] * ((period - gap) if i == 0 else period)
+            owed[big] += tau[big] * gap / spread
+        else:
+            assert np.allclose(ratio, 1.0), (i, ratio)
+    assert big.sum() >= 3
+    assert np.allclose(extra[big], owed[big], rtol=1e-6, atol=0.0), (extra[big], owed[big])
+    assert np.allclose(owed[big], tau[big] * gap, rtol=0.1), (owed[big], tau[big] * gap)
+
+
 # -- the torque margin after calibration (issue 24 item 7, the saturated press) ------------
 
 Q_PRESS = np.array([0.0, 0.5, 0.0, 0.6, 0.0, 0.5, 0.0, -1.0, 0.0])   # tool down, ahead

@@ -29,6 +29,16 @@ def _on_signal(signum: int, _frame: Any) -> None:
     raise _StoppedDuringStartup
 
 
+def _quiet_unraisable(unraisable: Any) -> None:
+    """``sys.unraisablehook`` for start-up: the signal's exception raised where Python cannot
+    propagate it (a weakref callback such as importlib's module-lock clean-up, a
+    ``__del__``) is dropped, since ``_signalled`` already holds it; anything else goes to
+    Python's own hook."""
+    if isinstance(unraisable.exc_value, _StoppedDuringStartup):
+        return
+    sys.__unraisablehook__(unraisable)
+
+
 def lazy_main(module: str, attr: str = "main") -> Callable[[], Any]:
     """A ``console_scripts`` target that runs ``module.attr()`` (``module`` imported only
     when the entry point runs), exiting 0 on SIGINT/SIGTERM during the import."""
@@ -36,6 +46,7 @@ def lazy_main(module: str, attr: str = "main") -> Callable[[], Any]:
     def entry() -> Any:
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, _on_signal)
+        sys.unraisablehook = _quiet_unraisable
         try:
             main = getattr(importlib.import_module(module), attr)
             if _signalled:      # the exception was swallowed inside some import

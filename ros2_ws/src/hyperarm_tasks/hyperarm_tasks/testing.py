@@ -147,12 +147,16 @@ class ForceSimRobot(SimRobot):
     calls the driver's hold, any other passive holds the arm joints with one position
     command). ``late``: (start, end) windows of simulated time in which no joint state
     reaches the controller (a loaded machine: it goes passive on stale states).
+    ``overtaken``: (start, end) windows of simulated time in which a command reaches the
+    simulation only together with the next one, which replaces it (a loaded machine, or a
+    driver that writes the latest command per cycle: the first is never applied).
     ``params``: the node's parameters (name: value, as ``hybrid_force`` declares them)
     that differ from their defaults."""
 
     def __init__(self, sim: JointSim, kin, dt: float = 0.01,
                  late: Sequence[tuple[float, float]] = (), output: str = "position",
-                 params: Mapping[str, object] | None = None, **kw) -> None:
+                 params: Mapping[str, object] | None = None,
+                 overtaken: Sequence[tuple[float, float]] = (), **kw) -> None:
         from hyperarm_control.force.controller import ForceController
         from hyperarm_control.force.law import HybridLaw
         from hyperarm_control.force.parameters import PARAMETERS, build
@@ -166,6 +170,8 @@ class ForceSimRobot(SimRobot):
         self.ctl = ForceController(law, WrenchEstimator(law.na, est_cfg), None, ctl_cfg)
         self.kin = kin
         self.late = list(late)
+        self.overtaken = list(overtaken)
+        self.overtaken_commands = 0         # commands never applied (``overtaken``)
         self.passive: tuple[str, str] | None = None
         self.events: list[tuple[float, str, str]] = []    # (time, kind, message)
         self._chain = [self.sim.names.index(n) for n in self.ctl.names]
@@ -196,7 +202,10 @@ class ForceSimRobot(SimRobot):
                 out, event = self.ctl.step(now, s.position[self._chain], s.velocity[self._chain],
                                            s.effort[self._arm])
                 self._handle(event)
-                if out.efforts is not None:
+                lost = out.efforts is not None and any(a <= now < b
+                                                       for a, b in self.overtaken)
+                self.overtaken_commands += lost
+                if out.efforts is not None and not lost:
                     if out.positions is not None:
                         self.sim.command(out.names, out.positions, out.efforts)
                     else:

@@ -102,8 +102,10 @@ class ControllerConfig:
     [N/m x3, N·m/rad x3]; state_max_age / goal_max_age: s, a joint state / goal stamped
     longer ago is not used (nor one older than the newest used: :class:`StampGate`);
     switch_gap: s the servos' torque is off when the first effort-only command after enable
-    switches them into current mode (the 'torque' output): that command adds back the
-    impulse lost in it (0: no compensation)."""
+    switches them into current mode (the 'torque' output): the impulse lost in it is added
+    back (0: no compensation), spread over the first ``switch_spread`` commands, so that a
+    first command overtaken by the next one (a loaded machine; a driver that writes the
+    latest command of each cycle) still leaves most of it."""
 
     output: str = "position"
     stale_timeout: float = 0.1
@@ -113,6 +115,7 @@ class ControllerConfig:
     state_max_age: float = 0.2
     goal_max_age: float = 1.0
     switch_gap: float = 0.005
+    switch_spread: int = 3
 
     def __post_init__(self) -> None:
         if self.output not in OUTPUTS:
@@ -123,6 +126,10 @@ class ControllerConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and lo <= v <= hi):
                 raise ForceConfigError(f"{name}: {v!r} not within {lo:g}..{hi:g}")
+        if isinstance(self.switch_spread, bool) or not isinstance(self.switch_spread, int) \
+                or not 1 <= self.switch_spread <= 10:
+            raise ForceConfigError(f"switch_spread: {self.switch_spread!r} not an integer "
+                                   "within 1..10")
         k = np.asarray(self.default_stiffness, dtype=float)
         if k.shape != (6,) or not np.all(np.isfinite(k)) or np.any(k <= 0.0):
             raise ForceConfigError(f"default_stiffness: 6 values > 0, got {k.tolist()}")
@@ -161,7 +168,7 @@ class ForceController:
         self._last_cycle: float | None = None
         self._last_now: float | None = None
         self._period = 0.01                # s, the joint states' period (running estimate)
-        self._switching = False            # the next torque command switches the servos
+        self._switch_left = 0              # torque commands still carrying the gap's impulse
         self._q: np.ndarray | None = None
         self.last_estimate: WrenchEstimate | None = None
         self._last_rotation = np.eye(3)
@@ -189,7 +196,7 @@ class ForceController:
         self.goal = self.law.hold_goal(self._q, self._default_k)
         self.mode, self.reason = Mode.ACTIVE, "enabled"
         self._last_cycle = None
-        self._switching = self.config.output == "torque"
+        self._switch_left = self.config.switch_spread if self.config.output == "torque" else 0
         return self._event(Event("enabled", "info", f"enabled ({self.config.output} output), "
                                  "holding the present pose"))
 
@@ -334,8 +341,7 @@ class ForceController:
             # division by each servo's scale (a scale < 1 once took efforts to 0.88 of stall)
             limit = self.law.limit
             if self.config.output == "torque":
-                tau = self._switch_impulse(cmd.tau) if self._switching else cmd.tau
-                self._switching = False
+                tau = self._switch_impulse(cmd.tau) if self._switch_left else cmd.tau
                 tau = tau if exact else cal.command(self.arm_names, tau)
                 efforts = np.minimum(np.maximum(tau, -limit), limit).tolist()
             else:
@@ -349,13 +355,20 @@ class ForceController:
     def _switch_impulse(self, tau: np.ndarray) -> np.ndarray:
         """The first effort-only command after enable switches the servos into current
         mode, their torque off for ``switch_gap`` s (Operating Mode is written with torque
-        off): a gravity-loaded joint falls meanwhile (1-2 mm at the tool on the mock). This
-        command holds for about one state period T, so it carries tau x T / (T - gap): its
-        impulse over the period is the one planned (N·m, within the torque limits)."""
+        off): a gravity-loaded joint falls meanwhile (about 1 mm at the tool on the mock).
+        Each of the first ``switch_spread`` commands (n) holds for about one state period T
+        and carries tau x gap / n of extra impulse: the switching one over the T - gap it
+        acts, tau x (1 + gap / (n (T - gap))), the others tau x (1 + gap / (n T)). A first
+        command overtaken by the next is never applied; the next then switches and the
+        loss is the overtaken one's share (N·m, within the torque limits)."""
+        n = self.config.switch_spread
+        first = self._switch_left == n
+        self._switch_left -= 1
         gap = self.config.switch_gap
         if gap <= 0.0:
             return tau
-        factor = min(gap / max(self._period - gap, gap), 1.0)
+        acting = max(self._period - gap, gap) if first else max(self._period, gap)
+        factor = min(gap / (n * acting), 1.0)
         limit = self.law.limit
         return np.minimum(np.maximum(tau * (1.0 + factor), -limit), limit)
 

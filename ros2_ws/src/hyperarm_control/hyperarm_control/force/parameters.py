@@ -41,7 +41,11 @@ PARAMETERS: ParamSpec = {
                      "newest one used) is ignored", Range(0.01, 60.0)),
     "switch_gap": (_C.switch_gap, "s the servos' torque is off when the 'torque' output's "
                    "first command switches them into current mode (its lost impulse is added "
-                   "to that command; 0 = not)", Range(0.0, 0.05)),
+                   "back over the first switch_spread commands; 0 = not)", Range(0.0, 0.05)),
+    "switch_spread": (_C.switch_spread, "commands (1-10) over which the 'torque' output adds "
+                      "back the impulse lost in the switch gap (more: robust to a first "
+                      "command overtaken by the next, a larger excursion when none is)",
+                      Range(1, 10)),
     "limit_guard": (_C.limit_guard, "rad from a joint limit at which the node goes passive",
                     Range(0.0, 0.5)),
     "default_stiffness": (list(_C.default_stiffness), "K [N/m x3, N·m/rad x3] of the hold "
