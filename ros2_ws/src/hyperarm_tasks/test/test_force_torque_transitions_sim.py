@@ -55,6 +55,17 @@ def _excursions(robot, kin) -> dict[str, float]:
             "stop": run(lambda: robot.set_force_control(False))}
 
 
+def _posture_ahead_above_table(kin, rng) -> np.ndarray:
+    """A random posture with the tool ahead of the base (> 0.15 m) and above the table
+    (> 0.08 m); joints within +-1.2 rad, joint 2 in [0, 1] rad, joint 9 at 0."""
+    while True:
+        q = rng.uniform(-1.2, 1.2, 9)
+        q[1], q[8] = rng.uniform(0.0, 1.0), 0.0
+        t = kin.forward(q)
+        if t[2, 3] > 0.08 and np.linalg.norm(t[:2, 3]) > 0.15:
+            return q
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [1, 2])
 def test_torque_output_start_stop_and_mode_changes_move_the_tool_under_1_mm(kin, seed,
@@ -71,12 +82,7 @@ def test_torque_output_start_stop_and_mode_changes_move_the_tool_under_1_mm(kin,
     params = {} if switch_gap is None else {"switch_gap": switch_gap}
     worst: dict[str, float] = {}
     for _ in range(3):
-        while True:
-            q = rng.uniform(-1.2, 1.2, 9)
-            q[1], q[8] = rng.uniform(0.0, 1.0), 0.0
-            t = kin.forward(q)
-            if t[2, 3] > 0.08 and np.linalg.norm(t[:2, 3]) > 0.15:
-                break
+        q = _posture_ahead_above_table(kin, rng)
         robot = _torque_robot(kin, q, posture=[float(v) for v in q], **params)
         got = _excursions(robot, kin)
         assert robot.passive is None, robot.events
@@ -99,12 +105,7 @@ def test_a_first_torque_command_overtaken_still_moves_the_tool_under_1_mm(kin, s
     params = {} if switch_spread is None else {"switch_spread": switch_spread}
     worst = 0.0
     for _ in range(3):
-        while True:
-            q = rng.uniform(-1.2, 1.2, 9)
-            q[1], q[8] = rng.uniform(0.0, 1.0), 0.0
-            t = kin.forward(q)
-            if t[2, 3] > 0.08 and np.linalg.norm(t[:2, 3]) > 0.15:
-                break
+        q = _posture_ahead_above_table(kin, rng)
         robot = _torque_robot(kin, q, posture=[float(v) for v in q], **params)
         idx = [robot.sim.names.index(n) for n in robot.ctl.arm_names]
         p0 = kin.forward(robot.sim.state().position[idx])[:3, 3]
