@@ -158,8 +158,12 @@ def test_every_node_exits_cleanly_on_signals(launch, tmp_path, wait_for, rclpy_c
     procs, control = _start_all(launch, tmp_path, wait_for)
     try:
         _wait_ready(rclpy_context, wait_for, procs)
-        wait_for(lambda: control("state")["servos"]["3"]["torque_enable"] == 1, 20.0,
-                 what="Dynamixel torque on")
+        try:
+            wait_for(lambda: control("state")["servos"]["3"]["torque_enable"] == 1, 20.0,
+                     what="Dynamixel torque on")
+        except AssertionError as exc:   # say why: the driver's own account
+            raise AssertionError(f"{exc}; dynamixel_driver said:\n"
+                                 f"{procs['dynamixel_driver'].output()[-3000:]}") from None
         time.sleep(0.5)  # let every node run its loops for a while
         for i, sig in enumerate(signals):
             if i:
