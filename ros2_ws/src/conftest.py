@@ -23,6 +23,11 @@ from typing import Any, Callable
 
 import pytest
 
+# MuJoCo's offscreen rendering (the rendered camera's tests) needs an OpenGL backend where
+# there is no display: EGL (scripts/setup.sh installs it). Read when mujoco is first imported.
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+
 def _domain_range() -> tuple[int, int]:
     """Domains this pytest run may use: ``HYPERARM_TEST_DOMAINS=lo-hi`` (inclusive), so that
     test runs going on at the same time on one machine can be given disjoint ranges;

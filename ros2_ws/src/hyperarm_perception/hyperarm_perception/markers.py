@@ -41,7 +41,7 @@ __all__ = ["PerceptionError", "MarkerMapError", "CameraModelError", "ImageError"
            "MarkerSpec", "DetectorConfig", "MarkerMap", "CameraModel", "Detection",
            "Rejection", "FrameResult", "MarkerDetector", "load_marker_map",
            "parse_marker_map", "pose_covariance", "marker_corners", "T_LINK_OPTICAL",
-           "REASONS", "rotation_angle", "default_marker_map_path"]
+           "REASONS", "rotation_angle", "default_marker_map_path", "aruco_detector"]
 
 
 class PerceptionError(ValueError):
@@ -439,6 +439,22 @@ def _gray(image: Any, cam: CameraModel) -> np.ndarray:
     return image
 
 
+def aruco_detector(dictionary: str) -> cv2.aruco.ArucoDetector:
+    """OpenCV's marker finder for ``dictionary`` (a ``cv2.aruco.DICT_*`` name) with the
+    detector's sub-pixel corner refinement."""
+    params = cv2.aruco.DetectorParameters()
+    params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    # a 5x5 window at most (OpenCV's default relative size 0.3 of a module shrinks it
+    # to 3x3 on small markers, which left 0.4 px RMS corner errors on synthetic images;
+    # a larger window reaches the inner cells' and the margin's edges: also worse)
+    params.cornerRefinementWinSize = 2
+    params.relativeCornerRefinmentWinSize = 1.0
+    params.cornerRefinementMaxIterations = 50
+    params.cornerRefinementMinAccuracy = 0.01
+    return cv2.aruco.ArucoDetector(
+        cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary)), params)
+
+
 class MarkerDetector:
     """Detects the markers of a :class:`MarkerMap` in images of a :class:`CameraModel`.
 
@@ -448,17 +464,7 @@ class MarkerDetector:
     def __init__(self, marker_map: MarkerMap, camera: CameraModel) -> None:
         self.map = marker_map
         self.camera = camera
-        params = cv2.aruco.DetectorParameters()
-        params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
-        # a 5x5 window at most (OpenCV's default relative size 0.3 of a module shrinks it
-        # to 3x3 on small markers, which left 0.4 px RMS corner errors on synthetic images;
-        # a larger window reaches the inner cells' and the margin's edges: also worse)
-        params.cornerRefinementWinSize = 2
-        params.relativeCornerRefinmentWinSize = 1.0
-        params.cornerRefinementMaxIterations = 50
-        params.cornerRefinementMinAccuracy = 0.01
-        dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, marker_map.dictionary))
-        self._aruco = cv2.aruco.ArucoDetector(dictionary, params)
+        self._aruco = aruco_detector(marker_map.dictionary)
         self.counts: dict[str, int] = {r: 0 for r in REASONS}
         self.counts.update(frames=0, detections=0)
 
