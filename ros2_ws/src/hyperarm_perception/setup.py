@@ -24,6 +24,7 @@ setup(
         "console_scripts": [
             "marker_detector = hyperarm_perception.entry:marker_detector",
             "usb_camera = hyperarm_perception.entry:usb_camera",
+            "mock_camera = hyperarm_perception.entry:mock_camera",
         ],
     },
 )

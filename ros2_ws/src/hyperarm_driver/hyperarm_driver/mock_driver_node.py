@@ -80,6 +80,10 @@ PARAMETERS: ParamSpec = {
                        None),
     "diagnostics_period": (1.0, "/diagnostics period, s", Range(0.1, 10.0)),
     "workcell_file": ("", "work-cell YAML ('' = the packaged config/workcell.yaml)", None),
+    "detections": ("oracle", "what the mock publishes on detections: 'oracle' (the true poses "
+                   "with the camera section's noise and latency), or 'none' (mock_camera renders "
+                   "pictures and marker_detector publishes them, as on the robot); "
+                   "debug/detections_truth is published either way", OneOf(("oracle", "none"))),
     "sim_speed": (0.0, "0 = real time; > 0 = run at this multiple of real time and publish "
                        "/clock", _SimSpeed()),  # type: ignore[dict-item]
     "lockstep_timeout": (0.0, "s of wall time, with sim_speed > 0: while a controller answers "
@@ -141,6 +145,7 @@ class MockDriver(Node):
             raise SystemExit(f"mock_driver: {exc}") from exc
         self._camera = Camera(cfg.camera, pose_from_xyz_rpy(desc.camera.xyz, desc.camera.rpy))
         self._frame_id = desc.camera.frame
+        self._oracle = p["detections"] == "oracle"
         self._dt = 1.0 / p["rate"]
         self._speed = p["sim_speed"]
         self._lockstep = Lockstep(p["lockstep_timeout"]) \
@@ -344,7 +349,10 @@ class MockDriver(Node):
 
     def _publish_frame(self, frame: Frame) -> None:
         detected = () if frame.dropped else frame.detected   # a camera dropout: no detections
-        for pub, poses in ((self._det, detected), (self._truth, frame.truth)):
+        outputs = [(self._truth, frame.truth)]
+        if self._oracle:
+            outputs.append((self._det, detected))
+        for pub, poses in outputs:
             msg = Detections()
             msg.header.stamp = self._time(frame.stamp)
             msg.header.frame_id = self._frame_id

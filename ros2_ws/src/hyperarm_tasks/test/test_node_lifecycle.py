@@ -35,6 +35,7 @@ NODES = [
     ("hyperarm_bringup", "viewer", "viewer"),
     ("hyperarm_perception", "marker_detector", "marker_detector"),
     ("hyperarm_perception", "usb_camera", "usb_camera"),
+    ("hyperarm_perception", "mock_camera", "mock_camera"),
     ("hyperarm_control", "arm_controller", "arm_controller"),
     ("hyperarm_control", "gripper_controller", "gripper_controller"),
 ]
@@ -59,6 +60,7 @@ HELP_PARAMETERS = {
     "host_compensation": ["host_source", "initial_delay", "speed_scale"],
     "marker_detector": ["marker_map", "max_age"],
     "usb_camera": ["device", "camera_info_file", "reopen_period"],
+    "mock_camera": ["workcell_file", "marker_map", "rate", "noise_sigma"],
     "arm_controller": ["rate", "path_tolerance", "max_state_age"],
     "gripper_controller": ["goal_tolerance", "stall_timeout", "allow_stalling"]}
 
@@ -127,6 +129,8 @@ def _start_all(launch, tmp_path, wait_for):
         # signals arrive
         "usb_camera": launch("hyperarm_perception", "usb_camera", params={
             "device": _frames(tmp_path), "loop": True}),
+        # beside the mock (its namespace): rendering while the signals arrive
+        "mock_camera": launch("hyperarm_perception", "mock_camera", namespace="/mock"),
         "arm_controller": launch("hyperarm_control", "arm_controller"),
         "gripper_controller": launch("hyperarm_control", "gripper_controller"),
     }
