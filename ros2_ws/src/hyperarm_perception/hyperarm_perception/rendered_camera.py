@@ -9,7 +9,8 @@ object. Rendering only poses the scene, it steps nothing: the arm's joints from 
 driver's joint states, the block (a free body) and each object's markers from the given
 object poses, a peg's cylinder moved to where its pose says. The picture is MuJoCo's
 offscreen render from the description's camera (``camera_link``; MuJoCo's camera looks
-along its -z), blurred and with Gaussian pixel noise; its pinhole model is
+along its -z), without shadows, reflections or sky (:data:`_OFF`), blurred and with Gaussian
+pixel noise; its pinhole model is
 :meth:`RenderedCamera.camera`, ideal (no distortion) with the description's vertical field
 of view, as the ``CameraInfo`` a driver would publish.
 
@@ -45,6 +46,13 @@ MARKER_LIFT = 2e-4
 
 #: Where the mocap body of an object not in the poses is parked (out of the camera's view).
 _PARKED = np.array([0.0, 0.0, -3.0])
+
+
+#: MuJoCo's scene effects left out: shadows, reflections and the sky cost 3/4 of a picture's
+#: time in software rendering (llvmpipe: 75 ms at 640x480 with them, 18 ms without) and
+#: none of them is needed to find a marker.
+_OFF = (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION,
+        mujoco.mjtRndFlag.mjRND_SKYBOX)
 
 
 class RenderError(PerceptionError):
@@ -221,11 +229,15 @@ class RenderedCamera:
         """The camera's picture (uint8 RGB) of the scene posed by :meth:`pose`."""
         self.pose(joints, objects)
         self._renderer.update_scene(self.data, camera=self._cam_id, scene_option=self._vopt)
+        flags = self._renderer.scene.flags
+        for flag in _OFF:
+            flags[flag] = 0
         img = self._renderer.render()
         opts = self.options
         if opts.blur_sigma > 0.0:
             img = cv2.GaussianBlur(img, (0, 0), opts.blur_sigma)
         if opts.noise_sigma > 0.0:
-            noisy = img + self._rng.normal(0.0, opts.noise_sigma, img.shape)
+            noisy = img + np.float32(opts.noise_sigma) * self._rng.standard_normal(
+                img.shape, dtype=np.float32)
             img = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
         return img

@@ -52,7 +52,7 @@ def test_pegs_seen_in_the_rendered_pictures_where_the_mock_has_them(launch, rclp
                               qos_profile_sensor_data)
     wait_for(lambda: len([m for m in seen if len(m.names) >= 2]) >= 5, 90.0,
              what=f"5 detections of the pegs\n{cam.output()}")
-    assert images[0][:3] == ("rgb8", 640, 480)
+    assert images[0][:3] == ("mono8", 640, 480)
     assert infos[-1].k[0] > 500 and infos[-1].header.frame_id == "camera_optical_frame"
     # every picture is a truth's exposure, drawn once
     stamps = [s for *_, s in images]
@@ -101,9 +101,9 @@ def test_bad_truth_and_missing_joint_states_are_counted_never_drawn(launch, rclp
     from hyperarm_description.qos import qos_for
     from hyperarm_interfaces.msg import Detections
 
-    # small pictures (57 kB): one UDP datagram each, nothing here depends on fragments
+    # small colour pictures (57 kB: one UDP datagram each, none lost to fragmentation)
     cam = launch("hyperarm_perception", "mock_camera", params={
-        "diagnostics_period": 0.2, "width": 160, "height": 120})
+        "diagnostics_period": 0.2, "width": 160, "height": 120, "encoding": "rgb8"})
     probe = rclpy.create_node("mock_camera_bad_probe", namespace=contract.DEFAULT_NAMESPACE,
                               context=rclpy_context)
     executor.add_node(probe)

@@ -1,0 +1,121 @@
+"""Benchmark: the mock's rendered camera (MuJoCo, EGL) and MarkerDetector on its pictures.
+
+    MUJOCO_GL=egl python -m hyperarm_perception.benchmarks.rendered [--frames 40]
+            [--seed 0] [--sizes 640x480 1280x960] [--save frame.png]
+
+Per picture size: the render time per frame (ms; blur and noise included), the detector's
+time per frame, and each object's errors against the poses it was drawn at, in camera_link:
+position (norm), across and along the line of sight, and orientation. Each frame moves the
+pegs by up to 4 cm and lays the block on the table at a random place and yaw, clear of the
+pegs; the arm is turned away (out of view). Also how often the block's marker is found while
+the block is threaded on its peg (the peg stands in the marker's middle). ``--save`` writes
+the first frame of the first size with the detections drawn. docs/perception.md keeps the
+figures."""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from hyperarm_description.model import load_description, read_yaml  # noqa: E402
+from hyperarm_description.world import MOCK_WORLD_KEYS, parse_world  # noqa: E402
+from hyperarm_perception.benchmarks.detector import draw  # noqa: E402
+from hyperarm_perception.markers import (MarkerDetector, load_marker_map,  # noqa: E402
+                                         rotation_angle)
+from hyperarm_perception.rendered_camera import (RenderOptions, RenderedCamera,  # noqa: E402
+                                                 cell_poses)
+
+CELL = Path(__file__).resolve().parents[3] / "hyperarm_driver" / "config" / "workcell.yaml"
+AWAY = {"joint1": math.pi, "joint2": -1.5}   # rad: the arm turned back, out of view
+
+
+def _scene(world, rng) -> dict[str, np.ndarray]:
+    poses = cell_poses(world)
+    for name in ("source_peg", "destination_peg"):
+        poses[name][:2, 3] += rng.uniform(-0.04, 0.04, 2)
+    while True:
+        xy = rng.uniform([0.2, -0.2], [0.45, 0.2])
+        if all(np.linalg.norm(xy - poses[p][:2, 3]) > 0.07 for p in ("source_peg",
+                                                                        "destination_peg")):
+            break
+    yaw = rng.uniform(-math.pi, math.pi)
+    block = np.eye(4)
+    block[:2, :2] = [[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]]
+    block[:3, 3] = [*xy, world.table.height + 0.5 * world.block.size[2]]
+    poses["block"] = block
+    return poses
+
+
+def _row(name: str, errs: list[tuple[float, float, float, float]], tries: int) -> str:
+    if not errs:
+        return f"  {name:16s} found 0/{tries}"
+    e = np.array(errs)
+    return (f"  {name:16s} found {len(e)}/{tries}  position median {np.median(e[:, 0]):5.1f} "
+            f"max {e[:, 0].max():5.1f} mm | across max {e[:, 1].max():4.1f} mm | along max "
+            f"{e[:, 2].max():5.1f} mm | angle median {np.median(e[:, 3]):4.2f} max "
+            f"{e[:, 3].max():4.2f} deg")
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--frames", type=int, default=40)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--sizes", nargs="+", default=["640x480", "1280x960"])
+    parser.add_argument("--save", help="write the first frame, detections drawn, as a PNG")
+    args = parser.parse_args(argv)
+    desc = load_description(None, "arm")
+    world = parse_world(read_yaml(CELL, "work cell")["world"], extra_keys=MOCK_WORLD_KEYS)
+    mm = load_marker_map()
+    saved = False
+    for size in args.sizes:
+        width, height = (int(v) for v in size.split("x"))
+        rng = np.random.default_rng(args.seed)
+        with RenderedCamera(desc, world, mm, RenderOptions(width=width, height=height,
+                                                           seed=args.seed)) as cam:
+            detector = MarkerDetector(mm, cam.camera)
+            link = np.linalg.inv(cam.camera_pose)
+            cam.render(AWAY, cell_poses(world))          # the first render sets OpenGL up
+            render_ms, detect_ms = [], []
+            errs: dict[str, list] = {"block": [], "source_peg": [], "destination_peg": []}
+            for _ in range(args.frames):
+                poses = _scene(world, rng)
+                t0 = time.perf_counter()
+                image = cam.render(AWAY, poses)
+                t1 = time.perf_counter()
+                gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+                result = detector.detect(gray)
+                t2 = time.perf_counter()
+                render_ms.append(1e3 * (t1 - t0))
+                detect_ms.append(1e3 * (t2 - t1))
+                if args.save and not saved:
+                    cv2.imwrite(args.save, draw(gray, result, cam.camera, detector))
+                    saved = True
+                for d in result.detections:
+                    truth = link @ poses[d.object]
+                    err = d.pose[:3, 3] - truth[:3, 3]
+                    sight = truth[:3, 3] / np.linalg.norm(truth[:3, 3])
+                    along = float(err @ sight)
+                    errs[d.object].append((
+                        1e3 * np.linalg.norm(err), 1e3 * np.linalg.norm(err - along * sight),
+                        1e3 * abs(along),
+                        math.degrees(rotation_angle(d.pose[:3, :3].T @ truth[:3, :3]))))
+            threaded = sum("block" in {d.object for d in detector.detect(
+                cv2.cvtColor(cam.render(AWAY, cell_poses(world)), cv2.COLOR_RGB2GRAY)
+            ).detections} for _ in range(5))
+        print(f"{width}x{height}: render median {np.median(render_ms):.1f} ms (p95 "
+              f"{np.percentile(render_ms, 95):.1f}), detect median {np.median(detect_ms):.1f} "
+              f"ms (p95 {np.percentile(detect_ms, 95):.1f}), {args.frames} frames")
+        for name, rows in errs.items():
+            print(_row(name, rows, args.frames))
+        print(f"  block threaded on its peg: found {threaded}/5")
+
+
+if __name__ == "__main__":
+    main()
