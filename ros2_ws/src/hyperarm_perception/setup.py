@@ -25,6 +25,7 @@ setup(
             "marker_detector = hyperarm_perception.entry:marker_detector",
             "usb_camera = hyperarm_perception.entry:usb_camera",
             "mock_camera = hyperarm_perception.entry:mock_camera",
+            "calibrate_camera = hyperarm_perception.entry:calibrate_camera",
         ],
     },
 )

@@ -114,6 +114,7 @@ class MarkerDetectorNode(Node):
         out.header.frame_id = contract.CAMERA_FRAME
         out.names = [d.object for d in result.detections]
         out.poses = [matrix_to_pose(d.pose) for d in result.detections]
+        out.covariances = [float(v) for d in result.detections for v in d.covariance.reshape(-1)]
         self._pub.publish(out)
 
     def counts(self) -> dict[str, int]:

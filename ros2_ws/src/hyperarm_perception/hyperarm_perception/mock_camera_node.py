@@ -40,7 +40,8 @@ from hyperarm_description.world import MOCK_WORLD_KEYS, parse_world
 from hyperarm_ik.ros_conversions import pose_to_matrix
 from hyperarm_interfaces.msg import Detections
 
-from .markers import MarkerMapError, load_marker_map
+from .calibration_postures import NOMINAL_TARGET, parse_pose
+from .markers import PerceptionError, load_marker_map
 from .marker_detector_node import CAMERA_INFO, IMAGE
 
 PARAMETERS: ParamSpec = {
@@ -59,6 +60,10 @@ PARAMETERS: ParamSpec = {
                  "DDS's 512 kB shared-memory segment, so no picture is lost between "
                  "processes) or rgb8 (921 kB: sent as UDP fragments, which a best-effort "
                  "subscriber loses at times)", OneOf(("mono8", "rgb8"))),
+    "calibration_target": ("", "the gripper holds the calibration target (the marker map's "
+                           "calibration_target) at 'x y z roll pitch yaw' (m, rad) in tool0, "
+                           "drawn where the joints put it (e.g. '" + NOMINAL_TARGET + "', "
+                           "docs/perception.md); '' = none held", None),
     "frame_id": ("camera_optical_frame", "frame of the images (the optical frame of the "
                  "description's camera)", None),
     "diagnostics_period": (1.0, "s between diagnostics messages", Range(0.1, 60.0)),
@@ -89,7 +94,10 @@ class MockCameraNode(Node):
                 raise DescriptionError(f"{cell}: no 'world' mapping at the top level")
             world = parse_world(data["world"], extra_keys=MOCK_WORLD_KEYS)
             markers = load_marker_map(p["marker_map"] or None)
-        except (DescriptionError, MarkerMapError, ValueError, OSError) as exc:
+            held = ({"calibration_target": parse_pose(p["calibration_target"],
+                                                      "calibration_target")}
+                    if p["calibration_target"].strip() else {})
+        except (DescriptionError, PerceptionError, ValueError, OSError) as exc:
             raise SystemExit(f"mock_camera: {exc}") from None
         self._frame_id = p["frame_id"]
         self._encoding = p["encoding"]
@@ -117,7 +125,7 @@ class MockCameraNode(Node):
         self._ready = threading.Event()
         self._failure: str | None = None
         self._thread = threading.Thread(
-            target=self._run, args=(desc, world, markers, p), name="mock_camera-render",
+            target=self._run, args=(desc, world, markers, held, p), name="mock_camera-render",
             daemon=True)
         self._thread.start()
         self._ready.wait()
@@ -161,13 +169,14 @@ class MockCameraNode(Node):
             self._truth = (stamp_seconds(msg.header.stamp), msg.header.stamp, poses)
 
     # -- the render thread -------------------------------------------------------------------
-    def _run(self, desc, world, markers, p) -> None:
+    def _run(self, desc, world, markers, held, p) -> None:
         from .rendered_camera import RenderedCamera, RenderError, RenderOptions
 
         try:
             renderer = RenderedCamera(desc, world, markers, RenderOptions(
                 width=p["width"], height=p["height"], blur_sigma=p["blur_sigma"],
-                noise_sigma=p["noise_sigma"], seed=None if p["seed"] < 0 else p["seed"]))
+                noise_sigma=p["noise_sigma"], seed=None if p["seed"] < 0 else p["seed"]),
+                held=held)
         except RenderError as exc:
             self._failure = str(exc)
             self._ready.set()

@@ -115,12 +115,27 @@ def _marker_png(dictionary: str, marker_id: int, folder: Path) -> tuple[Path, fl
 class RenderedCamera:
     """Renders the description's camera view of ``world`` with ``marker_map``'s markers.
 
-    Raises :class:`RenderError` if MuJoCo cannot make an OpenGL context (set ``MUJOCO_GL``)."""
+    ``held`` {object: 4x4 of its frame in tool0}: objects the gripper holds (e.g. the hand-eye
+    calibration target), drawn where the arm's joints put tool0. Raises :class:`RenderError`
+    for a held object that is not in the marker map, or if MuJoCo cannot make an OpenGL
+    context (set ``MUJOCO_GL``)."""
 
     def __init__(self, desc: RobotDescription, world: WorldSpec, marker_map: MarkerMap,
                  options: RenderOptions | None = None,
-                 physics: PhysicsOptions | None = None) -> None:
+                 physics: PhysicsOptions | None = None,
+                 held: Mapping[str, np.ndarray] | None = None) -> None:
         self.options = opts = options or RenderOptions()
+        objects = {m.object for m in marker_map.markers.values()}
+        self.held = {}
+        for name, pose in (held or {}).items():
+            if name not in objects:
+                raise RenderError(f"held object {name!r} has no marker in the marker map "
+                                  f"(objects: {', '.join(sorted(objects))})")
+            pose = np.asarray(pose, dtype=float)
+            if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
+                raise RenderError(f"held object {name!r}: its pose in tool0 must be a finite "
+                                  "4x4 matrix")
+            self.held[name] = pose
         self.desc = desc
         self.camera = CameraModel.from_fovy(opts.width, opts.height, desc.camera.fovy)
         #: camera_link in the root frame
@@ -176,6 +191,7 @@ class RenderedCamera:
                                       int(self.model.jnt_qposadr[b]),
                                       np.array(self.model.eq_data[e][:5])))
         self._cam_id = self.model.camera(desc.camera.frame).id
+        self._tool = self.model.body(desc.tool_frame).id
         self._vopt = mujoco.MjvOption()
         self._vopt.sitegroup[:] = 0          # the model's sites (its camera's) are not seen
         try:
@@ -196,14 +212,19 @@ class RenderedCamera:
 
     def pose(self, joints: Mapping[str, float], objects: Mapping[str, np.ndarray]) -> None:
         """Pose the scene: ``joints`` {name: position (rad, m)} (others keep theirs),
-        ``objects`` {name: 4x4 pose in the root frame}; an object of the marker map that is
-        not given is out of view (its markers parked far below)."""
+        ``objects`` {name: 4x4 pose in the root frame}, the held objects on tool0; an object
+        of the marker map that is neither given nor held is out of view (its markers parked
+        far below)."""
         q = self.data.qpos
         for name, value in joints.items():
             if name in self._qadr:
                 q[self._qadr[name]] = float(value)
         for a, b, poly in self._coupled:
             q[a] = float(np.polyval(poly[::-1], q[b]))
+        if self.held:
+            mujoco.mj_kinematics(self.model, self.data)
+            tool = self.tool_pose()
+            objects = {**objects, **{n: tool @ t for n, t in self.held.items()}}
         for name in self._objects:
             pose = objects.get(name)
             mid = self._mocap[name]
@@ -223,6 +244,13 @@ class RenderedCamera:
                 self.model.geom_pos[geom] = top[:3, 3] - half * top[:3, 2]
         mujoco.mj_kinematics(self.model, self.data)
         mujoco.mj_camlight(self.model, self.data)
+
+    def tool_pose(self) -> np.ndarray:
+        """tool0 in the root frame as last posed (4x4)."""
+        out = np.eye(4)
+        out[:3, :3] = self.data.xmat[self._tool].reshape(3, 3)
+        out[:3, 3] = self.data.xpos[self._tool]
+        return out
 
     def render(self, joints: Mapping[str, float], objects: Mapping[str, np.ndarray]
                ) -> np.ndarray:

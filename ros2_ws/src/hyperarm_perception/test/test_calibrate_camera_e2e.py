@@ -1,0 +1,87 @@
+"""e2e: hand-eye calibration on the mock through the installed executables, as a user runs it
+on the robot: mock_driver (detections left to the camera), mock_camera (the gripper holding
+the calibration target), marker_detector, arm_controller, then calibrate_camera with a
+description whose camera is 2 cm and 5 deg off. The camera it writes is within 2 mm and
+0.5 deg of the mock's (the packaged description's), from rendered pictures; bad options and
+a missing robot are exit 1 with the reason."""
+from __future__ import annotations
+
+import math
+import re
+import subprocess
+
+import numpy as np
+import pytest
+import yaml
+
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]
+
+POSES = "12"   # calibrate_camera's default
+
+
+def _perturbed_description(tmp_path):
+    """The packaged hyperarm.yaml with the camera moved 2 cm (x, y, z each 2/sqrt(3) cm) and
+    turned 5 deg about its roll axis."""
+    from hyperarm_description.model import load_description
+
+    desc = load_description(None, "arm")
+    text = open(desc.source).read()
+    x, y, z = desc.camera.xyz
+    d = 0.02 / math.sqrt(3.0)
+    text, n = re.subn(r"(\n  xyz: )\[0\.30, 0\.0, 0\.60\]",
+                      rf"\1[{x + d}, {y + d}, {z + d}]", text)
+    assert n == 1, "the camera's xyz line moved in hyperarm.yaml"
+    text, n = re.subn(r'(\n  rpy: )\[0\.0, "pi/2", 0\.0\]', r'\1["5 deg", "pi/2", 0.0]', text)
+    assert n == 1, "the camera's rpy line moved in hyperarm.yaml"
+    out = tmp_path / "perturbed.yaml"
+    out.write_text(text)
+    return out
+
+
+def test_calibration_recovers_the_mocks_camera(launch, executable, tmp_path, ros_domain):
+    from hyperarm_description.mjcf import camera_link_pose
+    from hyperarm_description.model import load_description
+    from hyperarm_perception.calibration_postures import NOMINAL_TARGET, parse_pose
+    from hyperarm_perception.markers import rotation_angle
+
+    perturbed = _perturbed_description(tmp_path)
+    truth = camera_link_pose(load_description(None, "arm"))
+    off = camera_link_pose(load_description(str(perturbed), "arm"))
+    assert abs(np.linalg.norm(off[:3, 3] - truth[:3, 3]) - 0.02) < 1e-9
+    assert abs(math.degrees(rotation_angle(off[:3, :3].T @ truth[:3, :3])) - 5.0) < 1e-6
+
+    launch("hyperarm_driver", "mock_driver", params={"detections": "none"})
+    launch("hyperarm_perception", "mock_camera", params={"calibration_target": NOMINAL_TARGET})
+    launch("hyperarm_perception", "marker_detector")
+    launch("hyperarm_control", "arm_controller")
+    out = tmp_path / "extrinsics.yaml"
+    run = subprocess.run([executable("hyperarm_perception", "calibrate_camera"), "--poses",
+                          POSES, "--description", str(perturbed), "-o", str(out)],
+                         capture_output=True, text=True, timeout=240)
+    assert run.returncode == 0, run.stdout + run.stderr
+    data = yaml.safe_load(out.read_text())
+    got = parse_pose(" ".join(str(v) for v in data["camera"]["xyz"] + data["camera"]["rpy"]),
+                     "camera")
+    moved = np.linalg.norm(got[:3, 3] - truth[:3, 3])
+    turned = math.degrees(rotation_angle(got[:3, :3].T @ truth[:3, :3]))
+    print(run.stdout, f"calibrated camera off the truth: {moved * 1e3:.2f} mm, {turned:.3f} deg")
+    assert moved < 0.002 and turned < 0.5, (moved, turned, run.stdout)
+    assert data["residuals"]["inliers"] >= 10
+    target = parse_pose(" ".join(str(v) for v in data["target_in_tool0"]["xyz"]
+                                 + data["target_in_tool0"]["rpy"]), "target")
+    assert np.linalg.norm(target[:3, 3] - parse_pose(NOMINAL_TARGET, "t")[:3, 3]) < 0.003
+    assert "the description's camera is" in run.stdout
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--poses", "2"], "--poses must be >= 3"),
+    (["--target", "1 2 3"], "--target: expected 6 finite numbers"),
+    (["--timeout", "1"], "no joint_states within 1 s"),
+])
+def test_bad_options_and_no_robot_are_exit_1_with_the_reason(executable, ros_domain, args,
+                                                              says, tmp_path):
+    run = subprocess.run([executable("hyperarm_perception", "calibrate_camera"), *args,
+                          "-o", str(tmp_path / "x.yaml")],
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 1 and says in run.stderr, run.stdout + run.stderr
+    assert "Traceback" not in run.stderr and not (tmp_path / "x.yaml").exists()
