@@ -33,7 +33,8 @@ def test_hybrid_goal_and_detections():
                                    "stiffness": "double[6]", "force_controlled": "boolean[6]",
                                    "wrench": "geometry_msgs/Wrench"}
     assert _fields(Detections) == {"header": "std_msgs/Header", "names": "sequence<string>",
-                                   "poses": "sequence<geometry_msgs/Pose>"}
+                                   "poses": "sequence<geometry_msgs/Pose>",
+                                   "covariances": "sequence<double>"}
     goal = HybridGoal()
     assert len(goal.stiffness) == 6 and len(goal.force_controlled) == 6
 

@@ -42,7 +42,8 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--output", "-o", default=DEFAULT_OUTPUT,
                     help=f"YAML to write (default {DEFAULT_OUTPUT})")
     ap.add_argument("--speed", type=float, default=0.3,
-                    help="fraction of the joints' velocity limits for the moves (default 0.3)")
+                    help="fraction of the joints' velocity and acceleration limits the moves "
+                         "peak at (default 0.3)")
     ap.add_argument("--settle", type=float, default=0.5,
                     help="s to wait after each move before using a detection (default 0.5)")
     ap.add_argument("--timeout", type=float, default=30.0,
@@ -68,7 +69,9 @@ class _Listener:
 
         self.lock = threading.Lock()
         self.joints: dict[str, float] = {}
-        self.joints_at = 0.0
+        #: header stamp (s) of the newest joint_states: the robot's clock, which also stamps
+        #: the images (the mock's simulated time on sim time)
+        self.joints_stamp = -math.inf
         #: (stamp s, pose 4x4, covariance 6x6 or None) of the target
         self.detections: list[tuple[float, np.ndarray, np.ndarray | None]] = []
         self.info: CameraInfo | None = None
@@ -81,9 +84,11 @@ class _Listener:
                                  qos_profile_sensor_data)
 
     def _on_joints(self, msg) -> None:
+        from hyperarm_description.freshness import stamp_seconds
+
         with self.lock:
             self.joints.update(zip(msg.name, (float(v) for v in msg.position)))
-            self.joints_at = time.monotonic()
+            self.joints_stamp = max(self.joints_stamp, stamp_seconds(msg.header.stamp))
 
     def _on_detections(self, msg) -> None:
         from hyperarm_description.freshness import stamp_seconds
@@ -153,6 +158,9 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--poses must be >= 3, got {args.poses}")
     if not 0.0 < args.speed <= 1.0:
         raise ValueError(f"--speed must be in (0, 1], got {args.speed}")
+    if not 0.0 <= args.settle <= 60.0 or not 0.0 < args.timeout <= 3600.0:
+        raise ValueError(f"--settle must be in [0, 60] s and --timeout in (0, 3600] s, got "
+                         f"{args.settle} and {args.timeout}")
     target_in_tool = parse_pose(args.target, "--target")
     desc = load_description(args.description, args.variant)
     if args.workcell:
@@ -160,10 +168,14 @@ def run(args: argparse.Namespace) -> int:
     else:
         from ament_index_python.packages import get_package_share_directory
         cell = Path(get_package_share_directory("hyperarm_driver")) / "config" / "workcell.yaml"
-    world = parse_world(read_yaml(cell, "work-cell file")["world"], extra_keys=MOCK_WORLD_KEYS)
+    data = read_yaml(cell, "work-cell file")
+    if not isinstance(data, dict) or "world" not in data:
+        raise ValueError(f"{cell}: no 'world' mapping at the top level")
+    world = parse_world(data["world"], extra_keys=MOCK_WORLD_KEYS)
     kin = Kinematics(desc)
     names = [j.name for j in desc.joints]
     limits = np.array([j.velocity for j in desc.joints])
+    accels = np.array([j.acceleration for j in desc.joints])
 
     rclpy.init(args=[])
     node = rclpy.create_node("calibrate_camera", namespace=contract.DEFAULT_NAMESPACE)
@@ -173,6 +185,7 @@ def run(args: argparse.Namespace) -> int:
     listen = _Listener(node, "calibration_target")
     client = TrajectoryClient(node)
     spin.start()
+    sent = False
     try:
         _wait(lambda: all(n in listen.joints for n in names), args.timeout, "joint_states")
         _wait(client.server_ready, args.timeout, "arm_controller action server")
@@ -188,8 +201,13 @@ def run(args: argparse.Namespace) -> int:
         tools, targets, covariances = [], [], []
         here = start
         for i, q in enumerate(postures, 1):
-            duration = max(1.0, float(np.max(np.abs(q - here) / (args.speed * limits))))
+            # the controller's rest-to-rest cubic peaks at 1.5 d/T in velocity and 6 d/T^2 in
+            # acceleration: T keeps both within --speed of the limits
+            step = np.abs(q - here)
+            duration = max(1.0, float(np.max(1.5 * step / (args.speed * limits))),
+                           float(np.max(np.sqrt(6.0 * step / (args.speed * accels)))))
             client.send(goal_from_points(names, [duration], [q.tolist()]))
+            sent = True
             if not client.wait(duration + args.timeout):
                 raise RuntimeError(f"posture {i}: the move did not end")
             status, result = client.result()
@@ -198,7 +216,8 @@ def run(args: argparse.Namespace) -> int:
                 raise RuntimeError(f"posture {i}: the move failed: {reason}")
             here = q
             time.sleep(args.settle)
-            since = node.get_clock().now().nanoseconds * 1e-9
+            with listen.lock:        # only pictures taken after the settle, on the robot's clock
+                since = listen.joints_stamp
             try:
                 _wait(lambda: any(d[0] >= since for d in listen.detections), 3.0,
                       "detection of the target")
@@ -221,7 +240,18 @@ def run(args: argparse.Namespace) -> int:
                   "takes the detector's depth bias)", flush=True)
         result = calibrate_eye_to_hand(tools, targets, weights)
     finally:
-        client.cancel()
+        import signal
+
+        for sig in (signal.SIGINT, signal.SIGTERM):    # a second signal must not skip this
+            signal.signal(sig, signal.SIG_IGN)
+        if sent and not client.done():     # a move under way (or its goal unanswered): stop it
+            end = time.monotonic() + 1.0
+            while client.accepted() is None and time.monotonic() < end:
+                time.sleep(0.01)
+            client.cancel()
+            if not client.wait(2.0):
+                print("calibrate_camera: the arm_controller did not confirm the cancel",
+                      file=sys.stderr)
         executor.shutdown(timeout_sec=1.0)
         spin.join(timeout=2.0)
         node.destroy_node()

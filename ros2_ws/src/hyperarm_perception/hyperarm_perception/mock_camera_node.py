@@ -69,6 +69,9 @@ PARAMETERS: ParamSpec = {
     "diagnostics_period": (1.0, "s between diagnostics messages", Range(0.1, 60.0)),
 }
 
+#: s the renderer may take to start (MuJoCo's model and OpenGL context) before the node gives up
+_START_TIMEOUT = 60.0
+
 #: joint states kept to pick the one nearest a truth's stamp (at 100 Hz: 0.5 s)
 _JOINT_HISTORY = 50
 
@@ -128,8 +131,15 @@ class MockCameraNode(Node):
             target=self._run, args=(desc, world, markers, held, p), name="mock_camera-render",
             daemon=True)
         self._thread.start()
-        self._ready.wait()
+        try:
+            if not self._ready.wait(_START_TIMEOUT):
+                self._failure = (f"the renderer was not ready within {_START_TIMEOUT:g} s "
+                                 "(MuJoCo's OpenGL context: MUJOCO_GL)")
+        except BaseException:      # a signal during the wait: the thread must not go on
+            self._stop.set()
+            raise
         if self._failure:
+            self._stop.set()
             raise SystemExit(f"mock_camera: {self._failure}")
         cam = self._camera
         self.get_logger().info(
@@ -153,13 +163,20 @@ class MockCameraNode(Node):
                 raise ValueError(f"{len(msg.names)} names, {len(msg.poses)} poses")
             poses = {}
             for name, pose in zip(msg.names, msg.poses):
+                o = pose.orientation
+                norm = float(np.linalg.norm([o.x, o.y, o.z, o.w]))
+                if not np.isfinite(norm) or abs(norm - 1.0) > 1e-3:
+                    raise ValueError(f"orientation of {name!r} is not a unit quaternion "
+                                     f"(norm {norm:.6g})")
                 t = pose_to_matrix(pose)
                 if not np.all(np.isfinite(t)):
                     raise ValueError(f"pose of {name!r} not finite")
                 poses[name] = t
         except ValueError as exc:
             self.counts["bad_truth"] += 1
-            kind = "lengths" if "names" in str(exc) else "non_finite"
+            text = str(exc)
+            kind = ("lengths" if "names" in text else "quaternion" if "quaternion" in text
+                    else "non_finite")
             if (line := self._throttle.message(
                     f"mock_camera: {contract.DETECTIONS_TRUTH} dropped: {exc}", kind)):
                 self.get_logger().warn(line)
@@ -170,15 +187,15 @@ class MockCameraNode(Node):
 
     # -- the render thread -------------------------------------------------------------------
     def _run(self, desc, world, markers, held, p) -> None:
-        from .rendered_camera import RenderedCamera, RenderError, RenderOptions
-
         try:
+            from .rendered_camera import RenderedCamera, RenderOptions
+
             renderer = RenderedCamera(desc, world, markers, RenderOptions(
                 width=p["width"], height=p["height"], blur_sigma=p["blur_sigma"],
                 noise_sigma=p["noise_sigma"], seed=None if p["seed"] < 0 else p["seed"]),
                 held=held)
-        except RenderError as exc:
-            self._failure = str(exc)
+        except BaseException as exc:   # mujoco's import (a bad MUJOCO_GL), the model, OpenGL
+            self._failure = f"cannot render: {exc}"
             self._ready.set()
             return
         self._camera = renderer.camera
@@ -205,6 +222,9 @@ class MockCameraNode(Node):
                 if self._stop.is_set():
                     break
                 self._publish(image, stamp)
+        except Exception as exc:       # the loop itself failed: said, and ERROR from now on
+            self._failure = f"the render thread stopped: {exc!r}"
+            self.get_logger().error(f"mock_camera: {self._failure}")
         finally:
             renderer.close()
 
@@ -259,11 +279,16 @@ class MockCameraNode(Node):
     def _publish_diagnostics(self) -> None:
         with self._lock:
             waiting = self._truth is None or not self._joints
+        if self._failure:
+            level, message = DiagnosticStatus.ERROR, self._failure
+        elif waiting:
+            level, message = (DiagnosticStatus.WARN,
+                              "waiting for the mock's joint_states and debug/detections_truth")
+        else:
+            level, message = DiagnosticStatus.OK, "rendering"
         status = DiagnosticStatus(
-            name=f"{self.get_name()}: camera", hardware_id="mujoco",
-            level=DiagnosticStatus.WARN if waiting else DiagnosticStatus.OK,
-            message=("waiting for the mock's joint_states and debug/detections_truth"
-                     if waiting else "rendering"),
+            name=f"{self.get_name()}: camera", hardware_id="mujoco", level=level,
+            message=message,
             values=[KeyValue(key=k, value=str(v)) for k, v in self.counts.items()]
             + [KeyValue(key="render_ms", value=f"{self._render_ms:.1f}")])
         arr = DiagnosticArray(status=[status])

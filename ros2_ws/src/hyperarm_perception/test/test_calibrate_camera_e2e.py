@@ -73,10 +73,46 @@ def test_calibration_recovers_the_mocks_camera(launch, executable, tmp_path, ros
     assert "the description's camera is" in run.stdout
 
 
+def test_ctrl_c_during_a_move_cancels_it_and_writes_nothing(launch, executable, tmp_path,
+                                                          ros_domain, wait_for):
+    """SIGINT while the arm moves to the second posture: arm_controller cancels the goal and
+    holds, calibrate_camera exits 130 saying so, and no file is written."""
+    import os
+    import signal
+    import time
+
+    from hyperarm_perception.calibration_postures import NOMINAL_TARGET
+
+    launch("hyperarm_driver", "mock_driver", params={"detections": "none"})
+    launch("hyperarm_perception", "mock_camera", params={"calibration_target": NOMINAL_TARGET})
+    launch("hyperarm_perception", "marker_detector")
+    ctl = launch("hyperarm_control", "arm_controller")
+    out = tmp_path / "extrinsics.yaml"
+    log = tmp_path / "calibrate.log"
+    with open(log, "w") as fh:
+        proc = subprocess.Popen([executable("hyperarm_perception", "calibrate_camera"),
+                                 "--speed", "0.1", "-o", str(out)], stdout=fh,
+                                stderr=subprocess.STDOUT, text=True,
+                                env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    try:
+        wait_for(lambda: "posture 1/" in log.read_text(), 120.0,
+                 what=f"the first posture\n{log.read_text()}")
+        time.sleep(1.0)                  # under way to the second (a slow move: >= 1 s)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=15.0) == 130, log.read_text()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert "interrupted; nothing written" in log.read_text() and not out.exists()
+    wait_for(lambda: "goal cancelled, holding" in ctl.output(), 5.0,
+             what=f"the cancel\n{ctl.output()}")
+
+
 @pytest.mark.parametrize("args, says", [
     (["--poses", "2"], "--poses must be >= 3"),
     (["--target", "1 2 3"], "--target: expected 6 finite numbers"),
     (["--timeout", "1"], "no joint_states within 1 s"),
+    (["--settle", "-1"], "--settle must be in [0, 60] s"),
 ])
 def test_bad_options_and_no_robot_are_exit_1_with_the_reason(executable, ros_domain, args,
                                                               says, tmp_path):

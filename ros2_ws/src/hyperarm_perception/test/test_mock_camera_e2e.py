@@ -54,9 +54,11 @@ def test_pegs_seen_in_the_rendered_pictures_where_the_mock_has_them(launch, rclp
              what=f"5 detections of the pegs\n{cam.output()}")
     assert images[0][:3] == ("mono8", 640, 480)
     assert infos[-1].k[0] > 500 and infos[-1].header.frame_id == "camera_optical_frame"
-    # every picture is a truth's exposure, drawn once
-    stamps = [s for *_, s in images]
-    assert len(set(stamps)) == len(stamps) and set(stamps) <= set(truth), stamps[:5]
+    # every picture is a truth's exposure, drawn once (those after the probe's first truth:
+    # its image subscription may have matched first)
+    first = min(truth)
+    stamps = [s for *_, s in images if s >= first]
+    assert stamps and len(set(stamps)) == len(stamps) and set(stamps) <= set(truth), stamps[:5]
     # The tile under each peg, where the chain puts it and where the mock has it: across the
     # line of sight within 1 mm (0.7 px at 0.8 m), along it within 2 % (the sub-pixel
     # corners' inward bias makes a 29 px marker look ~1 % farther). The peg's top, 94 mm
@@ -85,10 +87,11 @@ def test_pegs_seen_in_the_rendered_pictures_where_the_mock_has_them(launch, rclp
     assert cam.proc.wait(timeout=10.0) == 0, cam.output()
 
 
-def test_bad_truth_and_missing_joint_states_are_counted_never_drawn(launch, rclpy_context,
+def test_bad_truths_dropped_a_truth_waits_for_joint_states(launch, rclpy_context,
                                                                    executor, wait_for):
-    """mock_camera alone, fed by a probe: a truth with a non-finite pose and one with names
-    and poses of different lengths are dropped and counted; a good truth with no joint
+    """mock_camera alone, fed by a probe: a truth with a non-finite pose, one with names and
+    poses of different lengths and one with a non-unit quaternion are dropped, counted and
+    each logged (one line per kind); a good truth with no joint
     states yet is not drawn (counted, diagnostics WARN, waiting); once joint states come it
     is, then a new truth: each picture once, with its truth's stamp."""
     import rclpy
@@ -134,9 +137,14 @@ def test_bad_truth_and_missing_joint_states_are_counted_never_drawn(launch, rclp
     good.position.x, good.orientation.w = 0.8, 1.0
     bad = Pose()
     bad.position.x, bad.orientation.w = float("nan"), 1.0
+    skew = Pose()
+    skew.position.x, skew.orientation.w, skew.orientation.x = 0.8, 1.0, 0.5
     truth_pub.publish(truth(1, ["block"], [bad]))
     truth_pub.publish(truth(2, ["block", "source_peg"], [good]))
-    wait_for(lambda: values().get("bad_truth") == "2", 10.0, what="2 bad truths counted")
+    truth_pub.publish(truth(2, ["block"], [skew]))
+    wait_for(lambda: values().get("bad_truth") == "3", 10.0, what="3 bad truths counted")
+    out = cam.output()
+    assert "not finite" in out and "poses" in out and "not a unit quaternion" in out, out
     truth_pub.publish(truth(3, ["block"], [good]))
     wait_for(lambda: int(values().get("no_joint_states", 0)) >= 1, 10.0,
              what="a truth without joint states counted")
@@ -152,7 +160,19 @@ def test_bad_truth_and_missing_joint_states_are_counted_never_drawn(launch, rclp
     # truth 3, waiting for joint states, is drawn once they come; then truth 4; each once
     assert [m.header.stamp.sec for m in images] == [3, 4]
     assert images[-1].encoding == "rgb8" and (images[-1].width, images[-1].height) == (160, 120)
-    assert int(values()["pictures"]) >= 1 and values()["render_failures"] == "0"
+    wait_for(lambda: int(values()["pictures"]) >= 2, 5.0, what="the pictures counted")
+    assert values()["render_failures"] == "0"
+
+
+def test_no_opengl_is_exit_1_with_the_reason(launch):
+    """A MUJOCO_GL that names no backend: mujoco refuses it when the render thread imports it;
+    the node says so and exits 1 (it once waited for the thread for good)."""
+    proc = launch("hyperarm_perception", "mock_camera", env={"MUJOCO_GL": "no-such-backend"})
+    deadline = time.monotonic() + 60.0
+    while proc.proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert proc.proc.returncode == 1, proc.output()
+    assert "mock_camera: cannot render" in proc.output() and "Traceback" not in proc.output()
 
 
 def test_a_bad_workcell_file_exits_naming_it(launch, tmp_path):

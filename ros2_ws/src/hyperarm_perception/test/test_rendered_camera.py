@@ -143,6 +143,36 @@ def test_the_arm_is_drawn_where_its_joints_put_it(scene):
         checked += 1
 
 
+def test_a_held_target_is_drawn_where_pinocchios_fk_puts_it(scene):
+    """The calibration target held on tool0 (RenderedCamera's held=): at postures drawn for
+    the calibration (4), its corners are within 0.5 px of the projection of pinocchio's FK
+    (hyperarm_ik, independent of MuJoCo) x the target's pose in tool0 x the marker's."""
+    desc, world, _cam = scene
+    from hyperarm_ik.collision import CollisionModel
+    from hyperarm_ik.kinematics import Kinematics
+    from hyperarm_perception.calibration_postures import (NOMINAL_TARGET, parse_pose,
+                                                          target_postures)
+
+    mm = load_marker_map()
+    spec = next(m for m in mm.markers.values() if m.object == "calibration_target")
+    held = parse_pose(NOMINAL_TARGET, "target")
+    kin = Kinematics(desc)
+    with RenderedCamera(desc, world, mm, RenderOptions(noise_sigma=0.0, blur_sigma=0.0),
+                        held={"calibration_target": held}) as cam:
+        qs = target_postures(kin, CollisionModel(kin, world), cam.camera, cam.camera_pose,
+                             held, 4, np.zeros(9), np.random.default_rng(5),
+                             table_height=world.table.height)
+        for q in qs:
+            seen = _subpix_corners(cam.render(dict(zip([j.name for j in desc.joints], q)),
+                                              cell_poses(world)))
+            assert spec.id in seen, q
+            want = _project(cam, _marker_corners_in_root(spec, kin.forward(q) @ held))
+            err = np.linalg.norm(seen[spec.id] - want, axis=1)
+            assert err.max() < 0.5, (q, err)
+    with pytest.raises(RenderError, match="no marker in the marker map"):
+        RenderedCamera(desc, world, mm, held={"teapot": held})
+
+
 def test_objects_not_given_are_out_of_view(scene):
     _desc, world, cam = scene
     poses = cell_poses(world)
