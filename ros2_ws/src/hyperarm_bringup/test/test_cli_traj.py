@@ -38,7 +38,7 @@ def test_traj_sends_a_file_refuses_bad_ones_and_cancels_on_ctrl_c(
     from sensor_msgs.msg import JointState
 
     from hyperarm_description import contract
-    from hyperarm_description.qos import qos_for
+    from hyperarm_description.qos import observer_qos, qos_for
 
     # nothing serves the action: a clear error, exit 1
     r = _run(executable, "traj", str(_wave()), "--timeout", "2")
@@ -55,7 +55,7 @@ def test_traj_sends_a_file_refuses_bad_ones_and_cancels_on_ctrl_c(
                               lambda m: states.update(zip(m.name, m.position)),
                               qos_for(contract.JOINT_STATES))
     probe.create_subscription(JointState, contract.JOINT_COMMAND, commands.append,
-                              qos_for(contract.JOINT_COMMAND))
+                              observer_qos(contract.JOINT_COMMAND))
     executor.add_node(probe)
 
     def q():

@@ -46,7 +46,7 @@ class Probe:
 
         from hyperarm_control.client import TrajectoryClient
         from hyperarm_description import contract
-        from hyperarm_description.qos import qos_for
+        from hyperarm_description.qos import observer_qos, qos_for
 
         self.node = rclpy.create_node(name, namespace=contract.DEFAULT_NAMESPACE,
                                       context=context)
@@ -60,7 +60,7 @@ class Probe:
             JointState, contract.JOINT_COMMAND,
             lambda m: self.commands.append((time.monotonic(), np.array(
                 [dict(zip(m.name, m.position))[n] for n in NAMES]))),
-            qos_for(contract.JOINT_COMMAND))
+            observer_qos(contract.JOINT_COMMAND))
         self.client = TrajectoryClient(self.node)
         executor.add_node(self.node)
 

@@ -45,7 +45,7 @@ def test_follows_rejects_preempts_and_stops(launch, rclpy_context, executor, wai
     from trajectory_msgs.msg import JointTrajectory
 
     from hyperarm_description import contract
-    from hyperarm_description.qos import qos_for
+    from hyperarm_description.qos import observer_qos, qos_for
 
     launch("hyperarm_driver", "mock_driver")
     ctl = launch("hyperarm_control", "arm_controller",
@@ -61,7 +61,7 @@ def test_follows_rejects_preempts_and_stops(launch, rclpy_context, executor, wai
                               qos_for(contract.JOINT_STATES))
     probe.create_subscription(JointState, contract.JOINT_COMMAND,
                               lambda m: commands.append(dict(zip(m.name, m.position))),
-                              qos_for(contract.JOINT_COMMAND))
+                              observer_qos(contract.JOINT_COMMAND))
     probe.create_subscription(DiagnosticArray, contract.DIAGNOSTICS,
                               lambda m: diags.extend(s for s in m.status
                                                      if s.name == "arm_controller"),
@@ -132,7 +132,7 @@ def test_late_and_out_of_order_joint_states_are_not_used(launch, rclpy_context, 
     from trajectory_msgs.msg import JointTrajectory
 
     from hyperarm_description import contract
-    from hyperarm_description.qos import qos_for
+    from hyperarm_description.qos import observer_qos, qos_for
 
     ctl = launch("hyperarm_control", "arm_controller", params={"diagnostics_period": 0.2})
     probe = rclpy.create_node("arm_controller_probe2", namespace=contract.DEFAULT_NAMESPACE,
@@ -145,7 +145,7 @@ def test_late_and_out_of_order_joint_states_are_not_used(launch, rclpy_context, 
                               qos_for(contract.DIAGNOSTICS))
     probe.create_subscription(JointState, contract.JOINT_COMMAND,
                               lambda m: commands.append(list(m.position)),
-                              qos_for(contract.JOINT_COMMAND))
+                              observer_qos(contract.JOINT_COMMAND))
     states = probe.create_publisher(JointState, contract.JOINT_STATES,
                                     qos_for(contract.JOINT_STATES))
     traj = probe.create_publisher(JointTrajectory, "arm_controller/joint_trajectory", 10)
@@ -181,7 +181,7 @@ def test_a_goal_running_at_shutdown_is_aborted_saying_so(launch, rclpy_context, 
 
     from hyperarm_control.client import TrajectoryClient, goal_from_points
     from hyperarm_description import contract
-    from hyperarm_description.qos import qos_for
+    from hyperarm_description.qos import observer_qos, qos_for
 
     launch("hyperarm_driver", "mock_driver")
     ctl = launch("hyperarm_control", "arm_controller")
@@ -193,7 +193,7 @@ def test_a_goal_running_at_shutdown_is_aborted_saying_so(launch, rclpy_context, 
                               lambda m: states.update(zip(m.name, m.position)),
                               qos_for(contract.JOINT_STATES))
     probe.create_subscription(JointState, contract.JOINT_COMMAND, commands.append,
-                              qos_for(contract.JOINT_COMMAND))
+                              observer_qos(contract.JOINT_COMMAND))
     client = TrajectoryClient(probe)
     executor.add_node(probe)
     wait_for(lambda: client.server_ready() and all(n in states for n in NAMES), 60.0,

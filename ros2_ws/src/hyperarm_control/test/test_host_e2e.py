@@ -40,7 +40,7 @@ from std_srvs.srv import SetBool, Trigger
 
 from hyperarm_description import contract
 from rclpy.duration import Duration
-from hyperarm_description.qos import qos_for
+from hyperarm_description.qos import observer_qos, qos_for
 from hyperarm_ik.kinematics import Kinematics, rotation_angle
 from hyperarm_ik.ros_conversions import pose_to_matrix
 
@@ -118,9 +118,9 @@ class Probe:
         n = self.node
         n.create_subscription(JointState, contract.JOINT_STATES, self._on_state,
                               qos_for(contract.JOINT_STATES))
-        deep = qos_for(contract.JOINT_COMMAND)
-        deep.depth = 200      # the test counts every command: it must not drop any itself
-        n.create_subscription(JointState, contract.JOINT_COMMAND, self._on_command, deep)
+        # the test counts every command: it must not drop any itself
+        n.create_subscription(JointState, contract.JOINT_COMMAND, self._on_command,
+                              observer_qos(contract.JOINT_COMMAND))
         n.create_subscription(WrenchStamped, contract.BASE_REACTION, self._on_reaction,
                               qos_for(contract.BASE_REACTION))
         keep = qos_for(contract.HOST_POSE)

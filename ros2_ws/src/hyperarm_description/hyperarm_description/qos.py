@@ -6,7 +6,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from .contract import QOS
 
-__all__ = ["qos_for", "NO_PUB_EVENTS", "NO_SUB_EVENTS", "DISCOVERY_SETTLE",
+__all__ = ["qos_for", "observer_qos", "NO_PUB_EVENTS", "NO_SUB_EVENTS", "DISCOVERY_SETTLE",
            "discovery_settle_left"]
 
 #: ``event_callbacks`` for a publisher / subscription with no QoS event handlers. rclpy's
@@ -30,6 +30,15 @@ def qos_for(topic: str) -> QoSProfile:
         raise KeyError(f"no QoS in the contract for topic {topic!r}") from None
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=int(s["depth"]),
                       reliability=_REL[s["reliability"]], durability=_DUR[s["durability"]])
+
+
+def observer_qos(topic: str, depth: int = 1000) -> QoSProfile:
+    """``topic``'s contract profile with a history of ``depth``: for an observer that must see
+    every message (a recorder, a test checking every command), where the contract's depth
+    (1 for joint_command: a driver wants only the newest) would let a busy reader lose some."""
+    q = qos_for(topic)
+    q.depth = depth
+    return q
 
 
 def action_server_qos() -> dict[str, QoSProfile]:
