@@ -81,6 +81,10 @@ class DynamixelDriverNode(Node):
             self.get_logger().warn(
                 f"{p['port']}: FTDI latency_timer is {latency} ms, each bus transaction will "
                 "wait that long; set it to 1 (docs/dynamixel.md, udev rule)")
+        #: torque_on_start still to apply: at the first connection, even one that comes only
+        #: after retries (servos powered after the driver started); never at a reconnection
+        #: after a lost link, which leaves torque off until someone turns it on
+        self._torque_on_start = bool(p["torque_on_start"])
         try:
             self._drv.connect()
         except StartupError as exc:
@@ -91,22 +95,29 @@ class DynamixelDriverNode(Node):
             self.get_logger().info(
                 f"{len(config.joints)} servos on {p['port']} at {p['baud']} baud, "
                 f"{'fast' if bus.fast else 'plain'} sync read, {p['rate']:g} Hz; torque off")
-            if p["torque_on_start"]:
-                try:
-                    self._drv.set_torque(True)
-                    self.get_logger().info("torque on (torque_on_start)")
-                except DynamixelError as exc:
-                    self.get_logger().error(f"torque_on_start: {exc}; torque stays off")
+            self._apply_torque_on_start()
         self.create_timer(self._period, self._tick)
         self.create_timer(self._diag_period, self._publish_diagnostics)
 
     def _declare_parameters(self) -> dict:
         return declare_parameters(self, PARAMETERS)
 
+    def _apply_torque_on_start(self) -> None:
+        if not self._torque_on_start:
+            return
+        self._torque_on_start = False
+        try:
+            self._drv.set_torque(True)
+            self.get_logger().info("torque on (torque_on_start)")
+        except DynamixelError as exc:
+            self.get_logger().error(f"torque_on_start: {exc}; torque stays off")
+
     # -- cycle -------------------------------------------------------------------------------
     def _tick(self) -> None:
         was_up = self._drv.connected
         state = self._drv.cycle()
+        if not was_up and self._drv.connected:
+            self._apply_torque_on_start()      # the first connection came only now
         for level, event in self._drv.pop_events():
             if level >= logging.ERROR:
                 self.get_logger().error(event)

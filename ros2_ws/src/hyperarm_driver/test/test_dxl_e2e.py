@@ -230,3 +230,34 @@ def test_e2e_torque_fuzz_near_limits_and_mode_switches(launch, tmp_path, wait_fo
              and r["inst"] == 0x83]
     assert max(ticks) >= j5.tick_limits[1] - 60, max(ticks)
     assert not re.search(r"Traceback", drv.output())
+
+
+def test_torque_on_start_waits_for_servos_that_come_up_late_never_a_reconnection(
+        launch, tmp_path, wait_for, executor, rclpy_context):
+    """torque_on_start with the servos not there yet (the driver started before the bus was
+    powered; a loaded start-up where the first transactions time out): torque comes on at
+    the first connection, however late. After the link is lost and comes back, torque stays
+    off until someone turns it on (a reconnection is not a start)."""
+    import signal
+
+    link, ctl = str(tmp_path / "ttyDXL"), str(tmp_path / "ctl")
+    drv = launch("hyperarm_driver", "dynamixel_driver", params={
+        "port": link, "torque_on_start": True, "reconnect_period": 0.2,
+        "diagnostics_period": 0.2})
+    wait_for(lambda: "retrying" in drv.output(), 30.0, what=f"the retries\n{drv.output()}")
+    emu = launch("hyperarm_driver", "dxl_emulator", "--link", link, "--control", ctl)
+    control = wait_for(lambda: _connect(ctl), 20.0, what="emulator control socket")
+    wait_for(lambda: all(servo(control, j.id)["torque_enable"] == 1 for j in CFG.joints), 20.0,
+             what=f"torque on at the late first connection\n{drv.output()}")
+    assert "torque on (torque_on_start)" in drv.output()
+    # the bus goes away and comes back (a new emulator: every servo's torque off)
+    emu.proc.send_signal(signal.SIGINT)
+    assert emu.proc.wait(timeout=10.0) == 0
+    wait_for(lambda: "port lost" in drv.output(), 10.0, what=f"the loss\n{drv.output()}")
+    launch("hyperarm_driver", "dxl_emulator", "--link", link, "--control", ctl)
+    control = wait_for(lambda: _connect(ctl), 20.0, what="the new emulator's control socket")
+    wait_for(lambda: drv.output().count("connected to") >= 2, 20.0,
+             what=f"the reconnection\n{drv.output()}")
+    time.sleep(1.0)
+    assert all(servo(control, j.id)["torque_enable"] == 0 for j in CFG.joints)
+    assert drv.output().count("torque on (torque_on_start)") == 1

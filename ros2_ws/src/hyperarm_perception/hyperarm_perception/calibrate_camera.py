@@ -3,7 +3,9 @@
 Moves the arm through ``--poses`` postures chosen to show the gripper's calibration target
 to the camera (:mod:`hyperarm_perception.calibration_postures`: random within the limits,
 seeded, collision-free, ordered by joint travel), each through ``arm_controller``'s
-FollowJointTrajectory action; at each, once the arm has settled, records tool0's pose
+FollowJointTrajectory action (a move aborted for its path or goal tolerance is tried again
+from where the arm stopped, twice at most, saying so); at each, once the arm has settled,
+records tool0's pose
 (FK of ``joint_states``) and the target's pose and covariance from ``detections``
 (``marker_detector``);
 then solves camera_link in the root frame (:func:`hyperarm_perception.handeye.calibrate_eye_to_hand`,
@@ -25,6 +27,12 @@ from pathlib import Path
 import numpy as np
 
 DEFAULT_OUTPUT = "camera_extrinsics.yaml"
+
+#: a move aborted for its path or goal tolerance (FollowJointTrajectory's error codes -4, -5:
+#: the arm fell behind, e.g. a stalled driver on a loaded computer) is tried again, from
+#: where the arm stopped, this many times; any other failure ends the calibration
+_RETRIES = 2
+_RETRY_CODES = (-4, -5)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -201,19 +209,29 @@ def run(args: argparse.Namespace) -> int:
         tools, targets, covariances = [], [], []
         here = start
         for i, q in enumerate(postures, 1):
-            # the controller's rest-to-rest cubic peaks at 1.5 d/T in velocity and 6 d/T^2 in
-            # acceleration: T keeps both within --speed of the limits
-            step = np.abs(q - here)
-            duration = max(1.0, float(np.max(1.5 * step / (args.speed * limits))),
-                           float(np.max(np.sqrt(6.0 * step / (args.speed * accels)))))
-            client.send(goal_from_points(names, [duration], [q.tolist()]))
-            sent = True
-            if not client.wait(duration + args.timeout):
-                raise RuntimeError(f"posture {i}: the move did not end")
-            status, result = client.result()
-            if status != 4:
+            for attempt in range(1 + _RETRIES):
+                # the controller's rest-to-rest cubic peaks at 1.5 d/T in velocity and
+                # 6 d/T^2 in acceleration: T keeps both within --speed of the limits
+                step = np.abs(q - here)
+                duration = max(1.0, float(np.max(1.5 * step / (args.speed * limits))),
+                               float(np.max(np.sqrt(6.0 * step / (args.speed * accels)))))
+                client.send(goal_from_points(names, [duration], [q.tolist()]))
+                sent = True
+                if not client.wait(duration + args.timeout):
+                    raise RuntimeError(f"posture {i}: the move did not end")
+                status, result = client.result()
+                if status == 4:
+                    break
                 reason = result.error_string if result is not None else "rejected"
-                raise RuntimeError(f"posture {i}: the move failed: {reason}")
+                code = result.error_code if result is not None else 0
+                if code not in _RETRY_CODES or attempt == _RETRIES:
+                    raise RuntimeError(f"posture {i}: the move failed: {reason}")
+                # off its path (a stall of the driver or the controller): again, from here
+                print(f"posture {i}/{len(postures)}: the move was aborted ({reason}); "
+                      "trying again from where the arm stopped", flush=True)
+                time.sleep(args.settle)
+                with listen.lock:
+                    here = np.array([listen.joints[n] for n in names])
             here = q
             time.sleep(args.settle)
             with listen.lock:        # only pictures taken after the settle, on the robot's clock

@@ -1,14 +1,18 @@
 """e2e: hand-eye calibration on the mock through the installed executables, as a user runs it
 on the robot: mock_driver (detections left to the camera), mock_camera (the gripper holding
 the calibration target), marker_detector, arm_controller, then calibrate_camera with a
-description whose camera is 2 cm and 5 deg off. The camera it writes is within 2 mm and
-0.5 deg of the mock's (the packaged description's), from rendered pictures; bad options and
+description whose camera is 2 cm and 5 deg off, the mock stalling once mid-move (the move is
+tried again). The camera it writes is within 2 mm and 0.5 deg of the mock's (the packaged
+description's), from rendered pictures; bad options and
 a missing robot are exit 1 with the reason."""
 from __future__ import annotations
 
 import math
+import os
 import re
+import signal
 import subprocess
+import time
 
 import numpy as np
 import pytest
@@ -38,7 +42,8 @@ def _perturbed_description(tmp_path):
     return out
 
 
-def test_calibration_recovers_the_mocks_camera(launch, executable, tmp_path, ros_domain):
+def test_calibration_recovers_the_mocks_camera(launch, executable, tmp_path, ros_domain,
+                                               wait_for):
     from hyperarm_description.mjcf import camera_link_pose
     from hyperarm_description.model import load_description
     from hyperarm_perception.calibration_postures import NOMINAL_TARGET, parse_pose
@@ -50,15 +55,32 @@ def test_calibration_recovers_the_mocks_camera(launch, executable, tmp_path, ros
     assert abs(np.linalg.norm(off[:3, 3] - truth[:3, 3]) - 0.02) < 1e-9
     assert abs(math.degrees(rotation_angle(off[:3, :3].T @ truth[:3, :3])) - 5.0) < 1e-6
 
-    launch("hyperarm_driver", "mock_driver", params={"detections": "none"})
+    mock = launch("hyperarm_driver", "mock_driver", params={"detections": "none"})
     launch("hyperarm_perception", "mock_camera", params={"calibration_target": NOMINAL_TARGET})
     launch("hyperarm_perception", "marker_detector")
     launch("hyperarm_control", "arm_controller")
     out = tmp_path / "extrinsics.yaml"
-    run = subprocess.run([executable("hyperarm_perception", "calibrate_camera"), "--poses",
-                          POSES, "--description", str(perturbed), "-o", str(out)],
-                         capture_output=True, text=True, timeout=240)
-    assert run.returncode == 0, run.stdout + run.stderr
+    log = tmp_path / "calibrate.log"
+    with open(log, "w") as fh:
+        proc = subprocess.Popen([executable("hyperarm_perception", "calibrate_camera"),
+                                 "--poses", POSES, "--description", str(perturbed),
+                                 "-o", str(out)], stdout=fh, stderr=subprocess.STDOUT,
+                                text=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    try:
+        # the mock stalls 0.6 s during the third move (as a loaded computer can): the
+        # controller aborts on stale joint_states, the calibration moves again from there
+        wait_for(lambda: "posture 2/" in log.read_text(), 120.0,
+                 what=f"the second posture\n{log.read_text()}")
+        time.sleep(0.5)
+        os.kill(mock.proc.pid, signal.SIGSTOP)
+        time.sleep(0.6)
+        os.kill(mock.proc.pid, signal.SIGCONT)
+        assert proc.wait(timeout=240) == 0, log.read_text()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    run = subprocess.CompletedProcess(proc.args, 0, log.read_text(), "")
+    assert "posture 3/12: the move was aborted" in run.stdout and "trying again" in run.stdout
     data = yaml.safe_load(out.read_text())
     got = parse_pose(" ".join(str(v) for v in data["camera"]["xyz"] + data["camera"]["rpy"]),
                      "camera")
@@ -77,10 +99,6 @@ def test_ctrl_c_during_a_move_cancels_it_and_writes_nothing(launch, executable, 
                                                           ros_domain, wait_for):
     """SIGINT while the arm moves to the second posture: arm_controller cancels the goal and
     holds, calibrate_camera exits 130 saying so, and no file is written."""
-    import os
-    import signal
-    import time
-
     from hyperarm_perception.calibration_postures import NOMINAL_TARGET
 
     launch("hyperarm_driver", "mock_driver", params={"detections": "none"})
