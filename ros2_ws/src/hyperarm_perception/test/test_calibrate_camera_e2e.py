@@ -20,7 +20,7 @@ import yaml
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
-POSES = "12"   # calibrate_camera's default
+POSES = "8"      # fewer than calibrate_camera's default 12: suite time (0.37 mm with 8 too)
 
 
 def _perturbed_description(tmp_path):
@@ -80,7 +80,7 @@ def test_calibration_recovers_the_mocks_camera(launch, executable, tmp_path, ros
         if proc.poll() is None:
             proc.kill()
     run = subprocess.CompletedProcess(proc.args, 0, log.read_text(), "")
-    assert "posture 3/12: the move was aborted" in run.stdout and "trying again" in run.stdout
+    assert "posture 3/8: the move was aborted" in run.stdout and "trying again" in run.stdout
     data = yaml.safe_load(out.read_text())
     got = parse_pose(" ".join(str(v) for v in data["camera"]["xyz"] + data["camera"]["rpy"]),
                      "camera")
@@ -88,7 +88,7 @@ def test_calibration_recovers_the_mocks_camera(launch, executable, tmp_path, ros
     turned = math.degrees(rotation_angle(got[:3, :3].T @ truth[:3, :3]))
     print(run.stdout, f"calibrated camera off the truth: {moved * 1e3:.2f} mm, {turned:.3f} deg")
     assert moved < 0.002 and turned < 0.5, (moved, turned, run.stdout)
-    assert data["residuals"]["inliers"] >= 10
+    assert data["residuals"]["inliers"] >= int(POSES) - 2       # at most 2 dropped
     target = parse_pose(" ".join(str(v) for v in data["target_in_tool0"]["xyz"]
                                  + data["target_in_tool0"]["rpy"]), "target")
     assert np.linalg.norm(target[:3, 3] - parse_pose(NOMINAL_TARGET, "t")[:3, 3]) < 0.003
@@ -109,13 +109,13 @@ def test_ctrl_c_during_a_move_cancels_it_and_writes_nothing(launch, executable, 
     log = tmp_path / "calibrate.log"
     with open(log, "w") as fh:
         proc = subprocess.Popen([executable("hyperarm_perception", "calibrate_camera"),
-                                 "--speed", "0.1", "-o", str(out)], stdout=fh,
+                                 "--poses", "3", "-o", str(out)], stdout=fh,
                                 stderr=subprocess.STDOUT, text=True,
                                 env=dict(os.environ, PYTHONUNBUFFERED="1"))
     try:
         wait_for(lambda: "posture 1/" in log.read_text(), 120.0,
                  what=f"the first posture\n{log.read_text()}")
-        time.sleep(1.0)                  # under way to the second (a slow move: >= 1 s)
+        time.sleep(0.4)                  # under way to the second (a move lasts >= 1 s)
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=15.0) == 130, log.read_text()
     finally:
