@@ -34,6 +34,10 @@ DEFAULT_OUTPUT = "camera_extrinsics.yaml"
 _RETRIES = 2
 _RETRY_CODES = (-4, -5)
 
+#: s after the settle within which a picture must show the target, else the posture is
+#: skipped (a camera at 10 Hz with a detector behind it; more on a loaded computer)
+_SEEN_WITHIN = 6.0
+
 
 def _parser() -> argparse.ArgumentParser:
     from .calibration_postures import NOMINAL_TARGET
@@ -52,6 +56,10 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--speed", type=float, default=0.3,
                     help="fraction of the joints' velocity and acceleration limits the moves "
                          "peak at (default 0.3)")
+    ap.add_argument("--path-tolerance", type=float, default=0.3,
+                    help="rad each joint may fall behind its path before arm_controller aborts "
+                         "the move (default 0.3: the path is collision-checked and a lagging "
+                         "arm stays on it; arm_controller's own default is 0.1)")
     ap.add_argument("--settle", type=float, default=0.5,
                     help="s to wait after each move before using a detection (default 0.5)")
     ap.add_argument("--timeout", type=float, default=30.0,
@@ -166,6 +174,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--poses must be >= 3, got {args.poses}")
     if not 0.0 < args.speed <= 1.0:
         raise ValueError(f"--speed must be in (0, 1], got {args.speed}")
+    if not 0.0 < args.path_tolerance <= 1.0:
+        raise ValueError(f"--path-tolerance must be in (0, 1] rad, got {args.path_tolerance}")
     if not 0.0 <= args.settle <= 60.0 or not 0.0 < args.timeout <= 3600.0:
         raise ValueError(f"--settle must be in [0, 60] s and --timeout in (0, 3600] s, got "
                          f"{args.settle} and {args.timeout}")
@@ -183,6 +193,7 @@ def run(args: argparse.Namespace) -> int:
     kin = Kinematics(desc)
     names = [j.name for j in desc.joints]
     limits = np.array([j.velocity for j in desc.joints])
+    path_tolerance = {n: args.path_tolerance for n in names}
     accels = np.array([j.acceleration for j in desc.joints])
 
     rclpy.init(args=[])
@@ -215,7 +226,8 @@ def run(args: argparse.Namespace) -> int:
                 step = np.abs(q - here)
                 duration = max(1.0, float(np.max(1.5 * step / (args.speed * limits))),
                                float(np.max(np.sqrt(6.0 * step / (args.speed * accels)))))
-                client.send(goal_from_points(names, [duration], [q.tolist()]))
+                client.send(goal_from_points(names, [duration], [q.tolist()],
+                                             path_tolerance=path_tolerance))
                 sent = True
                 if not client.wait(duration + args.timeout):
                     raise RuntimeError(f"posture {i}: the move did not end")
@@ -237,7 +249,7 @@ def run(args: argparse.Namespace) -> int:
             with listen.lock:        # only pictures taken after the settle, on the robot's clock
                 since = listen.joints_stamp
             try:
-                _wait(lambda: any(d[0] >= since for d in listen.detections), 3.0,
+                _wait(lambda: any(d[0] >= since for d in listen.detections), _SEEN_WITHIN,
                       "detection of the target")
             except RuntimeError:
                 print(f"posture {i}/{len(postures)}: target not seen, skipped", flush=True)
