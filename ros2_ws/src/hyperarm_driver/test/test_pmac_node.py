@@ -47,11 +47,20 @@ class Probe:
                         "hold": self.node.create_client(Trigger, contract.RAIL_HOLD),
                         "torque": self.node.create_client(SetBool, contract.RAIL_SET_TORQUE)}
         self._types = {"home": Trigger, "hold": Trigger, "torque": SetBool}
+        self._settled: set[str] = set()
         executor.add_node(self.node)
 
     def call(self, name: str, wait_for, data: bool | None = None):
+        from hyperarm_description.qos import DISCOVERY_SETTLE
+
         cli = self.clients[name]
         wait_for(cli.service_is_ready, 10.0, what=f"service {cli.srv_name}")
+        if name not in self._settled:
+            # the server must also match this client's response reader (DDS discovers each
+            # direction on its own): a response sent before that is dropped (a fresh-clone
+            # run waited 5 s for rail/set_torque's answer); once per client
+            time.sleep(DISCOVERY_SETTLE)
+            self._settled.add(name)
         req = self._types[name].Request()
         if data is not None:
             req.data = data
