@@ -47,7 +47,7 @@ class Probe:
                         "hold": self.node.create_client(Trigger, contract.RAIL_HOLD),
                         "torque": self.node.create_client(SetBool, contract.RAIL_SET_TORQUE)}
         self._types = {"home": Trigger, "hold": Trigger, "torque": SetBool}
-        self._settled: set[str] = set()
+        self._settled = False
         executor.add_node(self.node)
 
     def call(self, name: str, wait_for, data: bool | None = None):
@@ -55,12 +55,15 @@ class Probe:
 
         cli = self.clients[name]
         wait_for(cli.service_is_ready, 10.0, what=f"service {cli.srv_name}")
-        if name not in self._settled:
-            # the server must also match this client's response reader (DDS discovers each
+        if not self._settled:
+            # the server must also match the clients' response readers (DDS discovers each
             # direction on its own): a response sent before that is dropped (a fresh-clone
-            # run waited 5 s for rail/set_torque's answer); once per client
+            # run waited 5 s for rail/set_torque's answer); once, for every client, at the
+            # first call (a later one may be timed, e.g. a hold during a move)
+            for other in self.clients.values():
+                wait_for(other.service_is_ready, 10.0, what=f"service {other.srv_name}")
             time.sleep(DISCOVERY_SETTLE)
-            self._settled.add(name)
+            self._settled = True
         req = self._types[name].Request()
         if data is not None:
             req.data = data
