@@ -163,8 +163,8 @@ def run(args: argparse.Namespace) -> int:
     from hyperarm_control.client import TrajectoryClient, goal_from_points
     from hyperarm_description import contract
     from hyperarm_description.mjcf import camera_link_pose
-    from hyperarm_description.model import load_description, read_yaml
-    from hyperarm_description.world import MOCK_WORLD_KEYS, parse_world
+    from hyperarm_description.model import load_description
+    from hyperarm_description.world import load_world
     from hyperarm_ik.collision import CollisionModel
     from hyperarm_ik.kinematics import Kinematics
 
@@ -189,10 +189,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         from ament_index_python.packages import get_package_share_directory
         cell = Path(get_package_share_directory("hyperarm_driver")) / "config" / "workcell.yaml"
-    data = read_yaml(cell, "work-cell file")
-    if not isinstance(data, dict) or "world" not in data:
-        raise ValueError(f"{cell}: no 'world' mapping at the top level")
-    world = parse_world(data["world"], extra_keys=MOCK_WORLD_KEYS)
+    world = load_world(cell)
     kin = Kinematics(desc)
     names = [j.name for j in desc.joints]
     limits = np.array([j.velocity for j in desc.joints])

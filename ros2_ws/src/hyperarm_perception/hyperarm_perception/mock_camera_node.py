@@ -32,11 +32,11 @@ from sensor_msgs.msg import CameraInfo, Image, JointState
 from hyperarm_description import contract
 from hyperarm_description.freshness import stamp_seconds
 from hyperarm_description.log_throttle import ReasonThrottle
-from hyperarm_description.model import DescriptionError, read_yaml
+from hyperarm_description.model import DescriptionError
 from hyperarm_description.params import OneOf, ParamSpec, Range, declare_parameters
 from hyperarm_description.qos import qos_for
 from hyperarm_description.ros_main import declare_robot_description, run_node
-from hyperarm_description.world import MOCK_WORLD_KEYS, parse_world
+from hyperarm_description.world import load_world
 from hyperarm_ik.ros_conversions import pose_to_matrix
 from hyperarm_interfaces.msg import Detections
 
@@ -92,10 +92,7 @@ class MockCameraNode(Node):
         p = declare_parameters(self, PARAMETERS)
         try:
             cell = Path(p["workcell_file"]) if p["workcell_file"] else _default_workcell()
-            data = read_yaml(cell, "work-cell file")
-            if not isinstance(data, dict) or "world" not in data:
-                raise DescriptionError(f"{cell}: no 'world' mapping at the top level")
-            world = parse_world(data["world"], extra_keys=MOCK_WORLD_KEYS)
+            world = load_world(cell)
             markers = load_marker_map(p["marker_map"] or None)
             held = ({"calibration_target": parse_pose(p["calibration_target"],
                                                       "calibration_target")}
