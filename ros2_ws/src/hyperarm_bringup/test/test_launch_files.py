@@ -761,6 +761,7 @@ def test_launched_controllers_serve_their_actions_and_stay_silent(
     from rclpy.action import ActionClient
     from sensor_msgs.msg import JointState
 
+    from hyperarm_control.client import in_executor
     from hyperarm_description import contract
     from hyperarm_description.model import load_description
     from hyperarm_description.qos import qos_for
@@ -788,9 +789,9 @@ def test_launched_controllers_serve_their_actions_and_stay_silent(
     # the probe does hear joint_command: a gripper goal (open) streams it, gripper only
     goal = GripperCommand.Goal()
     goal.command.position = float(load_description(None, variant).gripper.upper)
-    sent = clients["gripper_controller"].send_goal_async(goal)
+    sent = in_executor(node, lambda: clients["gripper_controller"].send_goal_async(goal))
     wait_for(lambda: sent.done(), 30.0, what="the gripper goal's acceptance")
-    result = sent.result().get_result_async()
+    result = in_executor(node, sent.result().get_result_async)
     wait_for(lambda: result.done(), 30.0, what="the gripper goal's result")
     assert result.result().result.reached_goal, result.result()
     assert commands and all(list(c.name) == ["gripper"] for c in commands), commands[:3]

@@ -15,12 +15,13 @@ import math
 import threading
 import time
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Callable, Mapping, Sequence
 
 from control_msgs.action import FollowJointTrajectory
 from control_msgs.msg import JointTolerance
 from rclpy.action import ActionClient
 from rclpy.node import Node
+from rclpy.task import Future
 
 from hyperarm_description import contract
 from hyperarm_description.qos import discovery_settle_left
@@ -28,7 +29,7 @@ from hyperarm_description.qos import discovery_settle_left
 from .messages import point
 
 __all__ = ["ACTION", "TrajectoryClient", "TrajectoryFileError", "goal_from_points",
-           "goal_from_file", "RESULT_NAMES"]
+           "goal_from_file", "RESULT_NAMES", "in_executor"]
 
 ACTION = contract.ARM_TRAJECTORY_ACTION
 
@@ -134,6 +135,29 @@ def goal_from_file(path: str | Path) -> FollowJointTrajectory.Goal:
                             data.get("path_tolerance"), data.get("goal_time_tolerance", 0.0))
 
 
+def in_executor(node: Node, start: Callable[[], Future]) -> Future:
+    """Call ``start`` (which sends a request, e.g. ``lambda: client.send_goal_async(goal)``)
+    in the thread that spins ``node``, and return a future of its future's result.
+
+    rclpy 7.1.6's ActionClient stores a request's sequence number only after the request has
+    gone out (ros2/rclpy#1123, fixed upstream by #1308, not in the Jazzy wheels on PyPI). An
+    executor spinning in another thread can take the answer in between: rclpy logs "Ignoring
+    unexpected goal response" and the future never completes (a CI run: a gripper goal never
+    answered). Sent from the executor's own thread, the answer cannot be taken before. A
+    node that no executor spins yet calls ``start`` at once (nothing can race it then)."""
+    executor = node.executor
+    if executor is None:
+        return start()
+    answer = Future(executor=executor)
+
+    def send() -> None:
+        sent = start()
+        sent.add_done_callback(lambda f: answer.set_result(f.result()))
+
+    executor.create_task(send)
+    return answer
+
+
 class TrajectoryClient:
     """One goal at a time on ``action`` (relative to ``node``'s namespace)."""
 
@@ -158,7 +182,8 @@ class TrajectoryClient:
         # the server must also have matched this client's response reader (DDS discovers
         # in its own threads: a sleep is enough)
         time.sleep(discovery_settle_left(self._created, time.monotonic()))
-        fut = self._client.send_goal_async(goal, feedback_callback=self._on_feedback)
+        fut = in_executor(self._node, lambda: self._client.send_goal_async(
+            goal, feedback_callback=self._on_feedback))
         fut.add_done_callback(self._on_response)
 
     def _on_feedback(self, msg) -> None:
@@ -193,7 +218,7 @@ class TrajectoryClient:
         with self._lock:
             handle = self._handle
         if handle is not None:
-            handle.cancel_goal_async()
+            in_executor(self._node, handle.cancel_goal_async)
 
     def result(self) -> tuple[int, FollowJointTrajectory.Result | None]:
         """(action status, result) once :meth:`done`; status is action_msgs' GoalStatus

@@ -97,11 +97,13 @@ class Probe:
     def send(self, position: float, max_effort: float, wait_for):
         goal = self.action.Goal()
         goal.command.position, goal.command.max_effort = float(position), float(max_effort)
-        fut = self.client.send_goal_async(goal)
+        from hyperarm_control.client import in_executor
+
+        fut = in_executor(self.node, lambda: self.client.send_goal_async(goal))
         wait_for(fut.done, 5.0, what="goal accepted")
         handle = fut.result()
         assert handle.accepted
-        return handle, handle.get_result_async()
+        return handle, in_executor(self.node, handle.get_result_async)
 
     def run(self, position: float, max_effort: float, wait_for, timeout: float = 10.0):
         _handle, res = self.send(position, max_effort, wait_for)
@@ -146,7 +148,9 @@ def test_gripper_command_on_the_mock(launch, executor, rclpy_context, wait_for):
     # 3. cancel mid-close: holds where it is
     handle, res = p.send(0.0, 0.0, wait_for)
     time.sleep(0.15)
-    cancel = handle.cancel_goal_async()
+    from hyperarm_control.client import in_executor
+
+    cancel = in_executor(p.node, handle.cancel_goal_async)
     wait_for(res.done, 5.0, what="the cancelled goal's end")
     assert res.result().status == CANCELED
     time.sleep(0.3)          # the servo brakes (its profile) and returns to the hold

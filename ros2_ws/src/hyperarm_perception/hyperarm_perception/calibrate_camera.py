@@ -159,6 +159,7 @@ def _yaml(result, desc, used: int, tried: int) -> str:
 def run(args: argparse.Namespace) -> int:
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
+    from rclpy.signals import SignalHandlerOptions
 
     from hyperarm_control.client import TrajectoryClient, goal_from_points
     from hyperarm_description import contract
@@ -196,7 +197,9 @@ def run(args: argparse.Namespace) -> int:
     path_tolerance = {n: args.path_tolerance for n in names}
     accels = np.array([j.acceleration for j in desc.joints])
 
-    rclpy.init(args=[])
+    # our handlers (main) raise KeyboardInterrupt; rclpy's own would shut the context down
+    # and stop the executor before the cancel below could go out and be confirmed
+    rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node("calibrate_camera", namespace=contract.DEFAULT_NAMESPACE)
     executor = SingleThreadedExecutor()
     executor.add_node(node)

@@ -98,7 +98,7 @@ def test_calibration_recovers_the_mocks_camera(launch, executable, tmp_path, ros
 def test_ctrl_c_during_a_move_cancels_it_and_writes_nothing(launch, executable, tmp_path,
                                                           ros_domain, wait_for):
     """SIGINT while the arm moves to the second posture: arm_controller cancels the goal and
-    holds, calibrate_camera exits 130 saying so, and no file is written."""
+    holds and confirms it, calibrate_camera exits 130 saying so, and no file is written."""
     from hyperarm_perception.calibration_postures import NOMINAL_TARGET
 
     launch("hyperarm_driver", "mock_driver", params={"detections": "none"})
@@ -122,6 +122,7 @@ def test_ctrl_c_during_a_move_cancels_it_and_writes_nothing(launch, executable, 
         if proc.poll() is None:
             proc.kill()
     assert "interrupted; nothing written" in log.read_text() and not out.exists()
+    assert "did not confirm the cancel" not in log.read_text()   # its answer was heard
     wait_for(lambda: "goal cancelled, holding" in ctl.output(), 5.0,
              what=f"the cancel\n{ctl.output()}")
 
