@@ -331,6 +331,32 @@ def test_commanded_efforts_stay_within_the_margin_after_calibration(kin):
         assert peak <= 1.0 + 1e-9, (output, peak)
 
 
+def test_a_press_beyond_the_joints_limits_is_scaled_whole_in_the_position_output(kin):
+    """The 'position' output with torque_margin 0.3 (joint limits well below what a 30 N
+    press needs at Q_PRESS): every cycle the law's wrench, with gravity, fits every joint's
+    limit at rest (|g + J^T F| <= stall x margin), the joint scale says it acted, and the
+    force-controlled axis keeps its direction (z only). Fails on the law before, which
+    clipped each joint's torque apart: joint_scale stayed 1 and |g + J^T F| exceeded the
+    limits."""
+    law = HybridLaw(kin, LawConfig(torque_margin=0.3))
+    q = Q_PRESS.copy()
+    law.reset(q)
+    t = kin.forward(q)
+    quat = pin.Quaternion(t[:3, :3])
+    goal = make_goal(kin, law.config, kin.root_frame, t[:3, 3] - [0.0, 0.0, 0.015],
+                     [quat.x, quat.y, quat.z, quat.w], [800.0, 800.0, 4000.0, 20.0, 20.0, 20.0],
+                     [False, False, True, False, False, False], [0.0] * 6)
+    scales = []
+    for _ in range(100):
+        cmd = law.step(q, np.zeros(9), goal, 0.01, output="position")
+        need = cmd.gravity + cmd.jacobian.T @ cmd.wrench
+        assert np.all(np.abs(need) <= law.limit + 1e-9), (need, law.limit)
+        assert cmd.wrench[2] < 0.0 and abs(cmd.wrench[0]) < 1.0 and abs(cmd.wrench[1]) < 1.0
+        scales.append(cmd.joint_scale)
+    print(f"joint scale {min(scales):.3f}..{max(scales):.3f}; press {-cmd.wrench[2]:.2f} N")
+    assert max(scales[-50:]) < 1.0        # once the reference is deep (it ramps down)
+
+
 # -- the estimate's covariance counts the friction left after calibration -------------------
 
 def test_estimate_covariance_counts_the_friction_the_filter_does_not_remove(kin):

@@ -567,17 +567,32 @@ class HybridLaw:
         # K err - D v + F_d, scaled into the wrench limit as a whole 6-D wrench
         dtw = self._d * twist
         f = kk * err - dtw
-        wscale = 1.0
+        wscale = jscale = 1.0
         if any_force:
             f_law, wscale = scale_wrench(f + dk * err + goal.wrench, cfg.max_force,
                                          cfg.max_moment)
-            f = np.where(s, f_law, f)
+            # the joints' torque limits: the force axes' wrench is scaled (its direction
+            # kept) so that gravity, the position axes' wrench and it fit every joint's
+            # limit at rest. Clipped per joint instead, a saturated joint bent the wrench
+            # the others made: the press fell to 5-7 N of 30 and the tool slid sideways
+            # on the axes meant to hold (issue 24, item 7)
+            f_pos = np.where(s, 0.0, f)
+            f_frc = np.where(s, f_law, 0.0)
+            _, jscale = scale_into_limits(g + j.T @ f_pos, j.T @ f_frc, limit)
+            f = f_pos + jscale * f_frc
         f_s = jjt_inv @ (j @ (ks * (self._q_cmd - qa)))
         dx = gain * np.linalg.solve(ks * jjt_inv + diag_k, f - f_s)
         # the pseudo-goal moves at max_speed / max_angular_speed at most (a force axis
-        # with K = 0 and F_d would otherwise accelerate the tool in free space)
-        _cap_into(dx, 0, cfg.max_speed * dt)
-        _cap_into(dx, 3, cfg.max_angular_speed * dt)
+        # with K = 0 and F_d would otherwise accelerate the tool in free space); the force
+        # axes and the position axes each have that budget: a soft arm presses by sending
+        # its pseudo-goal far along the force axis, and one shared cap then starved the
+        # position axes' correction (issue 24: the tool slid 3 mm sideways while z pressed)
+        lin, ang = cfg.max_speed * dt, cfg.max_angular_speed * dt
+        if any_force:
+            _cap_apart(dx, s, lin, ang)
+        else:
+            _cap_into(dx, 0, lin)
+            _cap_into(dx, 3, ang)
         # J^+ dx + N v with v = (position_filter / k_s) tau_0: v + J^T M^-1 (dx - J v)
         v = self._posture_torque(qa, cfg.position_filter / ks)
         step = v + j.T @ (jjt_inv @ (dx - j @ v))
@@ -613,8 +628,8 @@ class HybridLaw:
         np.minimum(tau, limit, out=tau)
         self._tau_prev = tau
         return Command(tau=tau, gravity=g, q_cmd=q_out, effort_limit=effort, wrench=f,
-                       error=err, wrench_scale=wscale, jacobian=j, rotation=r, jjt=jjt,
-                       step_limited=step_limited)
+                       error=err, wrench_scale=wscale, joint_scale=jscale, jacobian=j,
+                       rotation=r, jjt=jjt, step_limited=step_limited)
 
     def _limit_step(self, q_out: np.ndarray, qa: np.ndarray,
                     dt: float) -> tuple[np.ndarray, bool]:
@@ -676,6 +691,17 @@ class HybridLaw:
         if not near.any():
             return []
         return [n for n, b in zip(self.arm_names, near) if b]
+
+
+def _cap_apart(v: np.ndarray, mask: np.ndarray, lin: float, ang: float) -> None:
+    """Scale, in place, the masked and the unmasked entries of ``v``'s linear part (0:3)
+    each down to norm ``lin`` if longer, and those of its angular part (3:6) to ``ang``."""
+    for part, bound in ((slice(0, 3), lin), (slice(3, 6), ang)):
+        seg, m = v[part], mask[part]
+        for sel in (m, ~m):
+            n = math.sqrt(float(seg[sel] @ seg[sel]))
+            if n > bound:
+                seg[sel] *= bound / n
 
 
 def _cap_into(v: np.ndarray, i: int, bound: float) -> None:
