@@ -60,3 +60,29 @@ def test_tracking_is_reseeded_from_the_last_success_only():
     bench.run_track(kin, bench.Adapter("fake", solve), "x", targets, (1e-3, 1e-3),
                     reseed="returned")
     np.testing.assert_array_equal(seeds[2], np.full(9, 2.9))
+
+
+ALL_BUT_FIGURE8 = ["random", "tight", "figure8_wide", "near_limit", "unreachable", "impossible",
+                   "collision", "sensitivity", "rail", "service"]
+
+
+def test_figure8_option_places_the_pattern_and_says_so(capsys):
+    """``--figure8 CX CY CZ HALF_WIDTH HALF_HEIGHT`` runs the figure8 set on that figure-8
+    (Table II's pattern row depends on where it is, docs/benchmarks/ik.md) and notes it."""
+    bench.main(["--count", "4", "--figure8", "0.2", "0", "0.35", "0.2", "0.1",
+                "--service-count", "0", "--skip", *ALL_BUT_FIGURE8])
+    out = capsys.readouterr().out
+    assert "| figure8 | pinv | 4 |" in out
+    assert "figure8 set on centre (0.2, 0.0, 0.35) m, half width 0.2 m" in out
+
+
+@pytest.mark.parametrize("values, says", [
+    (["0.2", "0", "0.35", "-1", "0.1"], "half_width must be > 0"),
+    (["0.2", "0", "nan", "0.2", "0.1"], "center must be 3 finite numbers"),
+])
+def test_a_bad_figure8_is_a_usage_error_naming_it(capsys, values, says):
+    with pytest.raises(SystemExit) as exc:
+        bench.main(["--figure8", *values, "--skip", *ALL_BUT_FIGURE8])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "--figure8:" in err and says in err, err

@@ -53,7 +53,7 @@ import pinocchio as pin
 from hyperarm_description.urdf import generate_urdf
 
 from ..kinematics import Kinematics, rotation_angle
-from ..paths import FIGURE8, FIGURE8_WIDE, hold_orientation
+from ..paths import FIGURE8, FIGURE8_WIDE, Figure8, hold_orientation
 from ..solvers import make_solver
 from . import ik_studies as studies
 
@@ -542,6 +542,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--markdown", type=Path, default=None,
                     help="a markdown file whose ik_benchmark block is replaced by the results")
     ap.add_argument("--skip", nargs="*", default=[], help="set names to skip")
+    ap.add_argument("--figure8", type=float, nargs=5, default=None,
+                    metavar=("CX", "CY", "CZ", "HALF_WIDTH", "HALF_HEIGHT"),
+                    help="the figure8 set's figure-8 (m, root frame; default: "
+                         "hyperarm_ik.paths.FIGURE8): Table II's pattern row depends on it")
     args = ap.parse_args(argv)
 
     t_start = time.perf_counter()
@@ -549,8 +553,18 @@ def main(argv: list[str] | None = None) -> None:
     kin = Kinematics()
     rng = np.random.default_rng(args.seed)
     random_set = random_targets(kin, args.count, rng)
-    fig8 = figure8_targets(kin, args.count)
+    try:
+        figure = FIGURE8 if args.figure8 is None else Figure8(
+            center=tuple(args.figure8[:3]), half_width=args.figure8[3],
+            half_height=args.figure8[4])
+    except ValueError as exc:
+        ap.error(f"--figure8: {exc}")
+    fig8 = figure8_targets(kin, args.count, figure)
     notes: list[str] = []
+    if figure != FIGURE8:
+        notes.append(f"figure8 set on centre {figure.center} m, half width "
+                     f"{figure.half_width} m, half height {figure.half_height} m "
+                     f"(not paths.FIGURE8)")
 
     def peers(tol, timeout):
         out = []
