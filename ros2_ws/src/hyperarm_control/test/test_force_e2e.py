@@ -279,8 +279,9 @@ def test_pressing_on_a_peg_top_with_the_mock(launch, rclpy_context, executor, wa
                                              tmp_path):
     """Calibrated first (hybrid_force_calibrate on the mock), the held block pressed on the
     destination peg's top with z force-controlled: the true contact force settles within
-    10 % or 0.2 N of |K (X0 - X) + F_d| for K 200 and 1000 N/m (and 400 N/m with F_d),
-    x and y hold within 2 mm, the calibrated ee_wrench agrees with the truth within 15 %
+    10 % or 0.2 N of |K (X0 - X) + F_d| for K 200 and 1000 N/m (and 400 N/m with F_d; and
+    4000 N/m, capped at the 30 N wrench limit), x and y hold within 2 mm through each whole
+    press, the calibrated ee_wrench agrees with the truth within 15 %
     (an uncalibrated node beside it gives the figure before calibration; the calibration
     includes each servo's Coulomb friction, which the creeping joints of a pressing arm
     otherwise add to the estimate), and no commanded effort exceeds a servo's limit."""
@@ -331,7 +332,7 @@ def test_pressing_on_a_peg_top_with_the_mock(launch, rclpy_context, executor, wa
     x0[2] = top + 0.015 - depth                        # X0: `depth` below the peg's top
     t_start = time.monotonic()
     results = []
-    for k, fd in ((200.0, 0.0), (1000.0, 0.0), (400.0, -1.0)):
+    for k, fd in ((200.0, 0.0), (1000.0, 0.0), (400.0, -1.0), (4000.0, 0.0)):
         t_goal = time.monotonic()
         probe.send_goal(x0, rot, [800.0, 800.0, k, 20.0, 20.0, 20.0],
                         (False, False, True, False, False, False), (0, 0, fd, 0, 0, 0))
@@ -350,7 +351,8 @@ def test_pressing_on_a_peg_top_with_the_mock(launch, rclpy_context, executor, wa
         with probe.lock:
             std = probe.statuses[-1][1].get("wrench_std_tool", "") if probe.statuses else ""
         before_error = float(np.linalg.norm(est_before + f) / np.linalg.norm(f))
-        expected = abs(k * (x0[2] - xs[:, 2].mean()) + fd)
+        # at 4000 N/m the law asks 34 N: the wrench limit (max_force, 30 N) caps it
+        expected = min(abs(k * (x0[2] - xs[:, 2].mean()) + fd), 30.0)
         results.append(dict(K=k, F_d=fd, true=round(f_true, 3), expected=round(expected, 3),
                             est_error=round(est_error, 3),
                             est_normal=round(est_normal, 3),
@@ -360,8 +362,10 @@ def test_pressing_on_a_peg_top_with_the_mock(launch, rclpy_context, executor, wa
                             settled_s=round(waited, 1)))
         assert probe.block_state == "held"
         assert abs(f_true - expected) <= max(0.1 * expected, 0.2), results
-        # x and y hold (FK of the measured joints) while z presses
-        assert np.abs(xs[:, :2] - x0[:2]).max() < 0.002, (k, xs[:, :2].min(0), xs[:, :2].max(0))
+        # x and y hold (FK of the measured joints) while z presses: through the whole
+        # press, contact and its build-up included (issue 24 item 7: 2.7 mm at 4000 N/m
+        # before the pseudo-goal's position axes got their own speed budget)
+        assert np.abs(xy_all - x0[:2]).max() < 0.002, results
     print("pressing:", results)
     lim = np.array([j.effort for j in arm.desc.joints])
     with probe.lock:
