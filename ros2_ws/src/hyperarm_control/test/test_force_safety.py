@@ -357,6 +357,43 @@ def test_a_press_beyond_the_joints_limits_is_scaled_whole_in_the_position_output
     assert max(scales[-50:]) < 1.0        # once the reference is deep (it ramps down)
 
 
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_the_force_axes_wrench_changes_at_most_force_rate(kin, seed):
+    """Random goals (force axes, stiffness, F_d, depth) switched every 0.3 s at a fixed
+    posture (a tool held in contact), 'position' output: per cycle the force axes' force
+    changes at most force_rate x dt and their moment force_rate x max_moment / max_force x
+    dt; a position axis keeps the law's wrench. Fails without the rate (a goal switch
+    jumps the wrench at once)."""
+    rng = np.random.default_rng(seed)
+    law = HybridLaw(kin)
+    cfg = law.config
+    q = Q_PRESS.copy()
+    law.reset(q)
+    t = kin.forward(q)
+    quat = pin.Quaternion(t[:3, :3])
+    dt = 0.01
+    prev, prev_axes = None, None
+    for _ in range(10):
+        axes = [bool(b) for b in rng.random(6) < 0.5]
+        axes[2] = True
+        k = [800.0, 800.0, float(rng.uniform(0.0, 4000.0)), 20.0, 20.0, 20.0]
+        wrench = [0.0] * 6
+        wrench[2] = float(rng.uniform(-10.0, 10.0))
+        goal = make_goal(kin, cfg, kin.root_frame,
+                         t[:3, 3] + rng.uniform(-0.01, 0.01, 3), [quat.x, quat.y, quat.z, quat.w],
+                         k, axes, wrench)
+        s = np.array(axes)
+        for _ in range(30):
+            cmd = law.step(q, np.zeros(9), goal, dt, output="position")
+            if prev is not None and np.array_equal(prev_axes, s):
+                d = (cmd.wrench - prev)[s]
+                lin = np.linalg.norm((cmd.wrench - prev)[:3][s[:3]])
+                ang = np.linalg.norm((cmd.wrench - prev)[3:][s[3:]])
+                assert lin <= cfg.force_rate * dt + 1e-9, (lin, d)
+                assert ang <= cfg.force_rate * cfg.max_moment / cfg.max_force * dt + 1e-9
+            prev, prev_axes = cmd.wrench.copy(), s
+
+
 # -- the estimate's covariance counts the friction left after calibration -------------------
 
 def test_estimate_covariance_counts_the_friction_the_filter_does_not_remove(kin):

@@ -115,6 +115,9 @@ class LawConfig:
     workspace_margin: m beyond the arm's reach bound a goal may lie (else refused).
     max_speed / max_angular_speed: m/s, rad/s at which the law's reference follows the
       goal's X0 (a goal step is tracked as a ramp).
+    force_rate: N/s, the fastest change of the force axes' wrench in the ``position``
+      output (moments: x max_moment / max_force, N·m/s): presses build and release at
+      most this fast, so the position axes keep up in contact.
     posture_speed: rad/s at which the null-space posture spring's reference moves from the
       posture at :meth:`HybridLaw.reset` to ``posture`` (no null-space lurch at enable).
     transition_time: s over which whole-arm compliance fades in or out (its springs and
@@ -145,6 +148,7 @@ class LawConfig:
     workspace_margin: float = 0.02
     max_speed: float = 0.1
     max_angular_speed: float = 0.5
+    force_rate: float = 5.0
     posture_speed: float = 0.5
     transition_time: float = 0.5
 
@@ -172,7 +176,7 @@ class LawConfig:
                              ("max_linear_stiffness", 0.0, 1e6),
                              ("max_angular_stiffness", 0.0, 1e4),
                              ("workspace_margin", 0.0, 10.0), ("max_speed", 1e-3, 2.0),
-                             ("max_angular_speed", 1e-3, 10.0),
+                             ("max_angular_speed", 1e-3, 10.0), ("force_rate", 0.1, 1e4),
                              ("posture_speed", 1e-3, 10.0), ("transition_time", 0.0, 10.0)):
             _check(getattr(self, name), name, lo, hi)
         if not isinstance(self.servo_holds_gravity, bool):
@@ -418,6 +422,8 @@ class HybridLaw:
         self._tau_prev = np.zeros(self.na)
         self._q_cmd = np.zeros(self.na)
         self._q_out: np.ndarray | None = None        # the last position command sent
+        self._f_prev: np.ndarray | None = None       # the force axes' last wrench (rate)
+        self._f_prev_axes: np.ndarray | None = None  # ... and which axes they were
         self._compliance_posture = self.posture.copy()
         self._posture_ref = self.posture.copy()      # moves to posture at posture_speed
         self._compliance_w = 0.0                     # 0 off .. 1 on (fades)
@@ -464,6 +470,7 @@ class HybridLaw:
         self._tau_prev = self.gravity.torques(q, self.payload)[self.arm].copy()
         self._q_cmd = q[self.arm].copy()
         self._q_out = None
+        self._f_prev = None
         self._compliance_posture = q[self.arm].copy()
         self._posture_ref = q[self.arm].copy()
         self._compliance_w = 0.0
@@ -579,8 +586,8 @@ class HybridLaw:
             f_pos = np.where(s, 0.0, f)
             f_frc = np.where(s, f_law, 0.0)
             _, jscale = scale_into_limits(g + j.T @ f_pos, j.T @ f_frc, limit)
-            f = f_pos + jscale * f_frc
-        f_s = jjt_inv @ (j @ (ks * (self._q_cmd - qa)))
+            f = f_pos + self._rate_limited_force(jscale * f_frc, s, j, jjt_inv, qa, dt)
+        f_s = self._servo_wrench(j, jjt_inv, qa)
         dx = gain * np.linalg.solve(ks * jjt_inv + diag_k, f - f_s)
         # the pseudo-goal moves at max_speed / max_angular_speed at most (a force axis
         # with K = 0 and F_d would otherwise accelerate the tool in free space); the force
@@ -630,6 +637,36 @@ class HybridLaw:
         return Command(tau=tau, gravity=g, q_cmd=q_out, effort_limit=effort, wrench=f,
                        error=err, wrench_scale=wscale, joint_scale=jscale, jacobian=j,
                        rotation=r, jjt=jjt, step_limited=step_limited)
+
+    def _servo_wrench(self, j: np.ndarray, jjt_inv: np.ndarray, qa: np.ndarray) -> np.ndarray:
+        """F_s (N, N·m): the wrench the servos' springs k_s (q_cmd - q) make at the tool."""
+        return jjt_inv @ (j @ (self.config.servo_stiffness * (self._q_cmd - qa)))
+
+    def _rate_limited_force(self, f_frc: np.ndarray, s: np.ndarray, j: np.ndarray,
+                            jjt_inv: np.ndarray, qa: np.ndarray, dt: float) -> np.ndarray:
+        """The force axes' wrench ``f_frc`` (0 on position axes), its change since the
+        last cycle limited to ``force_rate`` x dt (N, linear part) and ``force_rate`` x
+        max_moment / max_force x dt (N·m, angular part), each part's direction kept. An
+        axis that was not force-controlled starts from the servos' present wrench on it.
+
+        In contact the position axes' forces converge only through the arm's own stiffness
+        (in about 1 s at the defaults): a press built or released faster left the servos
+        pushing sideways against friction, and the tool slipped when the normal force
+        fell (11-27 mm at 28 N -> 1.5 N, issue 24)."""
+        cfg = self.config
+        prev = self._f_prev
+        if prev is None or self._f_prev_axes is not s:
+            start = self._servo_wrench(j, jjt_inv, qa)
+            prev = np.where(s, start if prev is None else np.where(self._f_prev_axes, prev,
+                                                                  start), 0.0)
+        d = f_frc - prev
+        lin = cfg.force_rate * dt
+        ang = lin * (cfg.max_moment / cfg.max_force if cfg.max_force > 0.0 else 1.0)
+        _cap_into(d, 0, lin)
+        _cap_into(d, 3, ang)
+        out = prev + d
+        self._f_prev, self._f_prev_axes = out, s
+        return out
 
     def _limit_step(self, q_out: np.ndarray, qa: np.ndarray,
                     dt: float) -> tuple[np.ndarray, bool]:

@@ -92,6 +92,9 @@ PARAMETERS: ParamSpec = {
                         "axes", Range(1e-3, 1.0)),
     "force_filter": (_L.force_filter, "per-cycle gain of the pseudo-goal on force axes",
                      Range(1e-3, 1.0)),
+    "force_rate": (_L.force_rate, "N/s, fastest change of the force axes' wrench ('position' "
+                   "output; moments x max_moment/max_force): presses build and release at "
+                   "most this fast", Range(0.1, 1e4)),
     "compliance_stiffness": (_L.compliance_stiffness, "N·m/rad per joint in compliance mode",
                              Range(0.0, 100.0)),
     "transition_time": (_L.transition_time, "s over which whole-arm compliance fades in or "
