@@ -332,7 +332,9 @@ def test_pressing_on_a_peg_top_with_the_mock(launch, rclpy_context, executor, wa
     x0[2] = top + 0.015 - depth                        # X0: `depth` below the peg's top
     t_start = time.monotonic()
     results = []
-    for k, fd in ((200.0, 0.0), (1000.0, 0.0), (400.0, -1.0), (4000.0, 0.0)):
+    # the last: 28 N released to 1.5 N (issue 24: the tool slipped sideways, 11-26 mm in
+    # the core simulation, before force_rate)
+    for k, fd in ((200.0, 0.0), (1000.0, 0.0), (400.0, -1.0), (4000.0, 0.0), (200.0, 0.0)):
         t_goal = time.monotonic()
         probe.send_goal(x0, rot, [800.0, 800.0, k, 20.0, 20.0, 20.0],
                         (False, False, True, False, False, False), (0, 0, fd, 0, 0, 0))
