@@ -156,6 +156,23 @@ def _yaml(result, desc, used: int, tried: int) -> str:
             + f"method: {result.method}\n")
 
 
+def _check_options(args: argparse.Namespace) -> np.ndarray:
+    """The options' ranges, before anything heavy is imported (a typo is answered at once);
+    returns the nominal target pose in tool0 (4 x 4). Raises ValueError naming the option."""
+    from .calibration_postures import parse_pose
+
+    if args.poses < 3:
+        raise ValueError(f"--poses must be >= 3, got {args.poses}")
+    if not 0.0 < args.speed <= 1.0:
+        raise ValueError(f"--speed must be in (0, 1], got {args.speed}")
+    if not 0.0 < args.path_tolerance <= 1.0:
+        raise ValueError(f"--path-tolerance must be in (0, 1] rad, got {args.path_tolerance}")
+    if not 0.0 <= args.settle <= 60.0 or not 0.0 < args.timeout <= 3600.0:
+        raise ValueError(f"--settle must be in [0, 60] s and --timeout in (0, 3600] s, got "
+                         f"{args.settle} and {args.timeout}")
+    return parse_pose(args.target, "--target")
+
+
 def run(args: argparse.Namespace) -> int:
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -169,21 +186,12 @@ def run(args: argparse.Namespace) -> int:
     from hyperarm_ik.collision import CollisionModel
     from hyperarm_ik.kinematics import Kinematics
 
-    from .calibration_postures import parse_pose, target_postures
+    from .calibration_postures import target_postures
     from .camera_input import camera_model
     from .handeye import calibrate_eye_to_hand
     from .markers import rotation_angle
 
-    if args.poses < 3:
-        raise ValueError(f"--poses must be >= 3, got {args.poses}")
-    if not 0.0 < args.speed <= 1.0:
-        raise ValueError(f"--speed must be in (0, 1], got {args.speed}")
-    if not 0.0 < args.path_tolerance <= 1.0:
-        raise ValueError(f"--path-tolerance must be in (0, 1] rad, got {args.path_tolerance}")
-    if not 0.0 <= args.settle <= 60.0 or not 0.0 < args.timeout <= 3600.0:
-        raise ValueError(f"--settle must be in [0, 60] s and --timeout in (0, 3600] s, got "
-                         f"{args.settle} and {args.timeout}")
-    target_in_tool = parse_pose(args.target, "--target")
+    target_in_tool = _check_options(args)
     desc = load_description(args.description, args.variant)
     if args.workcell:
         cell = Path(args.workcell)
@@ -325,6 +333,7 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, _interrupt)
     args = _parser().parse_args(argv)
     try:
+        _check_options(args)
         return run(args)
     except KeyboardInterrupt:
         print("calibrate_camera: interrupted; nothing written", file=sys.stderr)
