@@ -6,16 +6,13 @@ ticks (0..4095, centre 2048).
 """
 from __future__ import annotations
 
-import copy
 import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
-import yaml
-
 from hyperarm_description.model import DescriptionError, default_description_path, \
-    load_description
+    load_description, write_description_copy
 from hyperarm_driver.dynamixel.control_table import BAUD_RATES, CENTER_TICK, RAD_PER_TICK, \
     REGISTERS, model_by_number
 
@@ -200,22 +197,18 @@ def write_calibrated_copy(description: str | Path | None, offsets: dict[str, flo
                           out: str | Path, variant: str = "arm") -> Path:
     """A copy of the description YAML with ``zero_offset`` (rad, 6 decimals) set on the
     servos of ``offsets``, validated by loading it. The original is never modified."""
-    src = Path(description) if description else default_description_path()
-    data = yaml.safe_load(src.read_text(encoding="utf-8"))
-    data = copy.deepcopy(data)
-    for joint in data["arm"]["joints"]:
-        if joint["name"] in offsets:
-            joint["servo"]["zero_offset"] = round(float(offsets[joint["name"]]), 6)
-    out = Path(out)
-    if out.resolve() == src.resolve():
-        raise BusToolError("refusing to overwrite the description itself: give another file")
-    header = (f"# {src.name} with zero_offset from `hyperarm calibrate` (rad).\n"
-              "# Use it with -p description_file:=<this file> on every node.\n")
-    out.write_text(header + yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
-    try:
-        load_description(out, variant)
-    except DescriptionError as exc:
-        raise BusToolError(f"the calibrated description is not valid: {exc}") from None
     if not all(math.isfinite(v) for v in offsets.values()):
         raise BusToolError("an offset is not finite")
-    return out
+
+    def edit(data: dict) -> None:
+        for joint in data["arm"]["joints"]:
+            if joint["name"] in offsets:
+                joint["servo"]["zero_offset"] = round(float(offsets[joint["name"]]), 6)
+
+    src = Path(description) if description else default_description_path()
+    header = (f"# {src.name} with zero_offset from `hyperarm calibrate` (rad).\n"
+              "# Use it with -p description_file:=<this file> on every node.\n")
+    try:
+        return write_description_copy(src, out, edit, header, variant)
+    except DescriptionError as exc:
+        raise BusToolError(str(exc)) from None

@@ -10,7 +10,7 @@ import re
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import yaml
@@ -33,6 +33,7 @@ __all__ = [
     "load_description",
     "parse_angle",
     "read_yaml",
+    "write_description_copy",
 ]
 
 VARIANTS = ("arm", "rail_arm")
@@ -582,6 +583,33 @@ def load_description(path: str | Path | None = None, variant: str = "arm") -> Ro
     """Load and validate the description. ``path`` defaults to the packaged YAML."""
     p = Path(path) if path else default_description_path()
     return parse_description(read_yaml(p, "robot description"), variant=variant, source=str(p))
+
+
+def write_description_copy(source: str | Path | None, out: str | Path,
+                           edit: Callable[[dict], None], header: str,
+                           variant: str = "arm") -> Path:
+    """A copy of the description YAML ``source`` (None: the packaged one), changed by
+    ``edit`` (called on the parsed data), checked by parsing it, then written to ``out``
+    under ``header`` (comment lines) for ``-p description_file:=<out>``. The source is never
+    overwritten; a copy that does not parse is not written. Comments of the source are not
+    kept. Raises :class:`DescriptionError` saying why."""
+    src = Path(source) if source else default_description_path()
+    data = read_yaml(src, "robot description")
+    edit(data)
+    dest = Path(out)
+    if dest.resolve() == src.resolve():
+        raise DescriptionError("refusing to overwrite the description itself: give another "
+                               "file")
+    text = header + yaml.safe_dump(data, sort_keys=False)
+    try:
+        parse_description(yaml.safe_load(text), variant=variant, source=str(dest))
+    except DescriptionError as exc:
+        raise DescriptionError(f"the changed description is not valid: {exc}") from None
+    try:
+        dest.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise DescriptionError(f"cannot write {dest}: {exc.strerror}") from exc
+    return dest
 
 
 def read_yaml(path: Path, what: str, error: type[Exception] = DescriptionError) -> Any:

@@ -190,3 +190,32 @@ def test_stale_urdf_is_detected(tmp_path, raw):
     yml = tmp_path / "edited.yaml"
     yml.write_text(yaml.safe_dump(edited))
     assert urdf_main(["--check", "--out-dir", str(tmp_path), "--description", str(yml)]) == 1
+
+
+# -- write_description_copy: a changed copy for -p description_file:= ----------------------
+
+def test_a_changed_copy_is_written_checked_and_never_over_its_source(tmp_path):
+    from hyperarm_description.model import write_description_copy
+
+    src = tmp_path / "robot.yaml"
+    src.write_text(default_description_path().read_text())
+    before = src.read_text()
+
+    def move_camera(data: dict) -> None:
+        data["camera"]["xyz"] = [0.31, 0.01, 0.59]
+
+    out = write_description_copy(src, tmp_path / "copy.yaml", move_camera, "# header\n")
+    assert out.read_text().startswith("# header\n")
+    assert load_description(out, "arm").camera.xyz == (0.31, 0.01, 0.59)
+    assert src.read_text() == before                      # the source is untouched
+    with pytest.raises(DescriptionError, match="refusing to overwrite"):
+        write_description_copy(src, src, move_camera, "")
+    assert src.read_text() == before
+
+    def break_it(data: dict) -> None:
+        data["camera"]["xyz"] = [0.3, "far"]
+
+    bad = tmp_path / "bad.yaml"
+    with pytest.raises(DescriptionError, match="the changed description is not valid: camera"):
+        write_description_copy(src, bad, break_it, "")
+    assert not bad.exists()                               # nothing written

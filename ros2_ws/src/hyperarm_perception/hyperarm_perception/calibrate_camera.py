@@ -67,6 +67,10 @@ def _parser() -> argparse.ArgumentParser:
                     help="s to wait after each move before using a detection (default 0.5)")
     ap.add_argument("--timeout", type=float, default=30.0,
                     help="s to wait for the robot's topics and the action server (default 30)")
+    ap.add_argument("--description-out", metavar="PATH",
+                    help="also write a copy of the description (--description, or the "
+                         "packaged one) with the calibrated camera, for -p "
+                         "description_file:=PATH on every node (task_node, tf_publisher)")
     ap.add_argument("--variant", default="arm", help="robot variant (default arm)")
     ap.add_argument("--description", help="robot YAML (default: the packaged one); its camera "
                     "is only used to choose postures")
@@ -148,12 +152,36 @@ def _yaml(result, desc, used: int, tried: int) -> str:
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     return (f"# Written by calibrate_camera ({stamp}): {desc.camera.frame} in "
             f"{desc.base_frame if not desc.rail else 'world'} from {used} of {tried} postures.\n"
-            f"# Paste the camera block into the robot description (hyperarm.yaml, camera:).\n"
+            f"# Paste the camera block into the robot description (hyperarm.yaml, camera:),\n"
+            f"# or run with --description-out for a description file that has it.\n"
             f"camera:\n  frame: {desc.camera.frame}\n  xyz: {cam_xyz}\n  rpy: {cam_rpy}\n"
             f"target_in_tool0:\n  xyz: {tgt_xyz}\n  rpy: {tgt_rpy}\n"
             f"residuals:  # of the inliers: position in m, angle in rad\n"
             + "".join(f"  {k}: {float(v):.6g}\n" for k, v in s.items())
             + f"method: {result.method}\n")
+
+
+def write_camera_copy(description: str | None, camera_pose: np.ndarray, out: str,
+                      variant: str = "arm") -> Path:
+    """A copy of the description YAML (``description``, None: the packaged one) whose
+    ``camera`` xyz (m) and rpy (rad, 6 decimals) are ``camera_pose`` (4 x 4, camera_link in
+    the root frame); checked by parsing it. Raises DescriptionError saying why."""
+    import pinocchio as pin
+
+    from hyperarm_description.model import DescriptionError, write_description_copy
+
+    t = np.asarray(camera_pose, dtype=float)
+    if t.shape != (4, 4) or not np.all(np.isfinite(t)):
+        raise DescriptionError("the camera pose is not a finite 4 x 4 transform")
+    xyz = [round(float(v), 6) for v in t[:3, 3]]
+    rpy = [round(float(v), 6) for v in pin.rpy.matrixToRpy(t[:3, :3])]
+
+    def edit(data: dict) -> None:
+        data["camera"]["xyz"], data["camera"]["rpy"] = xyz, rpy
+
+    header = ("# The robot description with the camera from calibrate_camera (m, rad).\n"
+              "# Use it with -p description_file:=<this file> on every node.\n")
+    return write_description_copy(description, out, edit, header, variant)
 
 
 def _check_options(args: argparse.Namespace) -> np.ndarray:
@@ -170,6 +198,9 @@ def _check_options(args: argparse.Namespace) -> np.ndarray:
     if not 0.0 <= args.settle <= 60.0 or not 0.0 < args.timeout <= 3600.0:
         raise ValueError(f"--settle must be in [0, 60] s and --timeout in (0, 3600] s, got "
                          f"{args.settle} and {args.timeout}")
+    if args.description_out and args.description and \
+            Path(args.description_out).resolve() == Path(args.description).resolve():
+        raise ValueError("--description-out must be another file than --description")
     return parse_pose(args.target, "--target")
 
 
@@ -314,6 +345,11 @@ def run(args: argparse.Namespace) -> int:
     s = result.summary()
     used = int(np.count_nonzero(result.inliers))
     Path(args.output).write_text(_yaml(result, desc, used, len(postures)), encoding="utf-8")
+    if args.description_out:
+        write_camera_copy(args.description, result.camera_pose, args.description_out,
+                          args.variant)
+        print(f"wrote {args.description_out}: the description with this camera; use it with "
+              f"--ros-args -p description_file:={args.description_out}")
     print(f"calibrated from {used} of {len(postures)} postures: "
           + ", ".join(f"{k} {v:.4g}" for k, v in s.items()))
     print(f"the description's camera is {moved:.1f} mm and {turned:.2f} deg from the "

@@ -60,11 +60,13 @@ def test_calibration_recovers_the_mocks_camera(launch, executable, tmp_path, ros
     launch("hyperarm_perception", "marker_detector")
     launch("hyperarm_control", "arm_controller")
     out = tmp_path / "extrinsics.yaml"
+    described = tmp_path / "calibrated_description.yaml"
     log = tmp_path / "calibrate.log"
     with open(log, "w") as fh:
         proc = subprocess.Popen([executable("hyperarm_perception", "calibrate_camera"),
                                  "--poses", POSES, "--description", str(perturbed),
-                                 "-o", str(out)], stdout=fh, stderr=subprocess.STDOUT,
+                                 "-o", str(out), "--description-out", str(described)],
+                                stdout=fh, stderr=subprocess.STDOUT,
                                 text=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
     try:
         # the mock stalls 0.6 s during the third move (as a loaded computer can): the
@@ -93,6 +95,12 @@ def test_calibration_recovers_the_mocks_camera(launch, executable, tmp_path, ros
                                  + data["target_in_tool0"]["rpy"]), "target")
     assert np.linalg.norm(target[:3, 3] - parse_pose(NOMINAL_TARGET, "t")[:3, 3]) < 0.003
     assert "the description's camera is" in run.stdout
+    # the description copy (for -p description_file:=...) carries the same camera, and the
+    # rest of the perturbed description it was made from
+    copy = load_description(str(described), "arm")
+    assert np.allclose(camera_link_pose(copy), got, atol=2e-6)
+    assert copy.joints == load_description(str(perturbed), "arm").joints
+    assert f"description_file:={described}" in run.stdout
 
 
 def test_ctrl_c_during_a_move_cancels_it_and_writes_nothing(launch, executable, tmp_path,
@@ -129,6 +137,8 @@ def test_ctrl_c_during_a_move_cancels_it_and_writes_nothing(launch, executable, 
 
 @pytest.mark.parametrize("args, says", [
     (["--poses", "2"], "--poses must be >= 3"),
+    (["--description", "d.yaml", "--description-out", "d.yaml"],
+     "--description-out must be another file than --description"),
     (["--target", "1 2 3"], "--target: expected 6 finite numbers"),
     (["--timeout", "1"], "no joint_states within 1 s"),
     (["--settle", "-1"], "--settle must be in [0, 60] s"),
