@@ -111,7 +111,8 @@ class TaskNode(Node):
                    f"work cell {world_file}" if world_file else "self-collisions only")
         self.get_logger().info(f"task_node ready: action {contract.RUN_TASK}, tasks from "
                                f"{', '.join(self._dirs + [str(packaged_tasks_dir())])}; "
-                               f"path collision check: {checked}")
+                               f"path collision check: {checked}; robot description "
+                               f"{self._desc.source}")
 
     def _publish_diagnostics(self) -> None:
         """'task_node: inputs': joint_states and detections accepted and rejected by reason

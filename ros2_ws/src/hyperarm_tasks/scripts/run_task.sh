@@ -23,6 +23,11 @@
 #   --workcell FILE      the work-cell YAML: the mock's cell (default: its packaged one), and
 #                        the table/pegs/poles the task node checks its paths against
 #   --seed N             the mock's imperfection and camera seeds (a copy of the work cell)
+#   --description FILE   the robot description of the nodes that command the robot
+#                        (task_node, hybrid_force, the hardware drivers): their
+#                        description_file. The mock keeps its packaged one: it is the
+#                        world, FILE what you believe of it (e.g. calibrate_camera's
+#                        --description-out, to compare a transfer with and without it)
 #   --no-force-node      do not start hybrid_force: force_insert then presses with its
 #                        position pseudo-goal fallback instead of hybrid force control
 #   --record FILE        record the run to FILE (MCAP: joint_states, joint_command,
@@ -36,6 +41,7 @@ set -uo pipefail
 usage() { sed -n '2,/^set -uo/p' "${BASH_SOURCE[0]}" | sed '$d; s/^# \{0,1\}//'; }
 
 variant=arm hardware="" workcell="" seed="" record="" tasks_dir="" timeout=300 logs="" tasks=()
+description=""
 force_node=1
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -44,6 +50,7 @@ while [ $# -gt 0 ]; do
     --hardware) hardware="${2:?--hardware needs a parameters file}"; shift 2 ;;
     --workcell) workcell="${2:?--workcell needs a file}"; shift 2 ;;
     --seed) seed="${2:?--seed needs a number}"; shift 2 ;;
+    --description) description="${2:?--description needs a file}"; shift 2 ;;
     --record) record="${2:?--record needs a file}"; shift 2 ;;
     --force-node) force_node=1; shift ;;     # the default (kept for old scripts)
     --no-force-node) force_node=0; shift ;;
@@ -58,6 +65,10 @@ done
 case "$variant" in arm|rail_arm) ;; *) echo "run_task.sh: --variant arm or rail_arm" >&2; exit 2 ;; esac
 [ -z "$hardware" ] || [ -f "$hardware" ] || { echo "run_task.sh: $hardware: no such file" >&2; exit 2; }
 [ -z "$seed" ] || [[ "$seed" =~ ^[0-9]+$ ]] || { echo "run_task.sh: --seed must be an integer" >&2; exit 2; }
+if [ -n "$description" ]; then
+  [ -f "$description" ] || { echo "run_task.sh: --description: no file $description" >&2; exit 2; }
+  description="$(realpath "$description")"
+fi
 
 # The workspace: sourced already (installed use), else this repository's.
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
@@ -150,13 +161,14 @@ start() {  # start NAME EXECUTABLE ARGS...: its own session, so a terminal Ctrl-
 }
 
 ros=(-p "variant:=$variant")
+mock=("${ros[@]}")          # the mock: the world, with its packaged description
+[ -z "$description" ] || ros+=(-p "description_file:=$description")
 if [ -n "$hardware" ]; then
   start dynamixel_driver "$(exe hyperarm_driver dynamixel_driver)" --ros-args --params-file "$hardware" "${ros[@]}"
   if [ "$variant" = rail_arm ]; then
     start pmac_rail_driver "$(exe hyperarm_driver pmac_rail_driver)" --ros-args --params-file "$hardware" "${ros[@]}"
   fi
 else
-  mock=("${ros[@]}")
   # the mock's work cell: the task node checks its paths against the same table and pegs
   workcell="${workcell:-$(dirname "$(dirname "$(dirname "$(exe hyperarm_driver mock_driver)")")")/share/hyperarm_driver/config/workcell.yaml}"
   if [ -n "$seed" ]; then

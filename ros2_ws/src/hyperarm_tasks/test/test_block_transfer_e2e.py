@@ -208,6 +208,27 @@ def test_refused_rail_command_fails_with_the_drivers_reason(executable, ros_doma
     assert still_running(logs) == []
 
 
+def test_description_option_goes_to_the_commanding_nodes_not_the_mock(
+        executable, ros_domain, tmp_path, still_running, node_logs):
+    """--description FILE: task_node and hybrid_force load FILE (task_node says so), the
+    mock keeps its packaged description (the world); a missing file is exit 2 at once."""
+    from hyperarm_description.model import default_description_path
+
+    mine = tmp_path / "my_robot.yaml"
+    mine.write_text(default_description_path().read_text())
+    logs = tmp_path / "logs"
+    done = _run(_script(executable), ["--description", str(mine), "--logs", str(logs),
+                                      "ready"], ros_domain, 90)
+    out = done.stdout + done.stderr
+    assert done.returncode == 0, out + node_logs(logs)
+    assert f"robot description {mine}" in (logs / "task_node.log").read_text()
+    assert str(mine) not in (logs / "mock_driver.log").read_text()
+    assert still_running(logs) == []
+    bad = _run(_script(executable), ["--description", str(tmp_path / "nope.yaml"), "ready"],
+               ros_domain, 30)
+    assert bad.returncode == 2 and "--description: no file" in bad.stderr, bad.stderr
+
+
 def test_second_goal_is_rejected_with_a_reason(launch, ros_domain, executable, wait_for):
     launch("hyperarm_driver", "mock_driver")
     node = launch("hyperarm_tasks", "task_node")
