@@ -56,8 +56,8 @@ from typing import Any, Mapping, Sequence
 import mujoco
 import numpy as np
 
-from .model import (VARIANTS, DescriptionError, RobotDescription, _rpy_matrix, check_number,
-                    load_description, read_yaml)
+from .model import (VARIANTS, DescriptionError, RobotDescription, _rpy_matrix,
+                    camera_link_pose, check_number, load_description, read_yaml)
 from .urdf import _fixed_part, _rz
 from .world import MOCK_WORLD_KEYS, WorldSpec, parse_world
 
@@ -179,14 +179,6 @@ def _el(parent: ET.Element, tag: str, **attrs: Any) -> ET.Element:
 def _pose(t: np.ndarray) -> dict[str, np.ndarray]:
     """pos/quat attributes of a 4x4 pose in the parent."""
     return {"pos": t[:3, 3], "quat": _quat(t[:3, :3])}
-
-
-def camera_link_pose(desc: RobotDescription) -> np.ndarray:
-    """4x4 pose of the camera frame (camera_link) in the root frame."""
-    t = np.eye(4)
-    t[:3, :3] = _rpy_matrix(desc.camera.rpy)
-    t[:3, 3] = desc.camera.xyz
-    return t
 
 
 def _inertia_in_link(inertia: Sequence[float], a: float, d: float) -> np.ndarray:

@@ -24,6 +24,7 @@ __all__ = [
     "GripperSpec",
     "RailSpec",
     "CameraSpec",
+    "camera_link_pose",
     "CapsuleSpec",
     "RobotDescription",
     "VARIANTS",
@@ -220,6 +221,15 @@ class CameraSpec:
     xyz: tuple[float, float, float]
     rpy: tuple[float, float, float]
     fovy: float = math.radians(45.0)
+
+
+def camera_link_pose(desc: "RobotDescription") -> np.ndarray:
+    """4x4 pose of the camera frame (camera_link) in the root frame: the description's
+    ``camera`` xyz (m) and rpy (rad, fixed axes as in URDF)."""
+    t = np.eye(4)
+    t[:3, :3] = _rpy_matrix(desc.camera.rpy)
+    t[:3, 3] = desc.camera.xyz
+    return t
 
 
 def _rpy_matrix(rpy: Sequence[float]) -> np.ndarray:

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from hyperarm_description.model import RobotDescription
+from hyperarm_description.model import RobotDescription, camera_link_pose
 
 __all__ = ["camera_pose", "Sighting", "Estimate", "DetectionBuffer", "DOWN", "quat_to_matrix",
            "matrix_to_quat"]
@@ -27,11 +27,9 @@ DOWN.flags.writeable = False
 
 
 def camera_pose(desc: RobotDescription) -> np.ndarray:
-    """4x4 pose of camera_link in the root frame (description's xyz, rpy fixed axes)."""
-    out = np.eye(4)
-    out[:3, :3] = pin.rpy.rpyToMatrix(*[float(a) for a in desc.camera.rpy])
-    out[:3, 3] = desc.camera.xyz
-    return out
+    """4x4 pose of camera_link in the root frame (description's xyz, rpy fixed axes):
+    :func:`hyperarm_description.model.camera_link_pose`."""
+    return camera_link_pose(desc)
 
 
 def quat_to_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
