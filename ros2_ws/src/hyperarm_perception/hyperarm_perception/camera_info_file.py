@@ -75,6 +75,24 @@ class CameraCalibration:
     R: np.ndarray
     P: np.ndarray
 
+    @classmethod
+    def ideal(cls, K: np.ndarray, width: int, height: int,
+              name: str = "camera") -> "CameraCalibration":
+        """A distortion-free monocular camera of intrinsics ``K`` (px): R = I, P = [K | 0]
+        (the mock's rendered camera)."""
+        k = np.asarray(K, dtype=float).reshape(3, 3)
+        return cls(name, int(width), int(height), k, np.zeros(5), "plumb_bob", np.eye(3),
+                   np.c_[k, np.zeros(3)])
+
+    def info_fields(self) -> dict[str, Any]:
+        """sensor_msgs/CameraInfo's calibration fields (distortion_model, d, k, r, p) as
+        plain values: ``for name, v in cal.info_fields().items(): setattr(info, name, v)``."""
+        return {"distortion_model": self.distortion_model,
+                "d": [float(x) for x in self.D.reshape(-1)],
+                "k": [float(x) for x in self.K.reshape(-1)],
+                "r": [float(x) for x in self.R.reshape(-1)],
+                "p": [float(x) for x in self.P.reshape(-1)]}
+
     def camera_model(self) -> CameraModel:
         """The detector's pinhole model (OpenCV's distortion: plumb_bob or
         rational_polynomial)."""

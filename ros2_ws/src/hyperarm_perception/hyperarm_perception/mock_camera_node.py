@@ -41,6 +41,7 @@ from hyperarm_ik.ros_conversions import pose_to_matrix
 from hyperarm_interfaces.msg import Detections
 
 from .calibration_postures import NOMINAL_TARGET, parse_pose
+from .camera_info_file import CameraCalibration
 from .markers import PerceptionError, load_marker_map
 from .marker_detector_node import CAMERA_INFO, IMAGE
 
@@ -196,6 +197,9 @@ class MockCameraNode(Node):
             self._ready.set()
             return
         self._camera = renderer.camera
+        cam = self._camera
+        self._info_fields = CameraCalibration.ideal(cam.K, cam.width, cam.height,
+                                                    "mock_camera").info_fields()
         link_in_root = renderer.camera_pose
         self._ready.set()
         try:
@@ -254,11 +258,8 @@ class MockCameraNode(Node):
         info = CameraInfo()
         info.header = img.header
         info.width, info.height = cam.width, cam.height
-        info.distortion_model = "plumb_bob"
-        info.d = [0.0] * 5
-        info.k = [float(x) for x in cam.K.reshape(-1)]
-        info.r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
-        info.p = [float(x) for x in np.c_[cam.K, np.zeros(3)].reshape(-1)]
+        for name, value in self._info_fields.items():
+            setattr(info, name, value)
         try:
             self._image_pub.publish(img)
             self._info_pub.publish(info)

@@ -182,11 +182,8 @@ class UsbCameraNode(Node):
             info.distortion_model = "plumb_bob"
             info.d = [0.0] * 5
             return info          # K, R, P all zero: uncalibrated
-        info.distortion_model = cal.distortion_model
-        info.d = [float(x) for x in cal.D]
-        info.k = [float(x) for x in cal.K.reshape(-1)]
-        info.r = [float(x) for x in cal.R.reshape(-1)]
-        info.p = [float(x) for x in cal.P.reshape(-1)]
+        for name, value in cal.info_fields().items():
+            setattr(info, name, value)
         return info
 
     def _publish_diagnostics(self) -> None:

@@ -58,6 +58,24 @@ def test_camera_calibrations_file_is_read_as_written():
     assert isinstance(model, CameraModel) and model.width == 640
 
 
+def test_camera_info_fields_of_a_file_and_of_an_ideal_camera():
+    """The CameraInfo fields usb_camera (a calibration file) and mock_camera (an ideal
+    pinhole) publish: K, R, P row-major, D as given; the ideal camera has D = 0, R = I and
+    P = [K | 0]."""
+    k = np.array([[600.0, 0.0, 320.5], [0.0, 601.0, 240.5], [0.0, 0.0, 1.0]])
+    ideal = CameraCalibration.ideal(k, 640, 480, "mock")
+    f = ideal.info_fields()
+    assert f["distortion_model"] == "plumb_bob" and f["d"] == [0.0] * 5
+    assert f["k"] == k.reshape(-1).tolist()
+    assert f["r"] == np.eye(3).reshape(-1).tolist()
+    assert f["p"] == [600.0, 0.0, 320.5, 0.0, 0.0, 601.0, 240.5, 0.0, 0.0, 0.0, 1.0, 0.0]
+    assert (ideal.width, ideal.height) == (640, 480)
+    g = parse_camera_info(yaml.safe_load(OST), "ost.yaml").info_fields()
+    assert g["d"] == [0.096, -0.235, 0.0021, -0.0009, 0.0]
+    assert g["p"][:3] == [603.18, 0.0, 312.21] and len(g["p"]) == 12
+    assert g["k"][0] == 597.96 and g["distortion_model"] == "plumb_bob"
+
+
 def test_dump_and_load_round_trip(tmp_path):
     rng = np.random.default_rng(3)
     for _ in range(5):
