@@ -144,15 +144,28 @@ def in_executor(node: Node, start: Callable[[], Future]) -> Future:
     executor spinning in another thread can take the answer in between: rclpy logs "Ignoring
     unexpected goal response" and the future never completes (a CI run: a gripper goal never
     answered). Sent from the executor's own thread, the answer cannot be taken before. A
-    node that no executor spins yet calls ``start`` at once (nothing can race it then)."""
+    node that no executor spins yet calls ``start`` at once (nothing can race it then). An
+    exception of ``start`` or of its future is the returned future's exception."""
     executor = node.executor
     if executor is None:
         return start()
     answer = Future(executor=executor)
 
+    def passed_on(sent: Future) -> None:
+        if sent.cancelled():
+            answer.cancel()
+        elif sent.exception() is not None:
+            answer.set_exception(sent.exception())
+        else:
+            answer.set_result(sent.result())
+
     def send() -> None:
-        sent = start()
-        sent.add_done_callback(lambda f: answer.set_result(f.result()))
+        try:
+            sent = start()
+        except Exception as exc:       # the request could not go out: the caller hears why
+            answer.set_exception(exc)
+            return
+        sent.add_done_callback(passed_on)
 
     executor.create_task(send)
     return answer

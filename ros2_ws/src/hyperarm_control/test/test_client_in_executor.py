@@ -102,3 +102,30 @@ def test_many_goals_from_another_thread_are_all_answered(rclpy_context, executor
         result = in_executor(client_node, handle.get_result_async)
         wait_for(result.done, 5.0, what=f"goal {i}'s result")
         assert result.result().result.position == float(i)
+
+
+def test_an_error_of_the_request_reaches_the_caller(rclpy_context, executor, wait_for):
+    """start() raising in the spinning thread, or its future failing: the returned future
+    carries the exception (before, it would never complete)."""
+    import rclpy
+    from rclpy.task import Future
+
+    from hyperarm_control.client import in_executor
+
+    node = rclpy.create_node("in_executor_errors", context=rclpy_context)
+    executor.add_node(node)
+
+    def refuse():
+        raise RuntimeError("no server")
+
+    raised = in_executor(node, refuse)
+    wait_for(raised.done, 5.0, what="the raised request's future")
+    assert isinstance(raised.exception(), RuntimeError)
+
+    inner = Future()
+    failed = in_executor(node, lambda: inner)
+    time.sleep(0.1)
+    assert not failed.done()
+    inner.set_exception(ValueError("bad goal"))
+    wait_for(failed.done, 5.0, what="the failed request's future")
+    assert isinstance(failed.exception(), ValueError)

@@ -34,9 +34,6 @@ DEFAULT_OUTPUT = "camera_extrinsics.yaml"
 _RETRIES = 2
 _RETRY_CODES = (-4, -5)
 
-#: s a goal may go unanswered before it is sent again
-_ANSWER_WITHIN = 5.0
-
 #: s after the settle within which a picture must show the target, else the posture is
 #: skipped (a camera at 10 Hz with a detector behind it; more on a loaded computer)
 _SEEN_WITHIN = 6.0
@@ -270,18 +267,8 @@ def run(args: argparse.Namespace) -> int:
                                float(np.max(np.sqrt(6.0 * step / (args.speed * accels)))))
                 goal = goal_from_points(names, [duration], [q.tolist()],
                                         path_tolerance=path_tolerance)
-                client.send(goal)
+                client.send(goal)      # from the executor's thread: no answer is lost
                 sent = True
-                end = time.monotonic() + _ANSWER_WITHIN
-                while client.accepted() is None and time.monotonic() < end:
-                    time.sleep(0.01)
-                if client.accepted() is None:
-                    # rclpy dropped the goal's answer ("Ignoring unexpected goal response",
-                    # seen under load): the same goal again (it preempts the first if that
-                    # one was accepted after all)
-                    print(f"posture {i}/{len(postures)}: no answer to the goal; sending it "
-                          "again", flush=True)
-                    client.send(goal)
                 if not client.wait(duration + args.timeout):
                     raise RuntimeError(f"posture {i}: the move did not end")
                 status, result = client.result()
