@@ -305,8 +305,10 @@ class Runner:
                                  f"({-excess:.3f} m inside the reach bound): {res.message}")
 
     # --- IK and motion ---------------------------------------------------------------------
-    def ik(self, pose: np.ndarray, seed: np.ndarray):
-        mode = "avoid" if self.collisions is not None else "ignore"
+    def ik(self, pose: np.ndarray, seed: np.ndarray, collisions: str = "avoid"):
+        """IK for ``pose`` from ``seed``; ``collisions`` ("avoid", "ignore") applies when
+        the runner has a collision model."""
+        mode = collisions if self.collisions is not None else "ignore"
         return self.solver.solve(pose[:3, 3], pose[:3, :3], seed, position_tolerance=1e-4,
                                  orientation_tolerance=1e-3, timeout=0.1, collisions=mode,
                                  held=self.holding is not None)

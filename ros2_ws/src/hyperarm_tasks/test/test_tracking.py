@@ -10,6 +10,8 @@ import pytest
 
 from hyperarm_driver.mock.config import load_mock_config
 from hyperarm_driver.mock.joint_sim import JointSim
+from hyperarm_description.world import PoleSpec
+from hyperarm_ik.collision import CollisionModel
 from hyperarm_ik.paths import FIGURE8, Figure8
 from hyperarm_tasks.runner import Runner
 from hyperarm_tasks.sequence import load_task, load_task_file
@@ -114,8 +116,20 @@ def _cell(seed, **imperfections):
 def test_figure8_on_the_mock_reaches_the_waypoints(desc, kin):
     sim = JointSim(desc, _cell(31))
     robot = SimRobot(sim)
-    result = Runner(robot, kin, load_task("figure8", desc)).run()
+    # the work cell as run_task.sh gives it to the task node: the plan seeded from the end
+    # of the line to the first waypoint sweeps link5 through the source peg
+    world = CollisionModel(kin, sim.cfg.world.spec)
+    chain = [sim.names.index(n) for n in kin.joint_names]
+    visited = []
+    step = sim.step
+    sim.step = lambda dt: (step(dt), visited.append(sim.position[chain].copy()))
+    result = Runner(robot, kin, load_task("figure8", desc), collisions=world).run()
     assert result.success, result.message
+    moved = [msg for _, msg in robot.logs if "planned from another posture" in msg]
+    assert len(moved) == 1 and "link5 with peg source" in moved[0]
+    # the arm itself kept clear of the pegs and the table all the way
+    hits = [k for k, q in enumerate(visited[::5]) if world.in_collision(q)]
+    assert len(visited) > 1000 and not hits, (len(visited), hits[:5])
     m = result.metrics
     assert m["track_waypoints"] == 1000 and m["track_reached"] >= 999
     assert m["track_error_max"] < 1e-3 and 0 < m["track_error_mean"] <= m["track_error_p95"]
@@ -126,6 +140,24 @@ def test_figure8_on_the_mock_reaches_the_waypoints(desc, kin):
     # unhindered, it keeps to its plan, and says nothing is slow
     assert m["track_mean_speed"] == pytest.approx(m["track_planned_mean_speed"], rel=0.05)
     assert not any("slower than planned" in msg for _, msg in robot.logs)
+
+
+def test_figure8_through_a_pole_fails_before_moving(desc, kin):
+    # a short pole through the figure-8 at its far left: every posture's plan hits it, nothing
+    # is sent along the path
+    sim = JointSim(desc, _cell(31))
+    robot = SimRobot(sim)
+    pole = PoleSpec("centre", (0.40, -0.12), 0.01, 0.17, 0.23)
+    world = CollisionModel(kin, dataclasses.replace(sim.cfg.world.spec, poles=(pole,)))
+    sent = []
+    runner = Runner(robot, kin, load_task("figure8", desc), collisions=world)
+    runner.on_feedback = lambda fb: sent.append(fb.phase)
+    result = runner.run()
+    assert not result.success and result.failure_kind == "collision", result.message
+    # the first plan's reason (it meets the source peg before the pole), and the others'
+    assert "the planned joints collide at waypoint" in result.message
+    assert "no other of 7 postures at the first waypoint gave a clean plan" in result.message
+    assert "tracking" not in sent and "reconfiguring" not in sent
 
 
 def _run_file(desc, kin, tmp_path, step: str, hook=None, on_feedback=None, **imperfections):

@@ -7,7 +7,9 @@ orientation. The step
 
 1. goes to the first waypoint in a straight line (``approach_speed``);
 2. solves IK at every waypoint, each seeded with the previous solution (as the benchmark);
-   the joint speeds the stated ``speed`` needs must be within half of each joint's limit;
+   the joint speeds the stated ``speed`` needs must be within half of each joint's limit,
+   and the plan must be free of collisions (the runner's model); else it plans from other
+   postures at the first waypoint and moves to the first that gives a clean plan;
 3. streams the joint path at ``speed`` along the path (constant speed, ramps of
    ``acceleration`` at both ends), sampling the measured joints at every tick; a late tick
    (a loaded machine) advances the path by at most 1.5 periods, and while joint_states are
@@ -47,6 +49,8 @@ LATE_TICKS = 1.5         # a tick later than this many periods slows the path do
 WINDOW = 1.0             # s: a waypoint is judged on the path measured this close in time to
                          # when it was commanded (the figure-8 crosses itself ~9 s apart)
 PLAN_CANCEL_EVERY = 100  # waypoints solved between two cancel checks
+PLAN_STARTS = 8          # postures at the first waypoint tried for a collision-free plan
+PLAN_SEED = 0            # their random IK seeds: the same plan on every run
 
 
 @dataclass(frozen=True)
@@ -92,24 +96,88 @@ def _redundancy(raw: dict, ctx: BuildContext) -> str:
     return value
 
 
-def _plan(step: TrackPath, runner, points: np.ndarray, rot: np.ndarray) -> np.ndarray:
-    """IK at every waypoint, each seeded with the previous solution: (n, nq)."""
-    seed = runner.q_target if runner.q_target is not None else runner.q_measured()
+def _plan_from(step: TrackPath, runner, points: np.ndarray, rot: np.ndarray,
+               seed: np.ndarray) -> np.ndarray:
+    """IK at every waypoint, each seeded with the previous solution: (n, nq). The
+    waypoints' collisions are judged on the whole plan afterwards (:func:`_check_plan`):
+    avoiding them one by one would jump the joints between branches."""
     qs = np.empty((len(points), len(seed)))
     pose = np.eye(4)
     pose[:3, :3] = rot
     for k, p in enumerate(points):
         if k % PLAN_CANCEL_EVERY == 0:
-            runner.feedback("planning", 0.1 * k / len(points), p)
             runner.tick()
         pose[:3, 3] = p
-        res = runner.ik(pose, seed)
+        res = runner.ik(pose, seed, collisions="ignore")
         if not res.success:
             raise StepFailed("ik", f"IK failed for {step.name} ({step.path}) at waypoint "
                              f"{k + 1}/{len(points)} ({', '.join(f'{v:.3f}' for v in p)}) m: "
                              f"{res.message}")
         qs[k] = seed = res.q
     return qs
+
+
+def _check_plan(step: TrackPath, runner, qs: np.ndarray, ds: np.ndarray) -> None:
+    """StepFailed when the planned joints hit the arm or the work cell (the runner's
+    collision model: the task node's work cell) or need joint speeds beyond half of the
+    limits at ``step.speed``."""
+    if runner.collisions is None:
+        _check_speed(step, runner, qs, ds)
+        return
+    held = runner.holding is not None
+    chk = runner.collisions.check_configurations(
+        [(k / max(len(qs) - 1, 1), q) for k, q in enumerate(qs)], held)
+    if not chk.free:
+        raise StepFailed("collision", f"{step.name} ({step.path}): the planned joints collide "
+                         f"at waypoint {chk.samples}/{len(qs)}: "
+                         + ", ".join(str(c) for c in chk.contacts))
+    _check_speed(step, runner, qs, ds)
+
+
+def _plan(step: TrackPath, runner, points: np.ndarray, rot: np.ndarray,
+          ds: np.ndarray) -> np.ndarray:
+    """The joints of every waypoint, free of collisions and within the speed budget: first
+    from where the arm is (at the first waypoint), else from up to PLAN_STARTS - 1 other
+    postures of the redundant arm at the first waypoint (IK from random seeds,
+    deterministic), the arm moving to the one that gives a clean plan in joint space
+    (a checked path) before the tracking starts: (n, nq)."""
+    here = runner.q_target if runner.q_target is not None else runner.q_measured()
+    first: StepFailed | None = None
+    rng = np.random.default_rng(PLAN_SEED)
+    lo, hi = np.array([[runner._limits[n][0], runner._limits[n][1]]
+                       for n in runner.chain]).T
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = rot, points[0]
+    for attempt in range(PLAN_STARTS):
+        runner.feedback("planning", 0.1 * attempt / PLAN_STARTS, points[0])
+        if attempt == 0:
+            start = here
+        else:
+            res = runner.ik(pose, rng.uniform(lo, hi), collisions="avoid")
+            if not res.success:
+                continue
+            start = res.q
+        try:
+            qs = _plan_from(step, runner, points, rot, start)
+            _check_plan(step, runner, qs, ds)
+            if attempt:
+                runner.check_collisions(f"{step.name} (to another posture)", here, qs[0])
+        except StepFailed as exc:
+            if exc.kind == "tracking" and attempt == 0:
+                raise      # too fast for the stated speed: no other posture is asked for
+            first = first or exc
+            continue
+        if attempt:
+            runner.robot.log("info", f"{step.name}: the plan from the arm's posture at the "
+                             f"first waypoint failed ({first}); planned from another posture "
+                             f"(start {attempt + 1} of {PLAN_STARTS}), moving there first")
+            runner.stream([here, qs[0]], runner.path_duration([here, qs[0]], 0.0,
+                                                                step.approach_speed),
+                          "reconfiguring")
+        return qs
+    assert first is not None
+    raise StepFailed(first.kind, f"{first} (and no other of {PLAN_STARTS - 1} postures at the "
+                     "first waypoint gave a clean plan)")
 
 
 def _plan_min_reaction(step: TrackPath, runner, points: np.ndarray,
@@ -172,12 +240,12 @@ def run(step: TrackPath, runner) -> None:
     first[:3, :3], first[:3, 3] = rot, points[0]
     runner.move_line(first, step.approach_speed, 0.005, step.reach, step.timeout, True,
                      f"{step.name} (to its first waypoint)")
+    s_at = arc_length(points)
     if step.redundancy == "none":
-        qs = _plan(step, runner, points, rot)
+        qs = _plan(step, runner, points, rot, np.diff(s_at))
     else:
         qs = _plan_min_reaction(step, runner, points, rot)
-    s_at = arc_length(points)
-    _check_speed(step, runner, qs, np.diff(s_at))
+        _check_plan(step, runner, qs, np.diff(s_at))
     s_of, duration = trapezoid_time_scaling(float(s_at[-1]), step.speed, step.acceleration)
     if robot.now() + duration + SETTLE_TIME > deadline:
         raise StepFailed("timeout", f"{step.name}: the path needs {duration:.1f} s at "
