@@ -13,8 +13,9 @@ orientation. The step
 3. streams the joint path at ``speed`` along the path (constant speed, ramps of
    ``acceleration`` at both ends), sampling the measured joints at every tick; a late tick
    (a loaded machine) advances the path by at most 1.5 periods, and while joint_states are
-   older than 50 ms (the driver stalls) the path waits, so the arm is never commanded a
-   jump along the path (the traversal then takes longer: ``track_time``);
+   older than 50 ms (the driver stalls) the path waits, taken back to where it was when
+   the last joint_states were sent, so the arm is never commanded a jump along the path
+   (the traversal then takes longer: ``track_time``);
 With ``redundancy: min_reaction`` (fixed arm only) the three free joints also keep the
 arm's centre of mass over its mount, lowering the moment it exerts on the mount
 (:mod:`hyperarm_control.host.redundancy`): after step 1 the arm moves in the task's null space
@@ -33,6 +34,7 @@ arm's centre of mass over its mount, lowering the moment it exerts on the mount
 """
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -135,7 +137,7 @@ def _check_plan(step: TrackPath, runner, qs: np.ndarray, ds: np.ndarray) -> None
 
 
 def _plan(step: TrackPath, runner, points: np.ndarray, rot: np.ndarray,
-          ds: np.ndarray) -> np.ndarray:
+          ds: np.ndarray, deadline: float) -> np.ndarray:
     """The joints of every waypoint, free of collisions and within the speed budget: first
     from where the arm is (at the first waypoint), else from up to PLAN_STARTS - 1 other
     postures of the redundant arm at the first waypoint (IK from random seeds,
@@ -174,6 +176,7 @@ def _plan(step: TrackPath, runner, points: np.ndarray, rot: np.ndarray,
             runner.stream([here, qs[0]], runner.path_duration([here, qs[0]], 0.0,
                                                                 step.approach_speed),
                           "reconfiguring")
+            runner.settle(pose, step.reach, deadline, f"{step.name} (in its new posture)")
         return qs
     assert first is not None
     raise StepFailed(first.kind, f"{first} (and no other of {PLAN_STARTS - 1} postures at the "
@@ -242,7 +245,7 @@ def run(step: TrackPath, runner) -> None:
                      f"{step.name} (to its first waypoint)")
     s_at = arc_length(points)
     if step.redundancy == "none":
-        qs = _plan(step, runner, points, rot, np.diff(s_at))
+        qs = _plan(step, runner, points, rot, np.diff(s_at), deadline)
     else:
         qs = _plan_min_reaction(step, runner, points, rot)
         _check_plan(step, runner, qs, np.diff(s_at))
@@ -258,11 +261,24 @@ def run(step: TrackPath, runner) -> None:
     commanded: list[float] = []   # fractional waypoint index commanded then
     t0 = last = robot.now()
     t = 0.0                       # s, path time: wall time, but a late tick advances it by
-    while True:                   # at most LATE_TICKS periods (no jump after a stall)
+    history = deque(maxlen=256)   # at most LATE_TICKS periods (no jump after a stall)
+    rewound = False               # (wall time, path time) of the last ticks
+    while True:
         now = robot.now()
-        if robot.joint_states_age() <= STALE_STATES:
+        age = robot.joint_states_age()
+        if age <= STALE_STATES:
             t = min(t + min(now - last, LATE_TICKS * runner.period), duration)
-        last = now                # (stale joint_states: the driver lags, hold the goal)
+            rewound = False
+        elif not rewound:
+            # stale joint_states: the driver lags. Hold the goal, taken back to where the
+            # path was when its last joint_states were sent (the driver applied no later
+            # goal, as far as anyone knows): it resumes from there, not with a jump of
+            # STALE_STATES of path
+            rewound = True
+            back = [pt for wall, pt in history if wall <= now - age]
+            t = min(t, back[-1] if back else 0.0)
+        last = now
+        history.append((now, t))
         x = float(np.interp(s_of(t), s_at, index))
         k = min(int(x), len(points) - 2)
         f = x - k
