@@ -166,7 +166,8 @@ def _run_file(desc, kin, tmp_path, step: str, hook=None, on_feedback=None, **imp
     robot = SimRobot(JointSim(desc, _cell(32, **imperfections)))
     if hook:
         hook(robot)
-    runner = Runner(robot, kin, load_task_file(path, desc), on_feedback=on_feedback)
+    runner = Runner(robot, kin, load_task_file(path, desc), on_feedback=on_feedback,
+                    collisions=CollisionModel(kin, robot.sim.cfg.world.spec))
     return runner.run(), robot
 
 

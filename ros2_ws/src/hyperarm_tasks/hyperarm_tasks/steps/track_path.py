@@ -123,8 +123,8 @@ def _check_plan(step: TrackPath, runner, qs: np.ndarray, ds: np.ndarray) -> None
     """StepFailed when the planned joints hit the arm or the work cell (the runner's
     collision model: the task node's work cell) or need joint speeds beyond half of the
     limits at ``step.speed``."""
+    _check_speed(step, runner, qs, ds)
     if runner.collisions is None:
-        _check_speed(step, runner, qs, ds)
         return
     held = runner.holding is not None
     chk = runner.collisions.check_configurations(
@@ -133,7 +133,6 @@ def _check_plan(step: TrackPath, runner, qs: np.ndarray, ds: np.ndarray) -> None
         raise StepFailed("collision", f"{step.name} ({step.path}): the planned joints collide "
                          f"at waypoint {chk.samples}/{len(qs)}: "
                          + ", ".join(str(c) for c in chk.contacts))
-    _check_speed(step, runner, qs, ds)
 
 
 def _plan(step: TrackPath, runner, points: np.ndarray, rot: np.ndarray,
