@@ -8,6 +8,7 @@ import os
 import re
 import subprocess
 import threading
+import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -56,10 +57,16 @@ def test_every_installed_executable_answers_help_with_its_own_usage(rclpy_contex
     executor.add_node(probe)
     seen: set[str] = set()
     stop = threading.Event()
+    # nodes already on the domain before any --help runs are not theirs: an earlier test's
+    # in-process nodes on a reused domain whose participant the graph still lists (seen:
+    # test_client_in_executor's 'in_executor_client'/'in_executor_server')
+    time.sleep(1.0)
+    before = set(probe.get_node_names())
 
     def watch() -> None:
         while not stop.wait(0.05):
-            seen.update(n for n in probe.get_node_names() if n != "help_probe")
+            seen.update(n for n in probe.get_node_names()
+                        if n != "help_probe" and n not in before)
     watcher = threading.Thread(target=watch, daemon=True)
     watcher.start()
 
