@@ -449,11 +449,19 @@ def test_a_late_host_pose_moves_nothing_and_is_counted(launch, rclpy_context, ex
     kin = Kinematics(variant="arm")
     clock = probe.node.get_clock()
 
-    def tick(x: float = 0.0, age: float = 0.0) -> None:
+    last_good = []                             # the newest good host pose's stamp
+
+    def tick(x: float = 0.0, age: float = 0.0, before_last: float | None = None) -> None:
         now = clock.now()
         msg = PoseStamped()
         msg.header.frame_id = contract.WORLD_FRAME
-        msg.header.stamp = (now - Duration(seconds=age)).to_msg()
+        # ``before_last``: stamped that long before the newest good one sent (out of order
+        # whatever the load made of the time between ticks)
+        stamp = now - Duration(seconds=age) if before_last is None else \
+            last_good[-1] - Duration(seconds=before_last)
+        msg.header.stamp = stamp.to_msg()
+        if x == 0.0 and age == 0.0 and before_last is None:
+            last_good.append(stamp)
         msg.pose.position.x = x
         msg.pose.orientation.w = 1.0
         host.publish(msg)
@@ -482,7 +490,7 @@ def test_a_late_host_pose_moves_nothing_and_is_counted(launch, rclpy_context, ex
         first = len(probe.command_list)
     tick(x=0.03, age=2.0)                      # late by 2 s, 3 cm off
     time.sleep(0.01)
-    tick(x=0.03, age=0.03)                     # older than the newest used, 3 cm off
+    tick(x=0.03, before_last=0.03)             # older than the newest used, 3 cm off
     for _ in range(30):
         time.sleep(0.01)
         tick()

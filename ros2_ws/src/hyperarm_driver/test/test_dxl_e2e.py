@@ -249,7 +249,9 @@ def test_torque_on_start_waits_for_servos_that_come_up_late_never_a_reconnection
     control = wait_for(lambda: _connect(ctl), 20.0, what="emulator control socket")
     wait_for(lambda: all(servo(control, j.id)["torque_enable"] == 1 for j in CFG.joints), 20.0,
              what=f"torque on at the late first connection\n{drv.output()}")
-    assert "torque on (torque_on_start)" in drv.output()
+    # (the driver says so after the writes: its line may come a moment after the servos)
+    wait_for(lambda: "torque on (torque_on_start)" in drv.output(), 5.0,
+             what=f"the driver's torque-on line\n{drv.output()}")
     # the bus goes away and comes back (a new emulator: every servo's torque off)
     emu.proc.send_signal(signal.SIGINT)
     assert emu.proc.wait(timeout=10.0) == 0
