@@ -23,6 +23,7 @@ from .errors import Cancelled, StepFailed
 from .perception import DOWN, DetectionBuffer, Estimate
 from .sequence import Task
 from .steps import STALE_STATES, STEP_TYPES, PoseSpec, Step
+from .tracking import PathClock
 
 __all__ = ["Robot", "HybridCommand", "Feedback", "RunResult", "RunnerParams", "Runner"]
 
@@ -116,6 +117,7 @@ class RunnerParams:
 
 
 STATE_WAIT = 5.0   # s: at a task's start, wait this long for the first joint_states
+STREAM_STALL_LIMIT = 5.0   # s of stale joint_states that fail a streamed move (kind driver)
 TURN_FROM = 0.3   # a move_to line turns the tool over its last 70 % (plan_line)
 
 
@@ -365,12 +367,19 @@ class Runner:
 
     def stream(self, qs: list[np.ndarray], duration: float, phase: str,
                efforts: Mapping[str, float] | None = None, waypoints=None) -> None:
-        """Stream the joint path ``qs`` over ``duration`` s (min-jerk in path parameter)."""
+        """Stream the joint path ``qs`` over ``duration`` s (min-jerk in path parameter), on
+        a :class:`PathClock`: a late tick slows it down and a stall of the driver (stale
+        joint_states) holds it, taken back to the driver's last joint_states, so a stall
+        never makes the goal jump along the path."""
         names = self.chain
         m = len(qs) - 1
-        t0 = self.robot.now()
+        clock = PathClock(self.robot.now(), duration, self.period, STALE_STATES)
         while True:
-            t = self.robot.now() - t0
+            t = clock.tick(self.robot.now(), self.robot.joint_states_age())
+            if clock.stalled_for > STREAM_STALL_LIMIT:
+                raise StepFailed("driver", f"no joint_states for {clock.stalled_for:.1f} s "
+                                 f"while {phase} (the driver stalled or stopped): the path "
+                                 "was held where the driver last reported")
             s = min_jerk(t / duration) if duration > 0 else 1.0
             x = s * m
             i = min(int(x), m - 1) if m > 0 else 0

@@ -8,12 +8,13 @@ part of the path measured while that waypoint was the target. Units: m, rad, s.
 """
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
 __all__ = ["closest_approach", "TrackingReport", "tracking_report", "arc_length",
-           "trapezoid_time_scaling"]
+           "trapezoid_time_scaling", "PathClock"]
 
 _CHUNK = 256   # waypoints per vectorised block (bounds the memory to ~chunk x samples x 3)
 
@@ -168,3 +169,43 @@ def trapezoid_time_scaling(length: float, speed: float, acceleration: float):
         return 0.5 * acceleration * t_a * t_a + v * (t - t_a)
 
     return s_of, total
+
+
+class PathClock:
+    """The time along a streamed path (s), from the wall clock of its ticks, such that a
+    stall never makes the path jump:
+
+    - a tick advances it by the wall time since the last tick, at most ``late_ticks``
+      periods (a late tick of a loaded node slows the path down instead);
+    - while the joint states are older than ``stale`` s (the driver lags or stalls) it does
+      not advance, and it is taken back, once per stall, to where it was when the driver sent
+      its last joint states: the driver applied no later goal as far as anyone knows, so the
+      path resumes from there (without the rewind, from ``stale`` s of path further on);
+    - it never passes ``duration``.
+    """
+
+    def __init__(self, now: float, duration: float, period: float, stale: float,
+                 late_ticks: float = 1.5) -> None:
+        self.t = 0.0
+        self.duration = float(duration)
+        self._max_step = late_ticks * period
+        self._stale = float(stale)
+        self._last = float(now)
+        self._history: deque[tuple[float, float]] = deque(maxlen=256)
+        self._rewound = False
+        self.stalled_for = 0.0    # s the joint states have been stale at the last tick
+
+    def tick(self, now: float, states_age: float) -> float:
+        """The path time at wall time ``now`` (s), the joint states ``states_age`` s old."""
+        self.stalled_for = 0.0 if states_age <= self._stale else states_age
+        if states_age <= self._stale:
+            self.t = min(self.t + min(max(now - self._last, 0.0), self._max_step),
+                         self.duration)
+            self._rewound = False
+        elif not self._rewound:
+            self._rewound = True
+            back = [pt for wall, pt in self._history if wall <= now - states_age]
+            self.t = min(self.t, back[-1] if back else 0.0)
+        self._last = now
+        self._history.append((now, self.t))
+        return self.t

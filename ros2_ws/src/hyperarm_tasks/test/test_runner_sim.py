@@ -303,3 +303,63 @@ def test_first_moves_from_the_ready_pose_are_mostly_straight(desc, kin):
         if not any("falling back" in m for _level, m in robot.logs):
             assert len(qs) > 2               # a straight line: IK at every point
     assert len(fallbacks) <= 3, "\n".join(fallbacks)
+
+
+def _stalling(robot, applied, stale_forever_from=None):
+    """The driver stalls 0.3 s in every 2 s: it applies no command and publishes no
+    joint_states meanwhile (from ``stale_forever_from`` s on it publishes none at all)."""
+    real = robot.command
+
+    def stalled() -> bool:
+        return 1.0 <= robot.now() % 2.0 < 1.3
+
+    def command(positions, efforts=None):
+        if not stalled():
+            real(positions, efforts)
+            applied.append((robot.now(), np.array([positions[n] for n in sorted(positions)])))
+    robot.command = command
+
+    def age() -> float:
+        if stale_forever_from is not None and robot.now() >= stale_forever_from:
+            return robot.now() - stale_forever_from
+        return robot.now() % 2.0 - 1.0 if stalled() else 0.0
+    robot.joint_states_age = age
+
+
+def test_a_stalled_driver_holds_a_streamed_move(desc, kin, tmp_path):
+    # a move_to of ~14 s (from the ready pose to above the source peg) through stalls: the goal the
+    # driver applies after each continues where it stopped (the stream's clock is taken back
+    # to the driver's last joint_states), not 0.05 s of the path further on
+    from hyperarm_tasks.sequence import load_task_file
+    path = tmp_path / "move.yaml"
+    path.write_text("schema_version: 1\nobjects: [source_peg]\nsteps:\n"
+                    "  - {name: over, type: move_to, target: {relative_to: source_peg, "
+                    "offset: [0, 0, 5 cm]}, speed: 5 cm/s}\n")
+    robot = SimRobot(JointSim(desc, cell(11)))
+    applied = []
+    _stalling(robot, applied)
+    result = Runner(robot, kin, load_task_file(path, desc)).run()
+    assert result.success, result.message
+    steps = [(t1 - t0, float(np.abs(q1 - q0).max()))
+             for (t0, q0), (t1, q1) in zip(applied, applied[1:])]
+    # each first goal after a stall against the stream's steps just before it: no larger
+    # than 2.5 of them (the tick before the driver's last joint_states and the resuming
+    # tick's 1.5 periods); without the rewind, the 0.05 s it took to see the stall
+    gaps = [(d, max(dd for _dt, dd in steps[k - 5:k])) for k, (dt, d) in enumerate(steps)
+            if dt > 0.2 and k >= 5]
+    assert len(gaps) >= 4, steps
+    assert all(d <= 2.5 * before + 1e-6 for d, before in gaps), gaps
+
+
+def test_joint_states_that_stop_fail_a_streamed_move(desc, kin, tmp_path):
+    from hyperarm_tasks.sequence import load_task_file
+    path = tmp_path / "move.yaml"
+    path.write_text("schema_version: 1\nobjects: [source_peg]\nsteps:\n"
+                    "  - {name: over, type: move_to, target: {relative_to: source_peg, "
+                    "offset: [0, 0, 5 cm]}, speed: 5 cm/s, timeout: 60 s}\n")
+    robot = SimRobot(JointSim(desc, cell(11)))
+    _stalling(robot, [], stale_forever_from=2.0)
+    result = Runner(robot, kin, load_task_file(path, desc)).run()
+    assert not result.success and result.failure_kind == "driver", result.message
+    assert "no joint_states for 5.0 s while moving" in result.message
+    assert result.total_time < 2.0 + 5.0 + 1.0

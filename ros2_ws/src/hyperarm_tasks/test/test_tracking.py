@@ -17,7 +17,7 @@ from hyperarm_tasks.runner import Runner
 from hyperarm_tasks.sequence import load_task, load_task_file
 from hyperarm_tasks.steps.track_path import windows
 from hyperarm_tasks.testing import SimRobot
-from hyperarm_tasks.tracking import (arc_length, closest_approach, tracking_report,
+from hyperarm_tasks.tracking import (PathClock, arc_length, closest_approach, tracking_report,
                                      trapezoid_time_scaling)
 
 pytestmark = pytest.mark.core
@@ -269,3 +269,26 @@ def test_a_stalled_driver_holds_the_path(desc, kin, tmp_path):
     gaps = [(t1, float(np.linalg.norm(p1 - p0))) for (t0, p0), (t1, p1)
             in zip(applied, applied[1:]) if t1 - t0 > 0.2]
     assert len(gaps) >= 4 and max(d for _, d in gaps) < 2.5 * 0.10 * 0.01, gaps
+
+
+def test_path_clock_advances_slows_holds_and_rewinds():
+    clock = PathClock(10.0, duration=1.0, period=0.01, stale=0.05, late_ticks=1.5)
+    assert clock.tick(10.01, 0.0) == pytest.approx(0.01)
+    assert clock.tick(10.05, 0.0) == pytest.approx(0.025)      # a late tick: 1.5 periods
+    for k in range(1, 6):                                        # on time, 10 ms apart
+        clock.tick(10.05 + 0.01 * k, 0.0)
+    assert clock.t == pytest.approx(0.075)
+    # the driver stalls after its state of 10.08: stale from 10.13 on (0.05 s)
+    assert clock.tick(10.11, 0.03) == pytest.approx(0.085)      # not stale yet: runs on
+    assert clock.tick(10.14, 0.06) == pytest.approx(0.055)      # taken back to 10.08's
+    assert clock.stalled_for == pytest.approx(0.06)
+    assert clock.tick(10.30, 0.22) == pytest.approx(0.055)      # held, no second rewind
+    assert clock.tick(10.31, 0.0) == pytest.approx(0.065)       # fresh: on from there
+    assert clock.stalled_for == 0.0
+    for k in range(200):
+        clock.tick(10.32 + 0.01 * k, 0.0)
+    assert clock.t == 1.0                                        # never past the duration
+    # a rewind before any tick old enough goes back to the start
+    early = PathClock(0.0, duration=1.0, period=0.01, stale=0.05)
+    early.tick(0.01, 0.0)
+    assert early.tick(0.02, 0.5) == 0.0

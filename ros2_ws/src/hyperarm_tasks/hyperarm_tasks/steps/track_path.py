@@ -34,7 +34,6 @@ arm's centre of mass over its mount, lowering the moment it exerts on the mount
 """
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,7 +42,7 @@ from hyperarm_control.host import OBJECTIVES, HostError, ReactionMinimizer
 from hyperarm_ik.paths import FIGURE8_WAYPOINTS, PATHS, Figure8, hold_orientation
 
 from ..errors import StepFailed
-from ..tracking import arc_length, tracking_report, trapezoid_time_scaling
+from ..tracking import PathClock, arc_length, tracking_report, trapezoid_time_scaling
 from . import STALE_STATES, BuildContext, Step, StepType, quantity, register
 
 SETTLE_TIME = 1.0        # s after the last waypoint, sampling until the tool is there
@@ -258,26 +257,11 @@ def run(step: TrackPath, runner) -> None:
     samples: list[np.ndarray] = []
     stamps: list[float] = []      # s, when each sample was taken
     commanded: list[float] = []   # fractional waypoint index commanded then
-    t0 = last = robot.now()
-    t = 0.0                       # s, path time: wall time, but a late tick advances it by
-    history = deque(maxlen=256)   # at most LATE_TICKS periods (no jump after a stall)
-    rewound = False               # (wall time, path time) of the last ticks
+    t0 = robot.now()
+    clock = PathClock(t0, duration, runner.period, STALE_STATES, LATE_TICKS)
     while True:
         now = robot.now()
-        age = robot.joint_states_age()
-        if age <= STALE_STATES:
-            t = min(t + min(now - last, LATE_TICKS * runner.period), duration)
-            rewound = False
-        elif not rewound:
-            # stale joint_states: the driver lags. Hold the goal, taken back to where the
-            # path was when its last joint_states were sent (the driver applied no later
-            # goal, as far as anyone knows): it resumes from there, not with a jump of
-            # STALE_STATES of path
-            rewound = True
-            back = [pt for wall, pt in history if wall <= now - age]
-            t = min(t, back[-1] if back else 0.0)
-        last = now
-        history.append((now, t))
+        t = clock.tick(now, robot.joint_states_age())
         x = float(np.interp(s_of(t), s_at, index))
         k = min(int(x), len(points) - 2)
         f = x - k
