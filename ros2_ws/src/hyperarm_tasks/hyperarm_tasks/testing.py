@@ -19,7 +19,7 @@ from hyperarm_control.testing import wrap_postures
 
 from .perception import DetectionBuffer, camera_pose, matrix_to_quat
 
-__all__ = ["SimRobot", "ForceSimRobot", "work_cell", "wrap_postures"]
+__all__ = ["SimRobot", "ForceSimRobot", "work_cell", "wrap_postures", "stall_driver"]
 
 
 def work_cell(seed: int, hole_radius: float | None = None,
@@ -235,3 +235,29 @@ class ForceSimRobot(SimRobot):
 
     def force_passive(self) -> tuple[str, str] | None:
         return self.passive
+
+
+def stall_driver(robot: SimRobot, on_applied=None, every: float = 2.0, at: float = 1.0,
+                 length: float = 0.3, stop_at: float | None = None) -> None:
+    """Make ``robot``'s driver stall ``length`` s in every ``every`` s (from ``at`` s into
+    each): it applies no command and publishes no joint_states meanwhile, then takes the
+    newest goal, as a loaded machine's driver does. From ``stop_at`` s on (if given) it
+    publishes joint_states no more. ``on_applied(positions)`` is called with every command
+    the driver applies."""
+    real = robot.command
+
+    def stalled() -> bool:
+        return at <= robot.now() % every < at + length
+
+    def command(positions, efforts=None):
+        if not stalled():
+            real(positions, efforts)
+            if on_applied is not None:
+                on_applied(positions)
+    robot.command = command
+
+    def age() -> float:
+        if stop_at is not None and robot.now() >= stop_at:
+            return robot.now() - stop_at
+        return robot.now() % every - at if stalled() else 0.0
+    robot.joint_states_age = age

@@ -8,7 +8,7 @@ import pytest
 from hyperarm_driver.mock.joint_sim import JointSim
 from hyperarm_tasks.runner import Runner
 from hyperarm_tasks.sequence import load_task
-from hyperarm_tasks.testing import SimRobot
+from hyperarm_tasks.testing import SimRobot, stall_driver
 from hyperarm_tasks.testing import work_cell as cell
 
 pytestmark = [pytest.mark.core, pytest.mark.slow]
@@ -305,40 +305,25 @@ def test_first_moves_from_the_ready_pose_are_mostly_straight(desc, kin):
     assert len(fallbacks) <= 3, "\n".join(fallbacks)
 
 
-def _stalling(robot, applied, stale_forever_from=None):
-    """The driver stalls 0.3 s in every 2 s: it applies no command and publishes no
-    joint_states meanwhile (from ``stale_forever_from`` s on it publishes none at all)."""
-    real = robot.command
-
-    def stalled() -> bool:
-        return 1.0 <= robot.now() % 2.0 < 1.3
-
-    def command(positions, efforts=None):
-        if not stalled():
-            real(positions, efforts)
-            applied.append((robot.now(), np.array([positions[n] for n in sorted(positions)])))
-    robot.command = command
-
-    def age() -> float:
-        if stale_forever_from is not None and robot.now() >= stale_forever_from:
-            return robot.now() - stale_forever_from
-        return robot.now() % 2.0 - 1.0 if stalled() else 0.0
-    robot.joint_states_age = age
-
-
-def test_a_stalled_driver_holds_a_streamed_move(desc, kin, tmp_path):
-    # a move_to of ~14 s (from the ready pose to above the source peg) through stalls: the goal the
-    # driver applies after each continues where it stopped (the stream's clock is taken back
-    # to the driver's last joint_states), not 0.05 s of the path further on
+def _move_over_source(desc, tmp_path, extra: str = ""):
+    """A task of one move_to from the ready pose to 5 cm above the source peg (~14 s)."""
     from hyperarm_tasks.sequence import load_task_file
     path = tmp_path / "move.yaml"
     path.write_text("schema_version: 1\nobjects: [source_peg]\nsteps:\n"
                     "  - {name: over, type: move_to, target: {relative_to: source_peg, "
-                    "offset: [0, 0, 5 cm]}, speed: 5 cm/s}\n")
+                    f"offset: [0, 0, 5 cm]}}, speed: 5 cm/s{extra}}}\n")
+    return load_task_file(path, desc)
+
+
+def test_a_stalled_driver_holds_a_streamed_move(desc, kin, tmp_path):
+    # a move_to through stalls of the driver: the goal it applies after each continues
+    # where it stopped (the stream's clock is taken back to the driver's last
+    # joint_states), not 0.05 s of the path further on
     robot = SimRobot(JointSim(desc, cell(11)))
     applied = []
-    _stalling(robot, applied)
-    result = Runner(robot, kin, load_task_file(path, desc)).run()
+    stall_driver(robot, lambda positions: applied.append(
+        (robot.now(), np.array([positions[n] for n in sorted(positions)]))))
+    result = Runner(robot, kin, _move_over_source(desc, tmp_path)).run()
     assert result.success, result.message
     steps = [(t1 - t0, float(np.abs(q1 - q0).max()))
              for (t0, q0), (t1, q1) in zip(applied, applied[1:])]
@@ -352,14 +337,9 @@ def test_a_stalled_driver_holds_a_streamed_move(desc, kin, tmp_path):
 
 
 def test_joint_states_that_stop_fail_a_streamed_move(desc, kin, tmp_path):
-    from hyperarm_tasks.sequence import load_task_file
-    path = tmp_path / "move.yaml"
-    path.write_text("schema_version: 1\nobjects: [source_peg]\nsteps:\n"
-                    "  - {name: over, type: move_to, target: {relative_to: source_peg, "
-                    "offset: [0, 0, 5 cm]}, speed: 5 cm/s, timeout: 60 s}\n")
     robot = SimRobot(JointSim(desc, cell(11)))
-    _stalling(robot, [], stale_forever_from=2.0)
-    result = Runner(robot, kin, load_task_file(path, desc)).run()
+    stall_driver(robot, stop_at=2.0)
+    result = Runner(robot, kin, _move_over_source(desc, tmp_path, ", timeout: 60 s")).run()
     assert not result.success and result.failure_kind == "driver", result.message
     assert "no joint_states for 5.0 s while moving" in result.message
     assert result.total_time < 2.0 + 5.0 + 1.0

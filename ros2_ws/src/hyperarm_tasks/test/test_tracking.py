@@ -16,7 +16,7 @@ from hyperarm_ik.paths import FIGURE8, Figure8
 from hyperarm_tasks.runner import Runner
 from hyperarm_tasks.sequence import load_task, load_task_file
 from hyperarm_tasks.steps.track_path import windows
-from hyperarm_tasks.testing import SimRobot
+from hyperarm_tasks.testing import SimRobot, stall_driver
 from hyperarm_tasks.tracking import (PathClock, arc_length, closest_approach, tracking_report,
                                      trapezoid_time_scaling)
 
@@ -239,18 +239,8 @@ def test_a_stalled_driver_holds_the_path(desc, kin, tmp_path):
     applied = []                       # (time, tool position) of the commands applied
 
     def stall(robot):
-        real = robot.command
-
-        def stalled() -> bool:
-            return 1.0 <= robot.now() % 2.0 < 1.3
-
-        def command(positions, efforts=None):
-            if not stalled():
-                real(positions, efforts)
-                q = np.array([positions[n] for n in kin.joint_names])
-                applied.append((robot.now(), kin.forward(q)[:3, 3]))
-        robot.command = command
-        robot.joint_states_age = lambda: robot.now() % 2.0 - 1.0 if stalled() else 0.0
+        stall_driver(robot, lambda positions: applied.append((robot.now(), kin.forward(
+            np.array([positions[n] for n in kin.joint_names]))[:3, 3])))
 
     tracking = []                      # times of the tracking phase's feedback
     result, robot = _run_file(desc, kin, tmp_path, "{name: f8, type: track_path, path: "
