@@ -116,10 +116,19 @@ def test_service_answers_good_and_bad_requests(rclpy_context, executor, client_n
     assert not resp.success and "out of reach" in resp.message
     assert len(resp.solution.position) == 9 and resp.position_error > 0.5
 
-    # sub-second timeout honoured by a slow solver (impossible tolerance keeps it busy)
-    resp = c.call(_request(ARM, q, solver="heuristic", timeout=0.2,
-                           position_tolerance=1e-300, orientation_tolerance=1e-300))
-    assert not resp.success and resp.solve_time < 0.2 + 0.1
+    # sub-second timeout honoured by a slow solver (impossible tolerance keeps it busy). The
+    # time is wall time: a loaded machine that does not schedule the service around the
+    # deadline overran it once (0.47 s), so up to 3 tries, each failing on its timeout, and
+    # one within 0.1 s of it (a solver that ignored its deadline would overrun every try)
+    times = []
+    for _ in range(3):
+        resp = c.call(_request(ARM, q, solver="heuristic", timeout=0.2,
+                               position_tolerance=1e-300, orientation_tolerance=1e-300))
+        assert not resp.success and "timeout" in resp.message, resp.message
+        times.append(resp.solve_time)
+        if resp.solve_time < 0.2 + 0.1:
+            break
+    assert min(times) < 0.2 + 0.1, times
     # the service still answers afterwards
     assert c.call(_request(ARM, q)).success
 
