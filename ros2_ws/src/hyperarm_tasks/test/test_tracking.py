@@ -12,7 +12,7 @@ from hyperarm_driver.mock.config import load_mock_config
 from hyperarm_driver.mock.joint_sim import JointSim
 from hyperarm_description.world import PoleSpec
 from hyperarm_ik.collision import CollisionModel
-from hyperarm_ik.paths import FIGURE8, Figure8
+from hyperarm_ik.paths import FIGURE8, Figure8, hold_orientation
 from hyperarm_tasks.runner import Runner
 from hyperarm_tasks.sequence import load_task, load_task_file
 from hyperarm_tasks.steps.track_path import windows
@@ -282,3 +282,52 @@ def test_path_clock_advances_slows_holds_and_rewinds():
     early = PathClock(0.0, duration=1.0, period=0.01, stale=0.05)
     early.tick(0.01, 0.0)
     assert early.tick(0.02, 0.5) == 0.0
+
+
+def test_the_other_postures_tried_are_distinct_and_reach_the_first_waypoint(desc, kin):
+    # (random IK seeds all gave the solver's one cold-start posture: 7 tries of one posture)
+    from hyperarm_tasks.steps.track_path import other_starts
+    runner = Runner(SimRobot(JointSim(desc, _cell(31))), kin, load_task("figure8", desc))
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = hold_orientation(kin), FIGURE8.points(1000)[0]
+    here = runner.ik(pose, np.zeros(kin.nq)).q
+    starts = list(other_starts(runner, pose, here, 7))
+    assert len(starts) >= 5
+    postures = [here] + starts
+    for a in range(len(postures)):
+        err = np.linalg.norm(kin.forward(postures[a])[:3, 3] - pose[:3, 3])
+        assert err < 2e-4, err
+        for b in range(a):
+            assert np.abs(postures[a] - postures[b]).max() > 0.05, (a, b)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3, 4])
+def test_a_figure8_anywhere_in_the_cell_never_drives_the_arm_into_it(desc, kin, tmp_path,
+                                                                      seed):
+    # the invariant beside the shipped placement: a random figure-8 (centre and size) in the
+    # default work cell either runs with the measured arm clear of itself and the cell all
+    # the way, or fails before tracking with the reason (collision, ik or tracking)
+    rng = np.random.default_rng(seed)
+    cx, cy, cz = rng.uniform(0.3, 0.45), rng.uniform(-0.1, 0.1), rng.uniform(0.0, 0.25)
+    hw, hh = rng.uniform(0.05, 0.12), rng.uniform(0.03, 0.06)
+    sim = JointSim(desc, _cell(40 + seed))
+    world = CollisionModel(kin, sim.cfg.world.spec)
+    chain = [sim.names.index(n) for n in kin.joint_names]
+    visited = []
+    step = sim.step
+    sim.step = lambda dt: (step(dt), visited.append(sim.position[chain].copy()))
+    path = tmp_path / "f8.yaml"
+    path.write_text("schema_version: 1\nsteps:\n  - {name: ready, type: move_joints, arm: 0}\n"
+                    f"  - {{name: f8, type: track_path, path: figure8, waypoints: 300, "
+                    f"center: [{cx:.3f} m, {cy:.3f} m, {cz:.3f} m], half_width: {hw:.3f} m, "
+                    f"half_height: {hh:.3f} m, speed: 5 cm/s}}\n")
+    phases = []
+    result = Runner(SimRobot(sim), kin, load_task_file(path, desc),
+                    on_feedback=lambda fb: phases.append(fb.phase),
+                    collisions=world).run()
+    if result.success:
+        hits = [k for k, q in enumerate(visited[::5]) if world.in_collision(q)]
+        assert not hits, (seed, hits[:5])
+    else:
+        assert result.failure_kind in ("collision", "ik", "tracking"), result.message
+        assert "tracking" not in phases, result.message

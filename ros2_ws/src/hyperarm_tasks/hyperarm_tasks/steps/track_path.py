@@ -51,7 +51,11 @@ WINDOW = 1.0             # s: a waypoint is judged on the path measured this clo
                          # when it was commanded (the figure-8 crosses itself ~9 s apart)
 PLAN_CANCEL_EVERY = 100  # waypoints solved between two cancel checks
 PLAN_STARTS = 8          # postures at the first waypoint tried for a collision-free plan
-PLAN_SEED = 0            # their random IK seeds: the same plan on every run
+PLAN_SEED = 0            # their random null-space directions: the same plan on every run
+NULL_STEP = 0.3          # rad, the first null-space step to another posture (then 2x, 3x)
+NULL_STEPS_MAX = 3       # steps of at most this many NULL_STEP (farther, the solver's
+                         # cold start takes over and gives its table posture again)
+SAME_POSTURE = 0.01      # rad: a posture within this of one tried already is not tried
 
 
 @dataclass(frozen=True)
@@ -134,29 +138,57 @@ def _check_plan(step: TrackPath, runner, qs: np.ndarray, ds: np.ndarray) -> None
                          + ", ".join(str(c) for c in chk.contacts))
 
 
+def other_starts(runner, pose: np.ndarray, here: np.ndarray, count: int):
+    """Up to ``count`` other postures of the redundant arm with tool0 at ``pose`` (4x4),
+    each different from ``here`` (a solution of it) and from the others, deterministic: the IK's cold start (its
+    table posture: any seed far from the pose gives that one), then ``here`` moved by
+    growing steps (NULL_STEP, 2 NULL_STEP, ... rad) along fixed random directions of the
+    task's null space and solved again from there (a warm start: the solver keeps it)."""
+    kin = runner.kin
+    rng = np.random.default_rng(PLAN_SEED)
+    seen = [here]
+
+    def new(q: np.ndarray) -> bool:        # not a posture tried already
+        if any(np.abs(q - other).max() < SAME_POSTURE for other in seen):
+            return False
+        seen.append(q)
+        return True
+
+    far = np.where(here > 0.5 * (kin.lower + kin.upper), kin.lower, kin.upper)
+    res = runner.ik(pose, far, collisions="avoid")
+    if res.success and new(res.q):
+        yield res.q
+    j = kin.jacobian(here)
+    for k in range(1, count):
+        z = rng.normal(size=len(here))
+        dq = z - np.linalg.pinv(j) @ (j @ z)             # the null-space part
+        norm = float(np.linalg.norm(dq))
+        if norm < 1e-9:
+            continue
+        step = min(k, NULL_STEPS_MAX) * NULL_STEP
+        seed = np.minimum(np.maximum(here + dq * (step / norm), kin.lower), kin.upper)
+        res = runner.ik(pose, seed, collisions="avoid")
+        if res.success and new(res.q):
+            yield res.q
+
+
 def _plan(step: TrackPath, runner, points: np.ndarray, rot: np.ndarray,
           ds: np.ndarray, deadline: float) -> np.ndarray:
     """The joints of every waypoint, free of collisions and within the speed budget: first
     from where the arm is (at the first waypoint), else from up to PLAN_STARTS - 1 other
-    postures of the redundant arm at the first waypoint (IK from random seeds,
-    deterministic), the arm moving to the one that gives a clean plan in joint space
-    (a checked path) before the tracking starts: (n, nq)."""
+    postures of the redundant arm at the first waypoint (:func:`other_starts`), the arm
+    moving to the first that gives a clean plan in joint space (a checked path) before
+    the tracking starts: (n, nq)."""
     here = runner.q_target if runner.q_target is not None else runner.q_measured()
-    first: StepFailed | None = None
-    rng = np.random.default_rng(PLAN_SEED)
-    lo, hi = np.array([[runner._limits[n][0], runner._limits[n][1]]
-                       for n in runner.chain]).T
     pose = np.eye(4)
     pose[:3, :3], pose[:3, 3] = rot, points[0]
+    first: StepFailed | None = None
+    starts = other_starts(runner, pose, here, PLAN_STARTS - 1)
     for attempt in range(PLAN_STARTS):
         runner.feedback("planning", 0.1 * attempt / PLAN_STARTS, points[0])
-        if attempt == 0:
-            start = here
-        else:
-            res = runner.ik(pose, rng.uniform(lo, hi), collisions="avoid")
-            if not res.success:
-                continue
-            start = res.q
+        start = here if attempt == 0 else next(starts, None)
+        if start is None:
+            break
         try:
             qs = _plan_from(step, runner, points, rot, start)
             _check_plan(step, runner, qs, ds)
