@@ -250,6 +250,17 @@ def _window(probe: ForceProbe, arm: MockArm, since: float):
     return forces, xs
 
 
+def _passive_since(probe: ForceProbe, t: float) -> str | None:
+    """The hybrid_force node's reason for going passive since ``t`` (monotonic s), or None:
+    its diagnostics since then, and its mode now."""
+    with probe.lock:
+        rows = [st for st in probe.statuses if st[0] >= t]
+    passive = [st[1].get("reason", "") for st in rows if st[1].get("mode") == "passive"]
+    if passive:
+        return passive[0]
+    return None if probe.mode() != "passive" else "passive (no reason seen)"
+
+
 def _settled(probe: ForceProbe, arm: MockArm, wait_for, timeout: float, window: float = 0.6):
     """Wait (at most ``timeout`` s) until, over the last ``window`` s, the true contact
     force varies by less than 2 % (or 0.02 N) and the tool's z by less than 0.1 mm.
@@ -335,10 +346,20 @@ def test_pressing_on_a_peg_top_with_the_mock(launch, rclpy_context, executor, wa
     # the last: 28 N released to 1.5 N (issue 24: the tool slipped sideways, 11-26 mm in
     # the core simulation, before force_rate)
     for k, fd in ((200.0, 0.0), (1000.0, 0.0), (400.0, -1.0), (4000.0, 0.0), (200.0, 0.0)):
-        t_goal = time.monotonic()
-        probe.send_goal(x0, rot, [800.0, 800.0, k, 20.0, 20.0, 20.0],
-                        (False, False, True, False, False, False), (0, 0, fd, 0, 0, 0))
-        f, xs, waited = _settled(probe, arm, wait_for, 8.0)
+        # a press during which the node went passive on stale joint_states (a loaded
+        # machine: documented, the task's insert step enables it again) held the arm where it
+        # was and says nothing of the law: enabled again and pressed again, at most twice;
+        # any other passivity fails the test
+        for again in range(3):
+            t_goal = time.monotonic()
+            probe.send_goal(x0, rot, [800.0, 800.0, k, 20.0, 20.0, 20.0],
+                            (False, False, True, False, False, False), (0, 0, fd, 0, 0, 0))
+            f, xs, waited = _settled(probe, arm, wait_for, 8.0)
+            passive = _passive_since(probe, t_goal)
+            if passive is None:
+                break
+            assert passive.startswith("joint_states stale") and again < 2, (k, fd, passive)
+            _enable(probe, wait_for)
         xy_all = _window(probe, arm, t_goal)[1][:, :2]     # the whole press, contact included
         f_true = abs(float(f[2]))        # the force-controlled axis: the normal force
         since = time.monotonic() - 0.6
