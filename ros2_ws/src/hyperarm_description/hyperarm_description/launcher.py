@@ -10,6 +10,7 @@ the node module, and exits 0 if a signal came before the node's own main took ov
 from __future__ import annotations
 
 import importlib
+import os
 import signal
 import sys
 from typing import Any, Callable
@@ -54,8 +55,15 @@ def lazy_main(module: str, attr: str = "main") -> Callable[[], Any]:
             # run_node() replaces the handler at once; a signal in between is still quiet.
             return main()
         except _StoppedDuringStartup:
-            print("stopped during start-up", file=sys.stderr)
-            sys.exit(0)
+            # a second signal (a double Ctrl-C) must not end the exit with -2: Python's
+            # finalization puts back SIG_DFL for the handlers it installed (not SIG_IGN)
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, signal.SIG_IGN)
+            print("stopped during start-up", file=sys.stderr, flush=True)
+            # nothing of ours has started: skip the interpreter's finalization of what was
+            # imported (pinocchio, the DDS library: up to 1.9 s on a loaded machine)
+            sys.stdout.flush()
+            os._exit(0)
 
     entry.__name__ = entry.__qualname__ = f"{module.rsplit('.', 1)[-1]}_{attr}"
     entry.__doc__ = f"Entry point of {module}.{attr} (see hyperarm_description.launcher)."

@@ -19,6 +19,7 @@ The ros2/demos pattern, written once, with what a node on a robot needs around i
 """
 from __future__ import annotations
 
+import faulthandler
 import os
 import signal
 import sys
@@ -54,6 +55,11 @@ _FLUSH_TIME = 0.2    # s: spins after a node's before_shutdown() (its results go
 
 #: s: a clean-up that takes longer prints its phases' durations on stderr
 SLOW_SHUTDOWN = 1.0
+#: s: a clean-up still running this long after the stop prints every thread's stack on
+#: stderr and ends the process with exit code 1 (faulthandler's watchdog, a C thread: it
+#: works while a DDS call that never returns holds the main thread, as Fast DDS' teardown
+#: did in 2 of about 60 lifecycle runs here). Before launch's SIGTERM escalation (5 s).
+STUCK_SHUTDOWN = 4.5
 
 #: Executors :func:`run_node` can build by name: ``single`` (rclpy's
 #: SingleThreadedExecutor, the default) and ``events`` (rclpy.experimental.EventsExecutor:
@@ -110,6 +116,7 @@ class _Stop:
     def __init__(self) -> None:
         self.event = threading.Event()
         self.building = True
+        self.building_aborted = False  # the node's constructor was stopped by a signal
         self.signalled = False
         self._previous: dict[int, Any] = {}
 
@@ -214,13 +221,19 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None,
         spinner.start()
         while not stop.event.is_set():
             stop.event.wait(0.5)  # signal handlers run in the main thread, between waits
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         if not stop.event.is_set():
             raise  # not one of our signals
-        # else: a signal while the node was being built; clean exit below
+        # else: a signal while the node was being built; clean exit below, the half-built
+        # node destroyed first (rclpy shut down under a live node took 2.1 s once)
+        if node is None:
+            node = _half_built_node(exc)
     finally:
+        stop.building_aborted = stop.building
         stop.building = False
         stop.event.set()  # from here on, signals are ignored
+        if args is None:  # a process of its own (not a node run inside a test's process)
+            faulthandler.dump_traceback_later(STUCK_SHUTDOWN, exit=True)
         phases = _Phases()
         if spinner is not None:
             if wake is not None:
@@ -243,11 +256,16 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None,
         name = None
         if node is not None:
             name = node.get_name()
-            node.destroy_node()
+            if stop.building_aborted:
+                _destroy_half_built(node)
+            else:
+                node.destroy_node()
             phases.done("node")
         rclpy.try_shutdown()
         phases.done("rclpy")
         phases.report(name)
+        if args is None:
+            faulthandler.cancel_dump_traceback_later()
         if stop.signalled:
             stop.ignore()  # the process is on its way out
         else:
@@ -279,6 +297,36 @@ def _exit_now() -> None:
     except (OSError, AttributeError):
         pass
     os._exit(0)
+
+
+def _half_built_node(exc: BaseException) -> Node | None:
+    """The node whose constructor ``exc`` (a signal's KeyboardInterrupt) stopped: the
+    outermost ``self`` that is a Node in the traceback, or None (stopped before rclpy's
+    Node.__init__ ran)."""
+    tb = exc.__traceback__
+    while tb is not None:
+        candidate = tb.tb_frame.f_locals.get("self")
+        if isinstance(candidate, Node):
+            try:
+                candidate.handle  # noqa: B018 (rclpy's Node.__init__ got as far as rcl)
+            except Exception:
+                return None
+            return candidate
+        tb = tb.tb_next
+    return None
+
+
+def _destroy_half_built(node: Node) -> None:
+    """Destroy a node whose constructor did not finish: its own ``destroy_node()`` (its
+    shutdown policy) where that works on a partial object, else rclpy's, else (stopped
+    inside rclpy's own Node.__init__) the rcl node alone."""
+    for destroy in (node.destroy_node, lambda: Node.destroy_node(node),
+                    lambda: node.handle.destroy_when_not_in_use()):
+        try:
+            destroy()
+            return
+        except Exception:  # an attribute its (or rclpy's) constructor never set
+            continue
 
 
 class _Phases:

@@ -68,3 +68,40 @@ def test_other_unraisable_exceptions_are_still_reported(tmp_path):
     assert done.returncode == 0, done.stderr
     assert "main ran" in done.stdout
     assert "Exception ignored" in done.stderr and "a library's own defect" in done.stderr
+
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_signals_in_a_burst_during_the_import_are_a_quiet_exit_0(tmp_path, sig):
+    """A double Ctrl-C, or a launcher's SIGTERM then SIGINT: signals keep coming (every
+    2 ms here) while the process exits after the first. Before, Python's finalization put
+    SIG_DFL back and a later signal killed the exiting process (-2; seen on ik_service,
+    whose import takes up to 7 s on a loaded machine)."""
+    import signal as _signal
+    import time
+
+    (tmp_path / "slow_node.py").write_text(textwrap.dedent("""\
+        import sys, time
+        print("importing", flush=True)
+        time.sleep(30)
+        def main():
+            print("main ran")
+        """))
+    code = ("import sys; sys.path.insert(0, %r)\n"
+            "from hyperarm_description.launcher import lazy_main\n"
+            "sys.exit(lazy_main('slow_node')())\n" % str(tmp_path))
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "importing"
+        end = time.monotonic() + 10.0
+        while proc.poll() is None and time.monotonic() < end:
+            proc.send_signal(getattr(_signal, sig))
+            time.sleep(0.002)
+        out, err = proc.communicate(timeout=10.0)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, (proc.returncode, err)
+    assert "main ran" not in out and "stopped during start-up" in err
+    for bad in ("Traceback", "Exception ignored", "KeyboardInterrupt"):
+        assert bad not in err, err

@@ -139,3 +139,86 @@ def test_a_slow_shutdown_says_where_its_time_went(ros_domain, capfd):
     assert line[0].startswith("[slow_to_destroy] shutdown took 1.")
     node_s = float(line[0].split("node ")[1].split(" s")[0])
     assert 1.3 <= node_s < 2.0, line[0]
+
+
+_DESTROYED: list[str] = []
+
+
+class _SlowToBuild(Node):
+    """A node whose constructor is stopped by a signal half way (after a publisher and a
+    timer, before ``self.ready``): e.g. ik_service building its solvers for seconds."""
+
+    def __init__(self, partial_destroy_fails: bool, inside_rclpy: bool = False) -> None:
+        super().__init__("slow_to_build")
+        if inside_rclpy:
+            # as if the signal landed inside rclpy's Node.__init__, after the rcl node and
+            # before its type-description service (a lifecycle run saw exactly that)
+            del self._type_description_service
+        self.partial_destroy_fails = partial_destroy_fails
+        self.create_publisher(std_msgs_String(), "slow_to_build/out", 1)
+        self.create_timer(1.0, lambda: None)
+        os.kill(os.getpid(), signal.SIGINT)   # the user's Ctrl-C, mid-construction
+        import time
+        time.sleep(5.0)                       # (interrupted by the signal's exception)
+        self.ready = True
+
+    def destroy_node(self) -> None:
+        _DESTROYED.append("own")
+        if self.partial_destroy_fails:
+            assert self.ready                 # an attribute the constructor never set
+        super().destroy_node()
+
+
+def std_msgs_String():
+    from std_msgs.msg import String
+    return String
+
+
+@pytest.mark.parametrize("partial_destroy_fails,inside_rclpy",
+                         [(False, False), (True, False), (True, True)],
+                         ids=["own-destroy", "rclpy-destroy", "rcl-node-only"])
+def test_a_signal_during_the_constructor_destroys_the_half_built_node(
+        ros_domain, capfd, partial_destroy_fails, inside_rclpy):
+    """The node is destroyed before rclpy shuts down: its own destroy_node (its shutdown
+    policy) where that works on the partial object, else rclpy's, else the rcl node alone;
+    never a traceback. Before, the half-built node was left alive under rclpy's shutdown
+    (2.1 s in one lifecycle run)."""
+    _DESTROYED.clear()
+    run_node(lambda: _SlowToBuild(partial_destroy_fails, inside_rclpy), [],
+             robot_description=False)
+    assert _DESTROYED == ["own"]
+    assert not rclpy.ok()
+    err = capfd.readouterr().err
+    assert "Traceback" not in err and "AssertionError" not in err, err
+
+
+def test_a_stuck_shutdown_prints_every_threads_stack(ros_domain, tmp_path):
+    """A node process whose clean-up is still running STUCK_SHUTDOWN after the signal
+    prints every thread's stack on stderr (where it hangs) and ends with exit code 1, never
+    left for a launcher to SIGKILL (Fast DDS' teardown hung for good twice here)."""
+    import subprocess
+    import sys
+
+    from hyperarm_description.ros_main import STUCK_SHUTDOWN
+
+    script = tmp_path / "stuck.py"
+    script.write_text(
+        "import os, signal, time\n"
+        "from rclpy.node import Node\n"
+        "from hyperarm_description.ros_main import run_node\n"
+        "class Stuck(Node):\n"
+        "    def __init__(self):\n"
+        "        super().__init__('stuck')\n"
+        "        self.create_timer(0.05, lambda: os.kill(os.getpid(), signal.SIGTERM))\n"
+        "    def destroy_node(self):\n"
+        "        time.sleep(60)  # a teardown that never returns\n"
+        "        super().destroy_node()\n"
+        "run_node(Stuck, robot_description=False)\n")
+    import time
+    t0 = time.monotonic()
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                          timeout=50, env=dict(os.environ, ROS_DOMAIN_ID=str(ros_domain)))
+    took = time.monotonic() - t0
+    assert done.returncode == 1, done.stderr
+    assert "Thread 0x" in done.stderr and "in destroy_node" in done.stderr, done.stderr
+    assert took < 40.0, took   # the watchdog ended it, not the 60 s sleep
