@@ -145,7 +145,7 @@ _DESTROYED: list[str] = []
 
 
 class _SlowToBuild(Node):
-    """A node whose constructor is stopped by a signal half way (after a publisher and a
+    """A node whose constructor is stopped by a signal half way (after a service and a
     timer, before ``self.ready``): e.g. ik_service building its solvers for seconds."""
 
     def __init__(self, partial_destroy_fails: bool, inside_rclpy: bool = False) -> None:
@@ -155,7 +155,8 @@ class _SlowToBuild(Node):
             # before its type-description service (a lifecycle run saw exactly that)
             del self._type_description_service
         self.partial_destroy_fails = partial_destroy_fails
-        self.create_publisher(std_msgs_String(), "slow_to_build/out", 1)
+        from std_srvs.srv import Trigger
+        self.create_service(Trigger, "slow_to_build/ping", lambda _req, res: res)
         self.create_timer(1.0, lambda: None)
         os.kill(os.getpid(), signal.SIGINT)   # the user's Ctrl-C, mid-construction
         import time
@@ -167,11 +168,6 @@ class _SlowToBuild(Node):
         if self.partial_destroy_fails:
             assert self.ready                 # an attribute the constructor never set
         super().destroy_node()
-
-
-def std_msgs_String():
-    from std_msgs.msg import String
-    return String
 
 
 @pytest.mark.parametrize("partial_destroy_fails,inside_rclpy",

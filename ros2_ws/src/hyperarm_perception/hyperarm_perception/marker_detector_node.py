@@ -25,7 +25,7 @@ from hyperarm_ik.ros_conversions import matrix_to_pose
 from hyperarm_interfaces.msg import Detections
 
 from .camera_input import camera_model, image_gray
-from .markers import (CameraModelError, ImageError, MarkerDetector, MarkerMapError,
+from .markers import (REASONS, CameraModelError, ImageError, MarkerDetector, MarkerMapError,
                       load_marker_map)
 
 IMAGE = "camera/image_raw"
@@ -122,7 +122,7 @@ class MarkerDetectorNode(Node):
         out = dict(self._dropped)
         out.update({f"image_{r}": n for r, n in self._gate.counts.items()})
         if self._detector is not None:
-            out.update({(k if k in ("frames", "detections") else f"rejected_{k}"): v
+            out.update({(f"rejected_{k}" if k in REASONS else k): v
                         for k, v in self._detector.counts.items()})
         return out
 

@@ -3,7 +3,10 @@
 Pipeline for one image (:meth:`MarkerDetector.detect`):
 
 1. ``cv2.aruco.ArucoDetector`` finds the markers of the map's dictionary, with sub-pixel corner
-   refinement (``CORNER_REFINE_SUBPIX``).
+   refinement (``CORNER_REFINE_SUBPIX``); with ``corner_refinement: edges`` (the default)
+   the corners are then taken as the intersections of the marker's four outer edges
+   (:mod:`hyperarm_perception.edges`: no inward bias on a blurred picture), falling back to
+   the sub-pixel corners where an edge cannot be measured (counted: ``edge_fallbacks``).
 2. Each marker whose id is in the :class:`MarkerMap` and whose shortest side is at least
    ``min_side_px`` pixels gets a pose by ``cv2.solvePnPGeneric(..., SOLVEPNP_IPPE_SQUARE)``
    (the better of IPPE's two solutions), refined by ``cv2.solvePnPRefineLM``.
@@ -36,6 +39,8 @@ import numpy as np
 import yaml
 
 from hyperarm_description.model import DescriptionError, _rpy_matrix, parse_angle
+
+from .edges import refine_corners_on_edges
 
 __all__ = ["PerceptionError", "MarkerMapError", "CameraModelError", "ImageError",
            "MarkerSpec", "DetectorConfig", "MarkerMap", "CameraModel", "Detection",
@@ -108,6 +113,7 @@ MARKER_MAP_SCHEMA: dict[str, Any] = {
                 "corner_sigma_px": {"type": "number", "exclusiveMinimum": 0},
                 "agree_position": {"type": "number", "exclusiveMinimum": 0},
                 "agree_angle": {"type": ["number", "string"]},
+                "corner_refinement": {"enum": ["edges", "subpix"]},
             }},
     },
 }
@@ -147,7 +153,8 @@ class DetectorConfig:
     refinement; ``corner_sigma_px``: the prior standard deviation of a corner coordinate
     (pixels) used by the covariance (a floor on the one estimated from the residuals);
     ``agree_position`` (m) / ``agree_angle`` (rad): how far two markers' poses of one object
-    may differ."""
+    may differ; ``corner_refinement``: ``edges`` (intersections of the outer edges, see
+    :mod:`hyperarm_perception.edges`) or ``subpix`` (OpenCV's ``CORNER_REFINE_SUBPIX`` alone)."""
 
     min_side_px: float = 20.0
     max_view_angle: float = math.radians(60.0)
@@ -155,6 +162,7 @@ class DetectorConfig:
     corner_sigma_px: float = 0.2
     agree_position: float = 0.01
     agree_angle: float = math.radians(10.0)
+    corner_refinement: str = "edges"
 
 
 @dataclass(frozen=True)
@@ -251,7 +259,8 @@ def parse_marker_map(data: Any, source: str = "<data>") -> MarkerMap:
         corner_sigma_px=float(det.get("corner_sigma_px", defaults.corner_sigma_px)),
         agree_position=float(det.get("agree_position", defaults.agree_position)),
         agree_angle=(_angle(det["agree_angle"], f"{source}: detection.agree_angle")
-                     if "agree_angle" in det else defaults.agree_angle))
+                     if "agree_angle" in det else defaults.agree_angle),
+        corner_refinement=str(det.get("corner_refinement", defaults.corner_refinement)))
     return MarkerMap(name, markers, config)
 
 
@@ -465,8 +474,11 @@ class MarkerDetector:
         self.map = marker_map
         self.camera = camera
         self._aruco = aruco_detector(marker_map.dictionary)
+        # the marker's width in modules, black border included (the edges' profiles stay
+        # within the border and the margin)
+        self._modules = int(self._aruco.getDictionary().markerSize) + 2
         self.counts: dict[str, int] = {r: 0 for r in REASONS}
-        self.counts.update(frames=0, detections=0)
+        self.counts.update(frames=0, detections=0, edge_fallbacks=0)
 
     def set_camera(self, camera: CameraModel) -> None:
         """Use new intrinsics (e.g. a changed CameraInfo) from the next image on."""
@@ -478,17 +490,27 @@ class MarkerDetector:
         out.append(Rejection(reason, marker_id, obj, text))
 
     def _marker_pose(self, spec: MarkerSpec, img: np.ndarray) -> np.ndarray | None:
+        poses = self._marker_poses(spec, img)
+        return poses[0] if poses else None
+
+    def _marker_poses(self, spec: MarkerSpec, img: np.ndarray) -> list[np.ndarray]:
+        """IPPE's solutions for one marker (at most two, each refined by LM), the one with
+        the smaller reprojection error first; only those in front of the camera. On a small
+        marker the two are close in error and noise can put the wrong one first (a tilt
+        flipped by 5-16 degrees): an object of several markers then takes, for each, the
+        one that agrees with the others (:meth:`_object`)."""
         obj = marker_corners(spec.size)
         cam = self.camera
         n, rvecs, tvecs, errs = cv2.solvePnPGeneric(obj, img.reshape(-1, 1, 2), cam.K, cam.D,
                                                     flags=cv2.SOLVEPNP_IPPE_SQUARE)
-        if n < 1:
-            return None
-        best = int(np.argmin(np.asarray(errs).reshape(-1)))
-        rvec, tvec = cv2.solvePnPRefineLM(obj, img.reshape(-1, 1, 2), cam.K, cam.D,
-                                          rvecs[best].copy(), tvecs[best].copy())
-        T = _pose_matrix(rvec, tvec)
-        return T if np.all(np.isfinite(T)) and T[2, 3] > 0 else None
+        out = []
+        for k in np.argsort(np.asarray(errs).reshape(-1))[:n]:
+            rvec, tvec = cv2.solvePnPRefineLM(obj, img.reshape(-1, 1, 2), cam.K, cam.D,
+                                              rvecs[k].copy(), tvecs[k].copy())
+            T = _pose_matrix(rvec, tvec)
+            if np.all(np.isfinite(T)) and T[2, 3] > 0:
+                out.append(T)
+        return out
 
     def detect(self, image: np.ndarray) -> FrameResult:
         """Detections and rejections of one image (uint8, HxW mono or HxWx3 colour, the
@@ -498,7 +520,8 @@ class MarkerDetector:
         corners, ids, _ = self._aruco.detectMarkers(gray)
         cfg = self.map.config
         rejections: list[Rejection] = []
-        # object -> [(spec, image corners 4x2, marker pose in the optical frame, rms)]
+        # object -> [(spec, image corners 4x2, the marker's pose candidates in the optical
+        # frame (the better first), rms)]
         seen: dict[str, list[tuple[MarkerSpec, np.ndarray, np.ndarray, float]]] = {}
         for quad, mid in zip(corners, ids.reshape(-1) if ids is not None else []):
             mid = int(mid)
@@ -514,11 +537,18 @@ class MarkerDetector:
                              f"marker {mid} ({spec.object}): shortest side {side:.1f} px < "
                              f"min_side_px {cfg.min_side_px:g}")
                 continue
-            T = self._marker_pose(spec, img)
-            if T is None:
+            if cfg.corner_refinement == "edges":
+                on_edges = refine_corners_on_edges(gray, img, self._modules)
+                if on_edges is None:
+                    self.counts["edge_fallbacks"] += 1
+                else:
+                    img = on_edges
+            candidates = self._marker_poses(spec, img)
+            if not candidates:
                 self._reject(rejections, "pose_failed", mid, spec.object,
                              f"marker {mid} ({spec.object}): no pose in front of the camera")
                 continue
+            T = candidates[0]
             sight = T[:3, 3] / np.linalg.norm(T[:3, 3])
             view = math.acos(max(-1.0, min(1.0, float(-T[:3, 2] @ sight))))
             if view > cfg.max_view_angle:
@@ -534,7 +564,7 @@ class MarkerDetector:
                              f"marker {mid} ({spec.object}): RMS corner reprojection error "
                              f"{rms:.2f} px > max_reprojection_px {cfg.max_reprojection_px:g}")
                 continue
-            seen.setdefault(spec.object, []).append((spec, img, T, rms))
+            seen.setdefault(spec.object, []).append((spec, img, candidates, rms))
         detections = []
         for name in sorted(seen):
             det = self._object(name, seen[name], rejections)
@@ -547,18 +577,32 @@ class MarkerDetector:
                 ) -> Detection | None:
         cfg = self.map.config
         markers = sorted(markers, key=lambda m: m[0].id)
-        poses = [T @ np.linalg.inv(spec.offset) for spec, _, T, _ in markers]
-        for i in range(1, len(poses)):
-            dp = float(np.linalg.norm(poses[i][:3, 3] - poses[0][:3, 3]))
-            da = rotation_angle(poses[i][:3, :3] @ poses[0][:3, :3].T)
-            if dp > cfg.agree_position or da > cfg.agree_angle:
-                ids = [spec.id for spec, *_ in markers]
-                self._reject(rejections, "disagreement", None, name,
-                             f"{name}: markers {ids[0]} and {ids[i]} disagree by "
-                             f"{dp * 1000:.1f} mm / {math.degrees(da):.1f} deg (limits "
-                             f"{cfg.agree_position * 1000:g} mm / "
-                             f"{math.degrees(cfg.agree_angle):g} deg)")
-                return None
+        ids = [spec.id for spec, *_ in markers]
+        # each marker's candidates as object poses; for each candidate of the first marker,
+        # every other marker takes its candidate nearest in orientation, and the set must
+        # agree (a flipped small marker then does not reject a good object)
+        cands = [[T @ np.linalg.inv(spec.offset) for T in ts] for spec, _, ts, _ in markers]
+        poses, failure = None, None
+        for ref in cands[0]:
+            pick = [ref] + [min(c, key=lambda P: rotation_angle(P[:3, :3] @ ref[:3, :3].T))
+                            for c in cands[1:]]
+            for i in range(1, len(pick)):
+                dp = float(np.linalg.norm(pick[i][:3, 3] - ref[:3, 3]))
+                da = rotation_angle(pick[i][:3, :3] @ ref[:3, :3].T)
+                if dp > cfg.agree_position or da > cfg.agree_angle:
+                    failure = failure or (i, dp, da)
+                    break
+            else:
+                poses = pick
+                break
+        if poses is None:
+            i, dp, da = failure
+            self._reject(rejections, "disagreement", None, name,
+                         f"{name}: markers {ids[0]} and {ids[i]} disagree by "
+                         f"{dp * 1000:.1f} mm / {math.degrees(da):.1f} deg (limits "
+                         f"{cfg.agree_position * 1000:g} mm / "
+                         f"{math.degrees(cfg.agree_angle):g} deg)")
+            return None
         obj = np.vstack([spec.corners_in_object() for spec, *_ in markers])
         img = np.vstack([m[1] for m in markers])
         best = int(np.argmin([m[3] for m in markers]))

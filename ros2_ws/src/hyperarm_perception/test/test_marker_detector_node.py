@@ -129,3 +129,5 @@ def test_detections_and_every_bad_input(rclpy_context, executor, wait_for):
     assert values["no_camera_info"] == "2" and values["bad_camera_info"] == "1"
     assert values["bad_image"] == "1" and values["frames"] == "2"
     assert values["detections"] == "1" and diags[-1].level == bytes([0])
+    # corners from the markers' edges on every marker seen (none fell back to OpenCV's)
+    assert values["edge_fallbacks"] == "0" and "rejected_edge_fallbacks" not in values

@@ -1,7 +1,8 @@
 """Benchmark: the mock's rendered camera (MuJoCo, EGL) and MarkerDetector on its pictures.
 
     MUJOCO_GL=egl python -m hyperarm_perception.benchmarks.rendered [--frames 40]
-            [--seed 0] [--sizes 640x480 1280x960] [--save frame.png]
+            [--seed 0] [--sizes 640x480 1280x960] [--refinements edges subpix]
+            [--save frame.png]
 
 Per picture size: the render time per frame (ms; blur and noise included), the detector's
 time per frame, and each object's errors against the poses it was drawn at, in camera_link:
@@ -9,7 +10,8 @@ position (norm), across and along the line of sight, and orientation. Each frame
 pegs by up to 4 cm and lays the block on the table at a random place and yaw, clear of the
 pegs; the arm is turned away (out of view). Also how often the block's marker is found while
 the block is threaded on its peg (the peg stands in the marker's middle). ``--save`` writes
-the first frame of the first size with the detections drawn. docs/perception.md keeps the
+the first frame of the first size with the detections drawn. Each of ``--refinements``
+(the marker map's ``corner_refinement``) detects on the same pictures, side by side. docs/perception.md keeps the
 figures."""
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ import argparse
 import math
 import os
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -68,6 +71,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--frames", type=int, default=40)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--sizes", nargs="+", default=["640x480", "1280x960"])
+    parser.add_argument("--refinements", nargs="+", default=["edges", "subpix"],
+                        choices=["edges", "subpix"])
     parser.add_argument("--save", help="write the first frame, detections drawn, as a PNG")
     args = parser.parse_args(argv)
     desc = load_description(None, "arm")
@@ -79,42 +84,51 @@ def main(argv: list[str] | None = None) -> None:
         rng = np.random.default_rng(args.seed)
         with RenderedCamera(desc, world, mm, RenderOptions(width=width, height=height,
                                                            seed=args.seed)) as cam:
-            detector = MarkerDetector(mm, cam.camera)
+            detectors = {r: MarkerDetector(replace(mm, config=replace(
+                mm.config, corner_refinement=r)), cam.camera) for r in args.refinements}
             link = np.linalg.inv(cam.camera_pose)
             cam.render(AWAY, cell_poses(world))          # the first render sets OpenGL up
-            render_ms, detect_ms = [], []
-            errs: dict[str, list] = {"block": [], "source_peg": [], "destination_peg": []}
+            render_ms = []
+            detect_ms: dict[str, list] = {r: [] for r in detectors}
+            errs = {r: {"block": [], "source_peg": [], "destination_peg": []}
+                    for r in detectors}
             for _ in range(args.frames):
                 poses = _scene(world, rng)
                 t0 = time.perf_counter()
                 image = cam.render(AWAY, poses)
                 t1 = time.perf_counter()
                 gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
-                result = detector.detect(gray)
-                t2 = time.perf_counter()
                 render_ms.append(1e3 * (t1 - t0))
-                detect_ms.append(1e3 * (t2 - t1))
-                if args.save and not saved:
-                    cv2.imwrite(args.save, draw(gray, result, cam.camera, detector))
-                    saved = True
-                for d in result.detections:
-                    truth = link @ poses[d.object]
-                    err = d.pose[:3, 3] - truth[:3, 3]
-                    sight = truth[:3, 3] / np.linalg.norm(truth[:3, 3])
-                    along = float(err @ sight)
-                    errs[d.object].append((
-                        1e3 * np.linalg.norm(err), 1e3 * np.linalg.norm(err - along * sight),
-                        1e3 * abs(along),
-                        math.degrees(rotation_angle(d.pose[:3, :3].T @ truth[:3, :3]))))
-            threaded = sum("block" in {d.object for d in detector.detect(
-                cv2.cvtColor(cam.render(AWAY, cell_poses(world)), cv2.COLOR_RGB2GRAY)
-            ).detections} for _ in range(5))
+                for refinement, detector in detectors.items():
+                    t1 = time.perf_counter()
+                    result = detector.detect(gray)
+                    detect_ms[refinement].append(1e3 * (time.perf_counter() - t1))
+                    if args.save and not saved:
+                        cv2.imwrite(args.save, draw(gray, result, cam.camera, detector))
+                        saved = True
+                    for d in result.detections:
+                        truth = link @ poses[d.object]
+                        err = d.pose[:3, 3] - truth[:3, 3]
+                        sight = truth[:3, 3] / np.linalg.norm(truth[:3, 3])
+                        along = float(err @ sight)
+                        errs[refinement][d.object].append((
+                            1e3 * np.linalg.norm(err),
+                            1e3 * np.linalg.norm(err - along * sight), 1e3 * abs(along),
+                            math.degrees(rotation_angle(d.pose[:3, :3].T @ truth[:3, :3]))))
+            threaded_pictures = [cv2.cvtColor(cam.render(AWAY, cell_poses(world)),
+                                              cv2.COLOR_RGB2GRAY) for _ in range(5)]
         print(f"{width}x{height}: render median {np.median(render_ms):.1f} ms (p95 "
-              f"{np.percentile(render_ms, 95):.1f}), detect median {np.median(detect_ms):.1f} "
-              f"ms (p95 {np.percentile(detect_ms, 95):.1f}), {args.frames} frames")
-        for name, rows in errs.items():
-            print(_row(name, rows, args.frames))
-        print(f"  block threaded on its peg: found {threaded}/5")
+              f"{np.percentile(render_ms, 95):.1f}), {args.frames} frames")
+        for refinement, detector in detectors.items():
+            threaded = sum("block" in {d.object for d in detector.detect(g).detections}
+                           for g in threaded_pictures)
+            print(f" corner_refinement {refinement}: detect median "
+                  f"{np.median(detect_ms[refinement]):.1f} ms (p95 "
+                  f"{np.percentile(detect_ms[refinement], 95):.1f}), edge fallbacks "
+                  f"{detector.counts['edge_fallbacks']}")
+            for name, rows in errs[refinement].items():
+                print(_row(name, rows, args.frames))
+            print(f"  block threaded on its peg: found {threaded}/5")
 
 
 if __name__ == "__main__":
