@@ -17,7 +17,7 @@ from hyperarm_tasks.testing import work_cell as cell
 
 pytestmark = [pytest.mark.core, pytest.mark.slow]
 
-INSERT_START = 21.0     # s of simulated time: block_transfer's insert begins ~21 s in
+INSERT_START = 13.0     # s of simulated time: block_transfer's insert begins ~13 s in
 
 
 def _late(every: float, until: float, length: float = 0.15) -> list[tuple[float, float]]:
