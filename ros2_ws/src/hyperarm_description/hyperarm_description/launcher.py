@@ -26,6 +26,10 @@ _signalled: list[int] = []
 
 
 def _on_signal(signum: int, _frame: Any) -> None:
+    # every later signal is ignored from here on (a second one must not raise again inside
+    # the exit path, nor meet Python's SIG_DFL during finalization: exit -2)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_IGN)
     _signalled.append(signum)   # kept even if a library's import swallows the exception
     raise _StoppedDuringStartup
 
@@ -55,14 +59,14 @@ def lazy_main(module: str, attr: str = "main") -> Callable[[], Any]:
             # run_node() replaces the handler at once; a signal in between is still quiet.
             return main()
         except _StoppedDuringStartup:
-            # a second signal (a double Ctrl-C) must not end the exit with -2: Python's
-            # finalization puts back SIG_DFL for the handlers it installed (not SIG_IGN)
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                signal.signal(sig, signal.SIG_IGN)
-            print("stopped during start-up", file=sys.stderr, flush=True)
+            # (later signals are ignored since the first: _on_signal)
+            try:
+                print("stopped during start-up", file=sys.stderr, flush=True)
+                sys.stdout.flush()
+            except (OSError, ValueError):   # a closed or broken pipe: nothing to tell
+                pass
             # nothing of ours has started: skip the interpreter's finalization of what was
             # imported (pinocchio, the DDS library: up to 1.9 s on a loaded machine)
-            sys.stdout.flush()
             os._exit(0)
 
     entry.__name__ = entry.__qualname__ = f"{module.rsplit('.', 1)[-1]}_{attr}"

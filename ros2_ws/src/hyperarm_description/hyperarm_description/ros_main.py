@@ -55,11 +55,13 @@ _FLUSH_TIME = 0.2    # s: spins after a node's before_shutdown() (its results go
 
 #: s: a clean-up that takes longer prints its phases' durations on stderr
 SLOW_SHUTDOWN = 1.0
-#: s: a clean-up still running this long after the stop prints every thread's stack on
-#: stderr and ends the process with exit code 1 (faulthandler's watchdog, a C thread: it
-#: works while a DDS call that never returns holds the main thread, as Fast DDS' teardown
-#: did in 2 of about 60 lifecycle runs here). Before launch's SIGTERM escalation (5 s).
-STUCK_SHUTDOWN = 4.5
+#: s: a clean-up still running this long after the stopping signal prints every thread's
+#: stack on stderr and ends the process with exit code 1 (faulthandler's watchdog, a C
+#: thread: it works while a DDS call that never returns holds the main thread, as Fast DDS'
+#: teardown did in 2 of about 60 lifecycle runs here). Long enough for the clean-up's own
+#: waits (up to 6.2 s before the node's shutdown policy) and a slow bus; short of the 10 s
+#: after which ros2 launch and run_task.sh SIGKILL.
+STUCK_SHUTDOWN = 8.0
 
 #: Executors :func:`run_node` can build by name: ``single`` (rclpy's
 #: SingleThreadedExecutor, the default) and ``events`` (rclpy.experimental.EventsExecutor:
@@ -228,12 +230,18 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None,
         # node destroyed first (rclpy shut down under a live node took 2.1 s once)
         if node is None:
             node = _half_built_node(exc)
+    except BaseException as exc:
+        # a constructor that failed (a bad parameter's SystemExit): its half-built node is
+        # destroyed below too, then the exception goes on
+        if node is None and stop.building:
+            node = _half_built_node(exc)
+        raise
     finally:
         stop.building_aborted = stop.building
         stop.building = False
         stop.event.set()  # from here on, signals are ignored
-        if args is None:  # a process of its own (not a node run inside a test's process)
-            faulthandler.dump_traceback_later(STUCK_SHUTDOWN, exit=True)
+        # a process of its own (not a node run inside a test's process), stopped by a signal
+        watchdog = args is None and stop.signalled and _arm_watchdog()
         phases = _Phases()
         if spinner is not None:
             if wake is not None:
@@ -264,8 +272,8 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None,
         rclpy.try_shutdown()
         phases.done("rclpy")
         phases.report(name)
-        if args is None:
-            faulthandler.cancel_dump_traceback_later()
+        if watchdog and failure:
+            faulthandler.cancel_dump_traceback_later()   # (else it guards _exit_now too)
         if stop.signalled:
             stop.ignore()  # the process is on its way out
         else:
@@ -299,6 +307,16 @@ def _exit_now() -> None:
     os._exit(0)
 
 
+def _arm_watchdog() -> bool:
+    """Arm faulthandler's watchdog (:data:`STUCK_SHUTDOWN`); False where it cannot be
+    (no file descriptor behind stderr): the clean-up then runs without it."""
+    try:
+        faulthandler.dump_traceback_later(STUCK_SHUTDOWN, exit=True)
+    except (RuntimeError, ValueError, OSError, AttributeError):
+        return False
+    return True
+
+
 def _half_built_node(exc: BaseException) -> Node | None:
     """The node whose constructor ``exc`` (a signal's KeyboardInterrupt) stopped: the
     outermost ``self`` that is a Node in the traceback, or None (stopped before rclpy's
@@ -320,13 +338,15 @@ def _destroy_half_built(node: Node) -> None:
     """Destroy a node whose constructor did not finish: its own ``destroy_node()`` (its
     shutdown policy) where that works on a partial object, else rclpy's, else (stopped
     inside rclpy's own Node.__init__) the rcl node alone."""
-    for destroy in (node.destroy_node, lambda: Node.destroy_node(node),
-                    lambda: node.handle.destroy_when_not_in_use()):
+    for what, destroy in (("its destroy_node", node.destroy_node),
+                          ("rclpy's destroy_node", lambda: Node.destroy_node(node)),
+                          ("the rcl node", lambda: node.handle.destroy_when_not_in_use())):
         try:
             destroy()
             return
-        except Exception:  # an attribute its (or rclpy's) constructor never set
-            continue
+        except Exception as exc:  # e.g. an attribute its (or rclpy's) constructor never set
+            print(f"[{node.get_name()}] half-built node: {what} failed "
+                  f"({type(exc).__name__}: {exc})", file=sys.stderr, flush=True)
 
 
 class _Phases:

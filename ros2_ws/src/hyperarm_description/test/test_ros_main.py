@@ -142,6 +142,7 @@ def test_a_slow_shutdown_says_where_its_time_went(ros_domain, capfd):
 
 
 _DESTROYED: list[str] = []
+_BUILT: list[Node] = []     # the nodes the factories below made (destroyed or not)
 
 
 class _SlowToBuild(Node):
@@ -150,6 +151,7 @@ class _SlowToBuild(Node):
 
     def __init__(self, partial_destroy_fails: bool, inside_rclpy: bool = False) -> None:
         super().__init__("slow_to_build")
+        _BUILT.append(self)
         if inside_rclpy:
             # as if the signal landed inside rclpy's Node.__init__, after the rcl node and
             # before its type-description service (a lifecycle run saw exactly that)
@@ -179,13 +181,45 @@ def test_a_signal_during_the_constructor_destroys_the_half_built_node(
     policy) where that works on the partial object, else rclpy's, else the rcl node alone;
     never a traceback. Before, the half-built node was left alive under rclpy's shutdown
     (2.1 s in one lifecycle run)."""
+    from rclpy.exceptions import InvalidHandle
+
     _DESTROYED.clear()
+    _BUILT.clear()
     run_node(lambda: _SlowToBuild(partial_destroy_fails, inside_rclpy), [],
              robot_description=False)
     assert _DESTROYED == ["own"]
     assert not rclpy.ok()
+    with pytest.raises(InvalidHandle):      # its rcl node was destroyed
+        _BUILT[0].get_name()
     err = capfd.readouterr().err
-    assert "Traceback" not in err and "AssertionError" not in err, err
+    assert "Traceback" not in err, err
+    failed = [line for line in err.splitlines() if "half-built node:" in line]
+    assert len(failed) == int(partial_destroy_fails) + int(inside_rclpy), err
+
+
+class _BadParameter(Node):
+    """A node whose constructor ends with a bad parameter's SystemExit after making a
+    service (as nodes do through declare_parameters)."""
+
+    def __init__(self) -> None:
+        super().__init__("bad_parameter")
+        _BUILT.append(self)
+        from std_srvs.srv import Trigger
+        self.create_service(Trigger, "bad_parameter/ping", lambda _req, res: res)
+        raise SystemExit("bad_parameter: bad parameter 'rate': must be > 0")
+
+
+def test_a_constructor_that_fails_has_its_half_built_node_destroyed(ros_domain):
+    """The SystemExit of a bad parameter goes on (exit 1 with its line), and the node the
+    constructor had made is destroyed first, not left under rclpy's shutdown."""
+    from rclpy.exceptions import InvalidHandle
+
+    _BUILT.clear()
+    with pytest.raises(SystemExit, match="must be > 0"):
+        run_node(_BadParameter, [], robot_description=False)
+    assert not rclpy.ok()
+    with pytest.raises(InvalidHandle):
+        _BUILT[0].get_name()
 
 
 def test_a_stuck_shutdown_prints_every_threads_stack(ros_domain, tmp_path):

@@ -8,8 +8,9 @@ Pipeline for one image (:meth:`MarkerDetector.detect`):
    (:mod:`hyperarm_perception.edges`: no inward bias on a blurred picture), falling back to
    the sub-pixel corners where an edge cannot be measured (counted: ``edge_fallbacks``).
 2. Each marker whose id is in the :class:`MarkerMap` and whose shortest side is at least
-   ``min_side_px`` pixels gets a pose by ``cv2.solvePnPGeneric(..., SOLVEPNP_IPPE_SQUARE)``
-   (the better of IPPE's two solutions), refined by ``cv2.solvePnPRefineLM``.
+   ``min_side_px`` pixels gets IPPE's two poses (``cv2.solvePnPGeneric(...,
+   SOLVEPNP_IPPE_SQUARE)``, ordered by IPPE's own reprojection error), each refined by
+   ``cv2.solvePnPRefineLM``; the first is the marker's pose.
 3. It is rejected when it is seen at a grazing angle (its normal more than
    ``max_view_angle`` from the line of sight to its centre) or when its RMS corner
    reprojection error exceeds ``max_reprojection_px``.
@@ -114,6 +115,7 @@ MARKER_MAP_SCHEMA: dict[str, Any] = {
                 "agree_position": {"type": "number", "exclusiveMinimum": 0},
                 "agree_angle": {"type": ["number", "string"]},
                 "corner_refinement": {"enum": ["edges", "subpix"]},
+                "gamma": {"type": "number", "minimum": 0.2, "maximum": 5.0},
             }},
     },
 }
@@ -154,7 +156,9 @@ class DetectorConfig:
     (pixels) used by the covariance (a floor on the one estimated from the residuals);
     ``agree_position`` (m) / ``agree_angle`` (rad): how far two markers' poses of one object
     may differ; ``corner_refinement``: ``edges`` (intersections of the outer edges, see
-    :mod:`hyperarm_perception.edges`) or ``subpix`` (OpenCV's ``CORNER_REFINE_SUBPIX`` alone)."""
+    :mod:`hyperarm_perception.edges`) or ``subpix`` (OpenCV's ``CORNER_REFINE_SUBPIX`` alone);
+    ``gamma``: the pictures' encoding, which the edges undo (1.0: linear, as the mock's; about
+    2.2 for the sRGB of most USB cameras)."""
 
     min_side_px: float = 20.0
     max_view_angle: float = math.radians(60.0)
@@ -163,6 +167,7 @@ class DetectorConfig:
     agree_position: float = 0.01
     agree_angle: float = math.radians(10.0)
     corner_refinement: str = "edges"
+    gamma: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -260,7 +265,8 @@ def parse_marker_map(data: Any, source: str = "<data>") -> MarkerMap:
         agree_position=float(det.get("agree_position", defaults.agree_position)),
         agree_angle=(_angle(det["agree_angle"], f"{source}: detection.agree_angle")
                      if "agree_angle" in det else defaults.agree_angle),
-        corner_refinement=str(det.get("corner_refinement", defaults.corner_refinement)))
+        corner_refinement=str(det.get("corner_refinement", defaults.corner_refinement)),
+        gamma=float(det.get("gamma", defaults.gamma)))
     return MarkerMap(name, markers, config)
 
 
@@ -522,7 +528,7 @@ class MarkerDetector:
         rejections: list[Rejection] = []
         # object -> [(spec, image corners 4x2, the marker's pose candidates in the optical
         # frame (the better first), rms)]
-        seen: dict[str, list[tuple[MarkerSpec, np.ndarray, np.ndarray, float]]] = {}
+        seen: dict[str, list[tuple[MarkerSpec, np.ndarray, list[np.ndarray], float]]] = {}
         for quad, mid in zip(corners, ids.reshape(-1) if ids is not None else []):
             mid = int(mid)
             img = quad.reshape(4, 2).astype(float)
@@ -538,7 +544,7 @@ class MarkerDetector:
                              f"min_side_px {cfg.min_side_px:g}")
                 continue
             if cfg.corner_refinement == "edges":
-                on_edges = refine_corners_on_edges(gray, img, self._modules)
+                on_edges = refine_corners_on_edges(gray, img, self._modules, cfg.gamma)
                 if on_edges is None:
                     self.counts["edge_fallbacks"] += 1
                 else:
@@ -578,27 +584,29 @@ class MarkerDetector:
         cfg = self.map.config
         markers = sorted(markers, key=lambda m: m[0].id)
         ids = [spec.id for spec, *_ in markers]
-        # each marker's candidates as object poses; for each candidate of the first marker,
-        # every other marker takes its candidate nearest in orientation, and the set must
-        # agree (a flipped small marker then does not reject a good object)
+        # each marker's candidates as object poses; for each candidate of each marker in
+        # turn (the first marker's first), every other marker takes its candidate nearest
+        # in orientation, and the set must agree with it (a flipped small marker then does
+        # not reject a good object, whichever marker it is)
         cands = [[T @ np.linalg.inv(spec.offset) for T in ts] for spec, _, ts, _ in markers]
         poses, failure = None, None
-        for ref in cands[0]:
-            pick = [ref] + [min(c, key=lambda P: rotation_angle(P[:3, :3] @ ref[:3, :3].T))
-                            for c in cands[1:]]
-            for i in range(1, len(pick)):
+        for r, ref in ((r, ref) for r in range(len(cands)) for ref in cands[r]):
+            pick = [ref if k == r else
+                    min(c, key=lambda P: rotation_angle(P[:3, :3] @ ref[:3, :3].T))
+                    for k, c in enumerate(cands)]
+            for i in range(len(pick)):
                 dp = float(np.linalg.norm(pick[i][:3, 3] - ref[:3, 3]))
                 da = rotation_angle(pick[i][:3, :3] @ ref[:3, :3].T)
                 if dp > cfg.agree_position or da > cfg.agree_angle:
-                    failure = failure or (i, dp, da)
+                    failure = failure or (r, i, dp, da)
                     break
             else:
                 poses = pick
                 break
         if poses is None:
-            i, dp, da = failure
+            r, i, dp, da = failure
             self._reject(rejections, "disagreement", None, name,
-                         f"{name}: markers {ids[0]} and {ids[i]} disagree by "
+                         f"{name}: markers {ids[r]} and {ids[i]} disagree by "
                          f"{dp * 1000:.1f} mm / {math.degrees(da):.1f} deg (limits "
                          f"{cfg.agree_position * 1000:g} mm / "
                          f"{math.degrees(cfg.agree_angle):g} deg)")

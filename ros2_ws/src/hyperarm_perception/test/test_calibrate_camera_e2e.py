@@ -20,7 +20,7 @@ import yaml
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
-POSES = "8"      # fewer than calibrate_camera's default 12: suite time (0.37 mm with 8 too)
+POSES = "8"      # fewer than calibrate_camera's default 12: suite time (0.01 mm with 8)
 
 
 def _perturbed_description(tmp_path):
