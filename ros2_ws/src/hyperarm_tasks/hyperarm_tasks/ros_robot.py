@@ -79,6 +79,7 @@ class RosRobot:
         self._force_mode: tuple[float, str, str, str] | None = None
         self._force_enabled_at = math.inf          # s (node clock): our last enable request
         self.goal_handle = None
+        self.stopping = False    # the node is stopping: the running task stops as cancelled
         self.given: dict[str, np.ndarray] = {}
         group = ReentrantCallbackGroup()
         # no QoS event handlers: they were most of this node's CPU (hyperarm_description.qos)
@@ -166,7 +167,8 @@ class RosRobot:
 
     def cancel_requested(self) -> bool:
         h = self.goal_handle
-        return (h is not None and h.is_cancel_requested) or not self.node.context.ok()
+        return ((h is not None and h.is_cancel_requested) or self.stopping
+                or not self.node.context.ok())
 
     def joint_positions(self) -> dict[str, float]:
         with self._lock:

@@ -7,6 +7,14 @@ with its reason: the goal is accepted and aborted at once, its result's ``failur
 "rejected" and ``message`` the reason (rclpy's goal callback cannot give a reason with a plain
 rejection; the running task is not touched). Cancel: the runner stops where it is, force control off, the
 drivers hold, and the result says "cancelled during <step>". See docs/tasks.md.
+
+The task runs in a thread of its own (the action's execute callback awaits it), so one
+executor thread takes the messages: rclpy's SingleThreadedExecutor (issue 28: with the
+MultiThreadedExecutor's hand-offs of joint_states at 100 Hz the node took 17-20 % of a core
+over a block transfer, now 15 %; rclpy's EventsExecutor spins a whole core while a
+coroutine awaits). When the node is stopped
+(SIGINT, SIGTERM) during a task, the task is stopped as a cancel stops it, for at most
+``STOP_WAIT`` s, before the node is destroyed.
 """
 from __future__ import annotations
 
@@ -16,9 +24,9 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.task import Future
 
 from hyperarm_description import contract
 from hyperarm_description.params import ParamSpec, Range, declare_parameters
@@ -39,6 +47,7 @@ from .sequence import load_task, packaged_tasks_dir
 
 FEEDBACK_PERIOD = 0.05   # s, feedback published at most this often
 DIAGNOSTICS_PERIOD = 1.0   # s, the inputs' diagnostics
+STOP_WAIT = 1.0   # s: a task running when the node stops gets this long to stop and hold
 
 #: Every parameter of the node (also its --help): name -> (default, description, check).
 PARAMETERS: ParamSpec = {
@@ -103,6 +112,7 @@ class TaskNode(Node):
         self.create_timer(DIAGNOSTICS_PERIOD, self._publish_diagnostics)
         self._lock = threading.Lock()
         self._busy: str | None = None
+        self._worker: threading.Thread | None = None
         self._server = ActionServer(
             self, RunTask, contract.RUN_TASK, execute_callback=self._execute,
             goal_callback=self._on_goal, cancel_callback=self._on_cancel,
@@ -147,7 +157,10 @@ class TaskNode(Node):
         runner = getattr(self, "_runner", None)
         return runner.step.name if runner is not None and runner.step else "no step"
 
-    def _execute(self, handle) -> RunTask.Result:
+    async def _execute(self, handle) -> RunTask.Result:
+        """The action's execute callback: one goal at a time (another is refused with its
+        reason); the task runs in a thread of its own, awaited here, so that the executor
+        keeps taking messages meanwhile."""
         with self._lock:
             busy = self._busy
             if busy is None:
@@ -158,13 +171,45 @@ class TaskNode(Node):
             self.get_logger().warn(reason)
             handle.abort()
             return RunTask.Result(success=False, message=reason, failure_kind="rejected")
-        try:
-            return self._run(handle)
-        finally:
-            self._runner = None
-            self._robot.goal_handle = None
-            with self._lock:
-                self._busy = None
+        done = Future()
+
+        def work() -> None:
+            try:
+                done.set_result(self._run(handle))
+            except BaseException as exc:   # handed to the awaiting callback, raised there
+                done.set_exception(exc)
+            finally:
+                self._runner = None
+                self._robot.goal_handle = None
+                with self._lock:
+                    self._busy = None
+                    self._worker = None
+                ex = self.executor
+                if ex is not None:
+                    ex.wake()
+
+        self._worker = threading.Thread(target=work, name=f"task {handle.request.task}",
+                                        daemon=True)
+        self._worker.start()
+        return await done
+
+    def before_shutdown(self) -> None:
+        """(run_node, at SIGINT/SIGTERM) A running task is stopped as a cancel stops it
+        (force control off, the drivers told to hold) and its client gets an aborted
+        result; the executor spins meanwhile, for at most STOP_WAIT s."""
+        with self._lock:
+            worker, busy = self._worker, self._busy
+        if worker is None or not worker.is_alive():
+            return
+        self._robot.stopping = True
+        self.get_logger().warn(f"stopping: task {busy!r} stops during {self._runner_step()}")
+        end = time.monotonic() + STOP_WAIT
+        ex = self.executor
+        while worker.is_alive() and time.monotonic() < end:
+            if ex is not None:
+                ex.spin_once(timeout_sec=0.01)
+            else:
+                worker.join(0.01)
 
     def _given(self, goal: RunTask.Goal) -> dict:
         if len(goal.object_names) != len(goal.object_poses):
@@ -246,7 +291,9 @@ class TaskNode(Node):
             self.get_logger().warn(f"task {name!r}: {out.message} (force control off, holding)")
             handle.canceled()
         else:
-            self.get_logger().error(f"task {name!r}: {out.message}")
+            if self._robot.stopping and out.failure_kind == "cancelled":
+                result.message = f"task_node stopped: {out.message}"
+            self.get_logger().error(f"task {name!r}: {result.message}")
             if self.context.ok():
                 handle.abort()
         return result
@@ -258,8 +305,7 @@ class TaskNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node(TaskNode, args, executor=lambda: MultiThreadedExecutor(num_threads=4),
-             parameters=PARAMETERS)
+    run_node(TaskNode, args, parameters=PARAMETERS)
 
 
 if __name__ == "__main__":

@@ -229,16 +229,25 @@ def test_description_option_goes_to_the_commanding_nodes_not_the_mock(
     assert bad.returncode == 2 and "--description: no file" in bad.stderr, bad.stderr
 
 
-def test_second_goal_is_rejected_with_a_reason(launch, ros_domain, executable, wait_for):
+def _block_transfer_under_way(launch, ros_domain, executable):
+    """mock_driver and task_node launched, and run_task's block_transfer at its second step
+    (above_source): (task_node, the run_task process, its lines so far, its environment)."""
     launch("hyperarm_driver", "mock_driver")
     node = launch("hyperarm_tasks", "task_node")
     env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain), PYTHONUNBUFFERED="1")
-    first = subprocess.Popen([executable("hyperarm_tasks", "run_task"), "block_transfer",
-                              "--wait-ready", "60"], env=env, stdout=subprocess.PIPE,
-                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    for line in first.stdout:
+    client = subprocess.Popen([executable("hyperarm_tasks", "run_task"), "block_transfer",
+                               "--wait-ready", "60"], env=env, stdout=subprocess.PIPE,
+                              stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    seen = []
+    for line in client.stdout:
+        seen.append(line)
         if "[2/12]" in line:
             break
+    return node, client, seen, env
+
+
+def test_second_goal_is_rejected_with_a_reason(launch, ros_domain, executable):
+    node, first, _, env = _block_transfer_under_way(launch, ros_domain, executable)
     second = subprocess.run([executable("hyperarm_tasks", "run_task"), "ready"], env=env,
                             capture_output=True, text=True, timeout=60)
     assert second.returncode == 1
@@ -251,6 +260,31 @@ def test_second_goal_is_rejected_with_a_reason(launch, ros_domain, executable, w
     first.send_signal(signal.SIGINT)
     rest, _ = first.communicate(timeout=30)
     assert "cancelled during above_source" in rest
+
+
+def test_task_node_stopped_mid_task_stops_it_holds_and_answers(launch, ros_domain, executable):
+    """SIGTERM to task_node while a task moves the arm (a user's Ctrl-C to the node, or its
+    launch file's stop): the task stops as a cancel stops it (force off, the driver told to
+    hold), its client gets an aborted result naming the stop, and the node exits within 2 s.
+    Before (the task in the executor's thread pool) the node was destroyed under the moving
+    task and the client waited for a result that never came."""
+    node, client, seen, _ = _block_transfer_under_way(launch, ros_domain, executable)
+    time.sleep(0.5)                      # above_source is moving
+    t0 = time.monotonic()
+    node.proc.send_signal(signal.SIGTERM)
+    code = node.proc.wait(timeout=10)
+    took = time.monotonic() - t0
+    try:
+        rest, _ = client.communicate(timeout=30)
+    finally:
+        client.kill()
+    out = node.output()
+    assert code == 0 and took < 2.0, (code, took, out[-2000:])
+    assert "stopping: task 'block_transfer' stops during above_source" in out, out[-2000:]
+    assert "hold failed" not in out, out[-2000:]
+    assert "run_task: failed: task_node stopped: cancelled during above_source" in rest, \
+        "".join(seen) + rest
+    assert "[3/12]" not in rest
 
 
 def test_hardware_mode_runs_on_the_dynamixel_driver(launch, executable, ros_domain, tmp_path,
