@@ -45,16 +45,19 @@ def attempt(capsys, *argv: str) -> tuple[int, str, str]:
 
     On a loaded machine the emulated hardware itself can fail: the PMAC driver latches a
     watchdog trip or a lost link (issue 25 item 5) and refuses setpoints until
-    rail/set_torque, a servo misses a status packet. The CLI must say so (exit 1, the
+    rail/set_torque (or latches it during a move: `move` then says "not taken" with the
+    driver's report), a servo misses a status packet. The CLI must say so (exit 1, the
     driver's words): that is not a silent loss. The latched rail fault is cleared as its
     message says. Every such refusal is listed in the test's output."""
     code, out, err = run(capsys, *argv)
     for _ in range(3):
-        if not (code == 1 and "refused" in err):
+        # refused at once, or sent and not taken while the driver reports a latched fault
+        # (the link to the emulator lost under load, latched during the move)
+        if not (code == 1 and ("refused" in err or "latched" in err)):
             break
         assert "taken" not in out, (out, err)
         REFUSED.append(f"{' '.join(argv)}: {err.strip()[-150:]}")
-        if "fault latched" in err:
+        if "latched" in err:
             assert run(capsys, "torque", "on", "--rail", "--timeout", "10")[0] == 0
         code, out, err = run(capsys, *argv)
     return code, out, err

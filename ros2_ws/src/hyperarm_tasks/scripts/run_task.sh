@@ -28,6 +28,9 @@
 #                        description_file. The mock keeps its packaged one: it is the
 #                        world, FILE what you believe of it (e.g. calibrate_camera's
 #                        --description-out, to compare a transfer with and without it)
+#   --camera C           the mock's camera: oracle (default: the true poses plus noise on
+#                        detections) or rendered (the mock's pictures rendered by MuJoCo,
+#                        mock_camera, and marker_detector finding the markers in them)
 #   --no-force-node      do not start hybrid_force: force_insert then presses with its
 #                        position pseudo-goal fallback instead of hybrid force control
 #   --record FILE        record the run to FILE (MCAP: joint_states, joint_command,
@@ -42,6 +45,7 @@ usage() { sed -n '2,/^set -uo/p' "${BASH_SOURCE[0]}" | sed '$d; s/^# \{0,1\}//';
 
 variant=arm hardware="" workcell="" seed="" record="" tasks_dir="" timeout=300 logs="" tasks=()
 description=""
+camera=oracle
 force_node=1
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -52,6 +56,7 @@ while [ $# -gt 0 ]; do
     --seed) seed="${2:?--seed needs a number}"; shift 2 ;;
     --description) description="${2:?--description needs a file}"; shift 2 ;;
     --record) record="${2:?--record needs a file}"; shift 2 ;;
+    --camera) camera="${2:?--camera needs oracle or rendered}"; shift 2 ;;
     --force-node) force_node=1; shift ;;     # the default (kept for old scripts)
     --no-force-node) force_node=0; shift ;;
     --tasks-dir) tasks_dir="${2:?--tasks-dir needs a directory}"; shift 2 ;;
@@ -65,6 +70,8 @@ done
 case "$variant" in arm|rail_arm) ;; *) echo "run_task.sh: --variant arm or rail_arm" >&2; exit 2 ;; esac
 [ -z "$hardware" ] || [ -f "$hardware" ] || { echo "run_task.sh: $hardware: no such file" >&2; exit 2; }
 [ -z "$seed" ] || [[ "$seed" =~ ^[0-9]+$ ]] || { echo "run_task.sh: --seed must be an integer" >&2; exit 2; }
+case "$camera" in oracle|rendered) ;; *) echo "run_task.sh: --camera oracle or rendered" >&2; exit 2 ;; esac
+[ -z "$hardware" ] || [ "$camera" = oracle ] || { echo "run_task.sh: --camera rendered is the mock's (not with --hardware)" >&2; exit 2; }
 if [ -n "$description" ]; then
   [ -f "$description" ] || { echo "run_task.sh: --description: no file $description" >&2; exit 2; }
   description="$(realpath "$description")"
@@ -88,7 +95,7 @@ fi
 # per executable: each took 0.1-0.3 s of the start-up).
 prefixes="$(python3 -c "
 from ament_index_python.packages import get_package_prefix as g
-for p in ('hyperarm_driver', 'hyperarm_control', 'hyperarm_tasks'):
+for p in ('hyperarm_driver', 'hyperarm_control', 'hyperarm_tasks', 'hyperarm_perception'):
     try:
         print(p, g(p))
     except (LookupError, ValueError):
@@ -185,7 +192,14 @@ PY
   [ -f "$workcell" ] || { stop_if_interrupted; exit 2; }
   fi
   [ -z "$workcell" ] || mock+=(-p "workcell_file:=$workcell")
+  [ "$camera" = oracle ] || mock+=(-p "detections:=none")
   start mock_driver "$(exe hyperarm_driver mock_driver)" --ros-args "${mock[@]}"
+  if [ "$camera" = rendered ]; then
+    cam=(-p "workcell_file:=$workcell")
+    [ -z "$seed" ] || cam+=(-p "seed:=$seed")
+    start mock_camera "$(exe hyperarm_perception mock_camera)" --ros-args "${cam[@]}"
+    start marker_detector "$(exe hyperarm_perception marker_detector)" --ros-args "${ros[@]}"
+  fi
 fi
 if [ "$force_node" = 1 ]; then
   start hybrid_force "$(exe hyperarm_control hybrid_force)" --ros-args "${ros[@]}"

@@ -229,6 +229,37 @@ def test_description_option_goes_to_the_commanding_nodes_not_the_mock(
     assert bad.returncode == 2 and "--description: no file" in bad.stderr, bad.stderr
 
 
+def test_rendered_camera_option_moves_on_markers_found_in_pictures(
+        executable, ros_domain, tmp_path, still_running, node_logs):
+    """--camera rendered: the mock publishes no detections; mock_camera renders its pictures
+    and marker_detector finds the pegs' markers in them, and a task moves relative to a peg
+    on those detections; both stop with the stack. A bad --camera, or --camera rendered
+    with --hardware, is exit 2 at once."""
+    tasks = tmp_path / "tasks"
+    tasks.mkdir()
+    (tasks / "over_peg.yaml").write_text(
+        "schema_version: 1\ndescription: above the source peg, seen in the pictures\n"
+        "objects: [source_peg]\nsteps:\n"
+        "  - {name: ready, type: move_joints, arm: 0, timeout: 15 s}\n"
+        "  - name: above\n    type: move_to\n"
+        "    target: {relative_to: source_peg, offset: [0, 0, 5 cm]}\n")
+    logs = tmp_path / "logs"
+    done = _run(_script(executable), ["--camera", "rendered", "--seed", "3", "--tasks-dir",
+                                      str(tasks), "--logs", str(logs), "over_peg"],
+                ros_domain, 120)
+    out = done.stdout + done.stderr
+    assert done.returncode == 0, out + node_logs(logs)
+    assert "run_task: succeeded" in out, out
+    names = [line.split()[0] for line in (logs / "pids").read_text().splitlines()]
+    assert "mock_camera" in names and "marker_detector" in names, names
+    assert still_running(logs) == []
+    for bad, why in ((["--camera", "fisheye"], "--camera oracle or rendered"),
+                     (["--camera", "rendered", "--hardware", str(tasks / "over_peg.yaml")],
+                      "--camera rendered is the mock's")):
+        refused = _run(_script(executable), [*bad, "ready"], ros_domain, 30)
+        assert refused.returncode == 2 and why in refused.stderr, refused.stderr
+
+
 def _block_transfer_under_way(launch, ros_domain, executable):
     """mock_driver and task_node launched, and run_task's block_transfer at its second step
     (above_source): (task_node, the run_task process, its lines so far, its environment)."""
