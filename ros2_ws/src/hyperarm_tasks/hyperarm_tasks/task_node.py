@@ -23,6 +23,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.action.server import RCLError
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -113,6 +114,7 @@ class TaskNode(Node):
         self._lock = threading.Lock()
         self._busy: str | None = None
         self._worker: threading.Thread | None = None
+        self._job: tuple = (None, None)   # the running goal's handle and its result future
         self._server = ActionServer(
             self, RunTask, contract.RUN_TASK, execute_callback=self._execute,
             goal_callback=self._on_goal, cancel_callback=self._on_cancel,
@@ -159,34 +161,44 @@ class TaskNode(Node):
 
     async def _execute(self, handle) -> RunTask.Result:
         """The action's execute callback: one goal at a time (another is refused with its
-        reason); the task runs in a thread of its own, awaited here, so that the executor
-        keeps taking messages meanwhile."""
+        reason, as is any goal once the node is stopping); the task runs in a thread of its
+        own, awaited here, so that the executor keeps taking messages meanwhile."""
         with self._lock:
             busy = self._busy
-            if busy is None:
+            if busy is None and not self._robot.stopping:
                 self._busy = handle.request.task
-        if busy is not None:
-            reason = (f"task {handle.request.task!r} rejected: task {busy!r} is running "
-                      "(one goal at a time)")
+        if busy is not None or self._robot.stopping:
+            reason = (f"task {handle.request.task!r} rejected: " +
+                      (f"task {busy!r} is running (one goal at a time)" if busy is not None
+                       else "task_node is stopping"))
             self.get_logger().warn(reason)
             handle.abort()
             return RunTask.Result(success=False, message=reason, failure_kind="rejected")
         done = Future()
+        self._job = (handle, done)
 
         def work() -> None:
             try:
-                done.set_result(self._run(handle))
-            except BaseException as exc:   # handed to the awaiting callback, raised there
-                done.set_exception(exc)
-            finally:
-                self._runner = None
-                self._robot.goal_handle = None
-                with self._lock:
-                    self._busy = None
-                    self._worker = None
-                ex = self.executor
-                if ex is not None:
-                    ex.wake()
+                result, error = self._run(handle), None
+            except Exception as exc:         # handed to the awaiting callback, raised there
+                result, error = None, exc
+            except BaseException as exc:     # (not re-raised in the executor as it is)
+                result, error = None, RuntimeError(f"task thread ended by {exc!r}")
+            # the slot is free before the client can have the result (a client's next goal
+            # right after it is not refused as "running")
+            self._runner = None
+            self._robot.goal_handle = None
+            with self._lock:
+                self._busy = None
+                self._worker = None
+            if not done.done():              # (else before_shutdown answered already)
+                if error is None:
+                    done.set_result(result)
+                else:
+                    done.set_exception(error)
+            ex = self.executor
+            if ex is not None:
+                ex.wake()
 
         self._worker = threading.Thread(target=work, name=f"task {handle.request.task}",
                                         daemon=True)
@@ -194,14 +206,16 @@ class TaskNode(Node):
         return await done
 
     def before_shutdown(self) -> None:
-        """(run_node, at SIGINT/SIGTERM) A running task is stopped as a cancel stops it
-        (force control off, the drivers told to hold) and its client gets an aborted
-        result; the executor spins meanwhile, for at most STOP_WAIT s."""
+        """(run_node, at SIGINT/SIGTERM) No goal is taken from now on. A running task is
+        stopped as a cancel stops it (force control off, the drivers told to hold) and its
+        client gets an aborted result; the executor spins meanwhile, for at most STOP_WAIT
+        s. A task still running then (a hold that waits for a driver that is going away)
+        is answered from here: aborted, "did not stop within STOP_WAIT s"."""
+        self._robot.stopping = True
         with self._lock:
             worker, busy = self._worker, self._busy
         if worker is None or not worker.is_alive():
             return
-        self._robot.stopping = True
         self.get_logger().warn(f"stopping: task {busy!r} stops during {self._runner_step()}")
         end = time.monotonic() + STOP_WAIT
         ex = self.executor
@@ -210,6 +224,15 @@ class TaskNode(Node):
                 ex.spin_once(timeout_sec=0.01)
             else:
                 worker.join(0.01)
+        handle, done = self._job
+        if worker.is_alive() and not done.done():
+            message = (f"task_node stopped: task {busy!r} did not stop within {STOP_WAIT:g} s "
+                       f"(during {self._runner_step()})")
+            self.get_logger().error(message)
+            _end_goal(handle, "abort")
+            done.set_result(RunTask.Result(success=False, message=message,
+                                           failure_kind="cancelled"))
+            # run_node's flush spins send the result; the thread ends with the process
 
     def _given(self, goal: RunTask.Goal) -> dict:
         if len(goal.object_names) != len(goal.object_poses):
@@ -234,7 +257,7 @@ class TaskNode(Node):
             result.failure_kind = "task_file" if isinstance(
                 exc, (TaskFileError, UnknownTaskError)) else "goal"
             self.get_logger().error(f"task {name!r}: {exc}")
-            handle.abort()
+            _end_goal(handle, "abort")
             return result
         self._robot.goal_handle = handle
         last = [0.0]
@@ -268,7 +291,7 @@ class TaskNode(Node):
             result.message = f"cancelled before {task.steps[0].name}" if task.steps else \
                 "cancelled"
             self.get_logger().warn(f"task {name!r}: {result.message} (nothing started)")
-            handle.canceled()
+            _end_goal(handle, "canceled")
             return result
         self._runner = Runner(self._robot, self._kin, task, self._params, feedback,
                               collisions=self._collisions)
@@ -286,22 +309,33 @@ class TaskNode(Node):
         result.metric_names, result.metric_values = list(metrics), list(metrics.values())
         if out.success:
             self.get_logger().info(f"{out.message} in {out.total_time:.2f} s")
-            handle.succeed()
+            _end_goal(handle, "succeed")
         elif out.failure_kind == "cancelled" and handle.is_cancel_requested:
             self.get_logger().warn(f"task {name!r}: {out.message} (force control off, holding)")
-            handle.canceled()
+            _end_goal(handle, "canceled")
         else:
             if self._robot.stopping and out.failure_kind == "cancelled":
                 result.message = f"task_node stopped: {out.message}"
             self.get_logger().error(f"task {name!r}: {result.message}")
             if self.context.ok():
-                handle.abort()
+                _end_goal(handle, "abort")
         return result
 
     def destroy_node(self) -> None:
         # The action server first: its pending tasks must not outlive the node's handles.
         self._server.destroy()
         super().destroy_node()
+
+
+def _end_goal(handle, how: str) -> None:
+    """``handle.succeed()``, ``.abort()`` or ``.canceled()`` unless the goal has ended
+    already (before_shutdown answered a task that did not stop in time)."""
+    if handle is None or not handle.is_active:
+        return
+    try:
+        getattr(handle, how)()
+    except RCLError:    # ended meanwhile by the other thread: an invalid transition
+        pass
 
 
 def main(args: list[str] | None = None) -> None:

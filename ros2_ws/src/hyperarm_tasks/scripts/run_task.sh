@@ -195,7 +195,7 @@ PY
   [ "$camera" = oracle ] || mock+=(-p "detections:=none")
   start mock_driver "$(exe hyperarm_driver mock_driver)" --ros-args "${mock[@]}"
   if [ "$camera" = rendered ]; then
-    cam=(-p "workcell_file:=$workcell")
+    cam=(-p "variant:=$variant" -p "workcell_file:=$workcell")
     [ -z "$seed" ] || cam+=(-p "seed:=$seed")
     start mock_camera "$(exe hyperarm_perception mock_camera)" --ros-args "${cam[@]}"
     start marker_detector "$(exe hyperarm_perception marker_detector)" --ros-args "${ros[@]}"

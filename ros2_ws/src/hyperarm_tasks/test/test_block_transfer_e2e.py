@@ -262,8 +262,9 @@ def test_rendered_camera_option_moves_on_markers_found_in_pictures(
 
 def _block_transfer_under_way(launch, ros_domain, executable):
     """mock_driver and task_node launched, and run_task's block_transfer at its second step
-    (above_source): (task_node, the run_task process, its lines so far, its environment)."""
-    launch("hyperarm_driver", "mock_driver")
+    (above_source): (task_node, the run_task process, its lines so far, its environment,
+    mock_driver)."""
+    driver = launch("hyperarm_driver", "mock_driver")
     node = launch("hyperarm_tasks", "task_node")
     env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain), PYTHONUNBUFFERED="1")
     client = subprocess.Popen([executable("hyperarm_tasks", "run_task"), "block_transfer",
@@ -274,11 +275,11 @@ def _block_transfer_under_way(launch, ros_domain, executable):
         seen.append(line)
         if "[2/12]" in line:
             break
-    return node, client, seen, env
+    return node, client, seen, env, driver
 
 
 def test_second_goal_is_rejected_with_a_reason(launch, ros_domain, executable):
-    node, first, _, env = _block_transfer_under_way(launch, ros_domain, executable)
+    node, first, _, env, _ = _block_transfer_under_way(launch, ros_domain, executable)
     second = subprocess.run([executable("hyperarm_tasks", "run_task"), "ready"], env=env,
                             capture_output=True, text=True, timeout=60)
     assert second.returncode == 1
@@ -293,14 +294,9 @@ def test_second_goal_is_rejected_with_a_reason(launch, ros_domain, executable):
     assert "cancelled during above_source" in rest
 
 
-def test_task_node_stopped_mid_task_stops_it_holds_and_answers(launch, ros_domain, executable):
-    """SIGTERM to task_node while a task moves the arm (a user's Ctrl-C to the node, or its
-    launch file's stop): the task stops as a cancel stops it (force off, the driver told to
-    hold), its client gets an aborted result naming the stop, and the node exits within 2 s.
-    Before (the task in the executor's thread pool) the node was destroyed under the moving
-    task and the client waited for a result that never came."""
-    node, client, seen, _ = _block_transfer_under_way(launch, ros_domain, executable)
-    time.sleep(0.5)                      # above_source is moving
+def _sigterm_task_node(node, client) -> tuple[int, float, str, str]:
+    """SIGTERM to task_node: (its exit code, s to exit, the client's further output, the
+    node's log)."""
     t0 = time.monotonic()
     node.proc.send_signal(signal.SIGTERM)
     code = node.proc.wait(timeout=10)
@@ -309,12 +305,43 @@ def test_task_node_stopped_mid_task_stops_it_holds_and_answers(launch, ros_domai
         rest, _ = client.communicate(timeout=30)
     finally:
         client.kill()
-    out = node.output()
+    return code, took, rest, node.output()
+
+
+def test_task_node_stopped_mid_task_stops_it_holds_and_answers(launch, ros_domain, executable):
+    """SIGTERM to task_node while a task moves the arm (a user's Ctrl-C to the node, or its
+    launch file's stop): the task stops as a cancel stops it (force off, the driver told to
+    hold), its client gets an aborted result naming the stop, and the node exits within 2 s.
+    Before (the task in the executor's thread pool) the node was destroyed under the moving
+    task and the client waited for a result that never came."""
+    node, client, seen, _, _ = _block_transfer_under_way(launch, ros_domain, executable)
+    time.sleep(0.5)                      # above_source is moving
+    code, took, rest, out = _sigterm_task_node(node, client)
     assert code == 0 and took < 2.0, (code, took, out[-2000:])
     assert "stopping: task 'block_transfer' stops during above_source" in out, out[-2000:]
     assert "hold failed" not in out, out[-2000:]
     assert "run_task: failed: task_node stopped: cancelled during above_source" in rest, \
         "".join(seen) + rest
+    assert "[3/12]" not in rest
+
+
+def test_task_node_stopped_while_the_driver_hangs_still_answers(launch, ros_domain,
+                                                                executable):
+    """The driver frozen (SIGSTOP: no joint_states, no answer to hold) mid-task, then SIGTERM
+    to task_node: the task cannot stop as a cancel does (its hold waits for the driver), so
+    after STOP_WAIT (1 s) the node answers the client itself, aborted and saying so, and
+    exits; no result is lost to the node's destruction."""
+    node, client, seen, _, driver = _block_transfer_under_way(launch, ros_domain, executable)
+    time.sleep(0.5)                      # above_source is moving
+    driver.proc.send_signal(signal.SIGSTOP)
+    try:
+        time.sleep(0.3)
+        code, took, rest, out = _sigterm_task_node(node, client)
+    finally:
+        driver.proc.send_signal(signal.SIGCONT)
+    assert code == 0 and took < 2.0, (code, took, out[-2000:])
+    assert "run_task: failed: task_node stopped: task 'block_transfer' did not stop within " \
+        "1 s (during above_source)" in rest, "".join(seen) + rest + out[-2000:]
     assert "[3/12]" not in rest
 
 
