@@ -43,13 +43,18 @@ def _parse(argv: list[str]) -> argparse.Namespace:
     ap.add_argument("--wait-force", action="store_true",
                     help="with --wait-ready, also wait for the force node (its "
                          f"{contract.HYBRID_ENABLE} service)")
+    ap.add_argument("--wait-detections", action="store_true",
+                    help="with --wait-ready, also wait for the camera's first detections "
+                         f"on {contract.DETECTIONS} (a rendered camera and its detector "
+                         "take seconds to start)")
     return ap.parse_args(args_no_ros)
 
 
 def _wait_ready(node, client, timeout: float, force: bool = False,
-                spin=None) -> str | None:
+                spin=None, detections: bool = False) -> str | None:
     """Wait for joint_states and the action server (and, with ``force``, the force node's
-    enable service); None when all are there, else what is missing."""
+    enable service; with ``detections``, a first Detections message); None when all are
+    there, else what is missing."""
     import rclpy
     spin = spin or (lambda n, t: rclpy.spin_once(n, timeout_sec=t))
     from sensor_msgs.msg import JointState
@@ -62,20 +67,32 @@ def _wait_ready(node, client, timeout: float, force: bool = False,
     sub = node.create_subscription(JointState, contract.JOINT_STATES,
                                    lambda m: seen.update(m.name), qos_for(contract.JOINT_STATES))
     enable = node.create_client(SetBool, contract.HYBRID_ENABLE) if force else None
+    cameras: list[bool] = []
+    cam = None
+    if detections:
+        from hyperarm_interfaces.msg import Detections
+        cam = node.create_subscription(Detections, contract.DETECTIONS,
+                                       lambda m: cameras.append(True),
+                                       qos_for(contract.DETECTIONS))
     deadline = time.monotonic() + timeout
     try:
         while time.monotonic() < deadline:
             spin(node, 0.05)
-            if seen and client.server_ready() and (enable is None or enable.service_is_ready()):
+            if (seen and client.server_ready() and (enable is None or enable.service_is_ready())
+                    and (cam is None or cameras)):
                 return None
         return ("no joint_states from a driver" if not seen
                 else "the task node's run_task action is not available"
                 if not client.server_ready()
-                else f"the force node's {contract.HYBRID_ENABLE} service is not available")
+                else f"the force node's {contract.HYBRID_ENABLE} service is not available"
+                if enable is not None and not enable.service_is_ready()
+                else f"no detections from the camera on {contract.DETECTIONS}")
     finally:
         node.destroy_subscription(sub)
         if enable is not None:
             node.destroy_client(enable)
+        if cam is not None:
+            node.destroy_subscription(cam)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -134,7 +151,8 @@ def _main(argv: list[str], state: dict) -> int:
         node = rclpy.create_node("run_task_client", namespace=args.namespace)
         client = TaskClient(node, spin=spin)
         if args.wait_ready > 0.0:
-            reason = _wait_ready(node, client, args.wait_ready, args.wait_force, spin)
+            reason = _wait_ready(node, client, args.wait_ready, args.wait_force, spin,
+                                 args.wait_detections)
             if reason:
                 print(f"run_task: not ready after {args.wait_ready:g} s: {reason}",
                       file=sys.stderr)

@@ -223,11 +223,12 @@ n=0
 for task in "${tasks[@]}"; do
   n=$((n + 1))
   [ "${#tasks[@]}" -eq 1 ] || echo "== task $n/${#tasks[@]}: $task"
-  wait_force=()
-  [ "$force_node" = 0 ] || wait_force=(--wait-force)
+  waits=()
+  [ "$force_node" = 0 ] || waits=(--wait-force)
+  [ "$camera" = oracle ] || waits+=(--wait-detections)
   runner="$(exe hyperarm_tasks run_task)"
   stop_if_interrupted
-  "$runner" "$task" --timeout "$timeout" --wait-ready 60 "${wait_force[@]}" &
+  "$runner" "$task" --timeout "$timeout" --wait-ready 60 "${waits[@]}" &
   client=$!
   # a signal between the start and `client=$!` was not forwarded: forward it now
   [ "$interrupted" = 0 ] || kill -TERM "$client" 2>/dev/null

@@ -232,15 +232,15 @@ def test_description_option_goes_to_the_commanding_nodes_not_the_mock(
 def test_rendered_camera_option_moves_on_markers_found_in_pictures(
         executable, ros_domain, tmp_path, still_running, node_logs):
     """--camera rendered: the mock publishes no detections; mock_camera renders its pictures
-    and marker_detector finds the pegs' markers in them, and a task moves relative to a peg
-    on those detections; both stop with the stack. A bad --camera, or --camera rendered
+    and marker_detector finds the pegs' markers in them, and a task whose first step is
+    relative to a peg moves on those detections (run_task waits for the camera's first
+    detections: the renderer takes seconds to start); both stop with the stack. A bad --camera, or --camera rendered
     with --hardware, is exit 2 at once."""
     tasks = tmp_path / "tasks"
     tasks.mkdir()
     (tasks / "over_peg.yaml").write_text(
         "schema_version: 1\ndescription: above the source peg, seen in the pictures\n"
         "objects: [source_peg]\nsteps:\n"
-        "  - {name: ready, type: move_joints, arm: 0, timeout: 15 s}\n"
         "  - name: above\n    type: move_to\n"
         "    target: {relative_to: source_peg, offset: [0, 0, 5 cm]}\n")
     logs = tmp_path / "logs"
@@ -258,6 +258,21 @@ def test_rendered_camera_option_moves_on_markers_found_in_pictures(
                       "--camera rendered is the mock's")):
         refused = _run(_script(executable), [*bad, "ready"], ros_domain, 30)
         assert refused.returncode == 2 and why in refused.stderr, refused.stderr
+
+
+def test_wait_detections_names_a_missing_camera(launch, ros_domain, executable):
+    """run_task --wait-ready S --wait-detections with no camera (the mock's detections off):
+    not ready after S s, saying the camera's detections are missing; nothing is sent."""
+    launch("hyperarm_driver", "mock_driver", params={"detections": "none"})
+    launch("hyperarm_tasks", "task_node")
+    env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain), PYTHONUNBUFFERED="1")
+    done = subprocess.run([executable("hyperarm_tasks", "run_task"), "ready", "--wait-ready",
+                           "8", "--wait-detections"], env=env, capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == 1, done
+    assert "not ready after 8 s: no detections from the camera on detections" in \
+        done.stdout + done.stderr, done
+    assert "[1/" not in done.stdout
 
 
 def _block_transfer_under_way(launch, ros_domain, executable):
