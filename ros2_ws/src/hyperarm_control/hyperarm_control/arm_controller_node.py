@@ -291,16 +291,19 @@ class ArmControllerNode(Node):
             owner.handle.succeed()
         owner.done.set_result(FollowJointTrajectory.Result(error_code=code, error_string=text))
 
-    def before_shutdown(self) -> None:
+    def before_shutdown(self) -> bool:
         """On SIGINT/SIGTERM (run_node): a running goal is aborted, saying so, so that its
-        client gets a result; the drivers keep the last command (the arm holds)."""
-        if self._owner is not None or self._follower.goal_status == "running":
-            self._follower.cancel()
-            self._active = False
-            self._last_result = "aborted (-1): arm_controller shutting down"
-            self._end_action(FollowJointTrajectory.Result.INVALID_GOAL,
-                             "arm_controller shutting down: goal aborted, the arm holds "
-                             "its last command", abort=True)
+        client gets a result (True: run_node then spins to send it); the drivers keep the
+        last command (the arm holds)."""
+        if not (self._owner is not None or self._follower.goal_status == "running"):
+            return False
+        self._follower.cancel()
+        self._active = False
+        self._last_result = "aborted (-1): arm_controller shutting down"
+        self._end_action(FollowJointTrajectory.Result.INVALID_GOAL,
+                         "arm_controller shutting down: goal aborted, the arm holds its last "
+                         "command", abort=True)
+        return True
 
     def _monitor_action(self, cyc) -> None:
         owner = self._owner

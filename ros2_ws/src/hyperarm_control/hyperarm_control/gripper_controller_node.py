@@ -196,15 +196,18 @@ class GripperControllerNode(Node):
             owner.handle.abort()
         owner.done.set_result(self._result(st))
 
-    def before_shutdown(self) -> None:
+    def before_shutdown(self) -> bool:
         """On SIGINT/SIGTERM (run_node): a running goal is aborted, saying so, so that its
-        client gets a result; the driver keeps the last goal."""
-        if self._owner is not None and self._judge.running:
-            q, e = self._measured()
-            st = self._judge.cancel(q, e)
-            self._end(GripperStatus("aborted", st.position, st.effort, reason=(
-                "gripper_controller shutting down: goal aborted, the gripper keeps its "
-                "last goal")))
+        client gets a result (True: run_node then spins to send it); the driver keeps the
+        last goal."""
+        if not (self._owner is not None and self._judge.running):
+            return False
+        q, e = self._measured()
+        st = self._judge.cancel(q, e)
+        self._end(GripperStatus("aborted", st.position, st.effort, reason=(
+            "gripper_controller shutting down: goal aborted, the gripper keeps its last "
+            "goal")))
+        return True
 
     def _finish(self, st: GripperStatus) -> None:
         """Count, log and report a goal that ended in the judge."""

@@ -170,8 +170,9 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None,
     thread blocked in rcl's wait set would not run Python's signal handlers), then wakes the
     executor with a guard condition, waits for the callbacks in flight, calls the node's
     ``before_shutdown()`` if it has one (e.g. abort a running action goal so that its client
-    gets a result) and spins 0.2 s more to send what it produced, destroys the node (its
-    shutdown policy) and shuts rclpy down."""
+    gets a result; it returns True when it produced something to send, and only then are
+    there 0.2 s more of spins to send it: an idle node stops without them), destroys the
+    node (its shutdown policy) and shuts rclpy down."""
     if wants_help(args):
         prog = os.path.basename((sys.argv if args is None else args or ["node"])[0])
         text = summary if summary is not None else _module_summary(factory)
@@ -251,11 +252,11 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None,
         if (ex is not None and node is not None and not spinner_alive(spinner)
                 and context.ok() and callable(getattr(node, "before_shutdown", None))):
             # the node ends what clients wait for (an action goal: aborted, saying so);
-            # a few spins here send it out while the context is still up
-            node.before_shutdown()
-            end = time.monotonic() + _FLUSH_TIME
-            while time.monotonic() < end:
-                ex.spin_once(timeout_sec=0.01)
+            # when it did (True), a few spins here send it out while the context is up
+            if node.before_shutdown():
+                end = time.monotonic() + _FLUSH_TIME
+                while time.monotonic() < end:
+                    ex.spin_once(timeout_sec=0.01)
             phases.done("before_shutdown")
         if ex is not None:
             ex.shutdown(timeout_sec=2.0)

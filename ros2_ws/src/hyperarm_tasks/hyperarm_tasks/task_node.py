@@ -203,19 +203,23 @@ class TaskNode(Node):
         self._worker = threading.Thread(target=work, name=f"task {handle.request.task}",
                                         daemon=True)
         self._worker.start()
-        return await done
+        try:
+            return await done
+        finally:
+            self._job = (None, None)    # the result goes out as this coroutine returns
 
-    def before_shutdown(self) -> None:
+    def before_shutdown(self) -> bool:
         """(run_node, at SIGINT/SIGTERM) No goal is taken from now on. A running task is
         stopped as a cancel stops it (force control off, the drivers told to hold) and its
         client gets an aborted result; the executor spins meanwhile, for at most STOP_WAIT
         s. A task still running then (a hold that waits for a driver that is going away)
-        is answered from here: aborted, "did not stop within STOP_WAIT s"."""
+        is answered from here: aborted, "did not stop within STOP_WAIT s". True when a task
+        was running or its result is not sent yet (run_node then spins to send it)."""
         self._robot.stopping = True
         with self._lock:
             worker, busy = self._worker, self._busy
         if worker is None or not worker.is_alive():
-            return
+            return self._job[1] is not None    # a result not sent yet: run_node's spins
         self.get_logger().warn(f"stopping: task {busy!r} stops during {self._runner_step()}")
         end = time.monotonic() + STOP_WAIT
         ex = self.executor
@@ -233,6 +237,7 @@ class TaskNode(Node):
             done.set_result(RunTask.Result(success=False, message=message,
                                            failure_kind="cancelled"))
             # run_node's flush spins send the result; the thread ends with the process
+        return True      # run_node's flush spins send the result out
 
     def _given(self, goal: RunTask.Goal) -> dict:
         if len(goal.object_names) != len(goal.object_poses):

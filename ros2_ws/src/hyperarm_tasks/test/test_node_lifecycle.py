@@ -176,11 +176,13 @@ def test_every_node_exits_cleanly_on_signals(launch, tmp_path, wait_for, rclpy_c
                 item.proc.send_signal(sig)
         sent = time.monotonic()
         problems = []
+        late = []
         for name, item in procs.items():
             try:
                 code = item.proc.wait(timeout=max(0.1, sent + EXIT_WITHIN - time.monotonic()))
             except subprocess.TimeoutExpired:
                 problems.append(f"{name}: still running {EXIT_WITHIN} s after the signal")
+                late.append(name)
                 continue
             out = item.output()
             if code != 0:
@@ -190,6 +192,15 @@ def test_every_node_exits_cleanly_on_signals(launch, tmp_path, wait_for, rclpy_c
                     problems.append(f"{name}: printed {bad!r}")
             if problems and problems[-1].startswith(name):
                 problems.append(out[-2500:])
+        for name in late:   # (not a pass) where each late node's time went, in its words
+            item = procs[name]
+            try:
+                item.proc.wait(timeout=max(0.1, sent + 9.0 - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                pass
+            took = [line for line in item.output().splitlines() if "shutdown took" in line]
+            problems.append(f"{name}: {took[-1] if took else 'no phases printed'} "
+                            f"(exit code {item.proc.returncode})")
         servos = control("state")["servos"]
         off = [sid for sid, st in servos.items() if st["torque_enable"] != 0]
         if off:
