@@ -1,5 +1,6 @@
 """The task node's ROS inputs cost little (issue 28: task_node used 96-99 % of a core through
-a block transfer, 19 % now; figures in docs/benchmarks.md): its publishers and
+a block transfer, 15 % now (19 % before its task had a thread of its own); figures in
+docs/benchmarks.md): its publishers and
 subscriptions carry no QoS event handlers (rclpy's Python executor re-adds each handler to
 its wait set on every wake), and ee_wrench (100 Hz from hybrid_force) is subscribed only
 while someone asks for the wrench."""
