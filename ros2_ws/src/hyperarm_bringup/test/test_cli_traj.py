@@ -108,7 +108,13 @@ def test_traj_sends_a_file_refuses_bad_ones_and_cancels_on_ctrl_c(
     proc = subprocess.Popen([executable("hyperarm_bringup", "hyperarm"), "traj", str(far)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=dict(os.environ))
-    wait_for(lambda: len(commands) > n + 50, 20.0, what="the move under way")
+    try:
+        wait_for(lambda: len(commands) > n + 50, 20.0, what="the move under way")
+    except AssertionError as exc:    # say why: what the client printed (a CI run: no move)
+        proc.kill()
+        out, err = proc.communicate()
+        raise AssertionError(f"{exc}; {len(commands) - n} commands; hyperarm traj printed:\n"
+                             f"{out[-1500:]}\n{err[-1500:]}") from None
     time.sleep(0.5)
     proc.send_signal(signal.SIGINT)
     stdout, stderr = proc.communicate(timeout=10.0)
