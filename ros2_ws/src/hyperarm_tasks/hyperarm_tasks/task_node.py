@@ -12,9 +12,8 @@ The task runs in a thread of its own (the action's execute callback awaits it), 
 executor thread takes the messages: rclpy's SingleThreadedExecutor (issue 28: with the
 MultiThreadedExecutor's hand-offs of joint_states at 100 Hz the node took 17-20 % of a core
 over a block transfer, now 15 %; rclpy's EventsExecutor spins a whole core while a
-coroutine awaits). When the node is stopped
-(SIGINT, SIGTERM) during a task, the task is stopped as a cancel stops it, for at most
-``STOP_WAIT`` s, before the node is destroyed.
+coroutine awaits). When the node is stopped (SIGINT, SIGTERM) during a task, the task is
+stopped as a cancel stops it, for at most ``STOP_WAIT`` s, before the node is destroyed.
 """
 from __future__ import annotations
 

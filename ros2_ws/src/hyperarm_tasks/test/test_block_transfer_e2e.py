@@ -234,8 +234,8 @@ def test_rendered_camera_option_moves_on_markers_found_in_pictures(
     """--camera rendered: the mock publishes no detections; mock_camera renders its pictures
     and marker_detector finds the pegs' markers in them, and a task whose first step is
     relative to a peg moves on those detections (run_task waits for the camera's first
-    detections: the renderer takes seconds to start); both stop with the stack. A bad --camera, or --camera rendered
-    with --hardware, is exit 2 at once."""
+    detections: the renderer takes seconds to start); both stop with the stack. A bad
+    --camera, or --camera rendered with --hardware, is exit 2 at once."""
     tasks = tmp_path / "tasks"
     tasks.mkdir()
     (tasks / "over_peg.yaml").write_text(
