@@ -79,6 +79,9 @@ class RosRobot:
         self._force_mode: tuple[float, str, str, str] | None = None
         self._force_enabled_at = math.inf          # s (node clock): our last enable request
         self.goal_handle = None
+        # the goal whose cancel the node accepted (task_node's cancel callback): seen here at
+        # once, before rclpy moves the goal to CANCELING after the callback returns
+        self.cancel_accepted: bytes | None = None
         self.stopping = False    # the node is stopping: the running task stops as cancelled
         self.given: dict[str, np.ndarray] = {}
         group = ReentrantCallbackGroup()
@@ -167,8 +170,9 @@ class RosRobot:
 
     def cancel_requested(self) -> bool:
         h = self.goal_handle
-        return ((h is not None and h.is_cancel_requested) or self.stopping
-                or not self.node.context.ok())
+        return ((h is not None and (h.is_cancel_requested
+                                    or self.cancel_accepted == bytes(h.goal_id.uuid)))
+                or self.stopping or not self.node.context.ok())
 
     def joint_positions(self) -> dict[str, float]:
         with self._lock:

@@ -77,8 +77,9 @@ PARAMETERS: ParamSpec = {
 
 
 class TaskNode(Node):
-    def __init__(self) -> None:
-        super().__init__("task_node", namespace=contract.DEFAULT_NAMESPACE)
+    def __init__(self, **kwargs) -> None:
+        """``kwargs`` go to rclpy's Node (a context, parameter_overrides: in-process tests)."""
+        super().__init__("task_node", namespace=contract.DEFAULT_NAMESPACE, **kwargs)
         self._desc = declare_robot_description(self)
         p = declare_parameters(self, PARAMETERS)
         if p["solver"] and p["solver"] not in solver_names(self._desc.variant):
@@ -149,6 +150,9 @@ class TaskNode(Node):
         return GoalResponse.ACCEPT
 
     def _on_cancel(self, handle) -> CancelResponse:
+        # visible to the task thread before this line is logged: no step starts after it
+        # (rclpy moves the goal to CANCELING only once this callback has returned)
+        self._robot.cancel_accepted = bytes(handle.goal_id.uuid)
         step = self._runner_step()
         self.get_logger().warn(f"cancel requested for task {handle.request.task!r} during "
                                f"{step}")
@@ -290,12 +294,17 @@ class TaskNode(Node):
             self._feedback.publish(plain)
 
         self.get_logger().info(f"task {name!r}: {len(task.steps)} steps from {task.source}")
-        if handle.is_cancel_requested:   # cancelled while loading: nothing was started
+        if self._robot.cancel_requested():   # cancelled while loading: nothing was started
             result.success, result.failure_kind = False, "cancelled"
             result.message = f"cancelled before {task.steps[0].name}" if task.steps else \
                 "cancelled"
-            self.get_logger().warn(f"task {name!r}: {result.message} (nothing started)")
-            _end_goal(handle, "canceled")
+            if self._cancel_confirmed(handle):
+                self.get_logger().warn(f"task {name!r}: {result.message} (nothing started)")
+                _end_goal(handle, "canceled")
+            else:                            # the node is stopping
+                result.message = f"task_node stopped: {result.message}"
+                self.get_logger().error(f"task {name!r}: {result.message} (nothing started)")
+                _end_goal(handle, "abort")
             return result
         self._runner = Runner(self._robot, self._kin, task, self._params, feedback,
                               collisions=self._collisions)
@@ -314,7 +323,7 @@ class TaskNode(Node):
         if out.success:
             self.get_logger().info(f"{out.message} in {out.total_time:.2f} s")
             _end_goal(handle, "succeed")
-        elif out.failure_kind == "cancelled" and handle.is_cancel_requested:
+        elif out.failure_kind == "cancelled" and self._cancel_confirmed(handle):
             self.get_logger().warn(f"task {name!r}: {out.message} (force control off, holding)")
             _end_goal(handle, "canceled")
         else:
@@ -324,6 +333,16 @@ class TaskNode(Node):
             if self.context.ok():
                 _end_goal(handle, "abort")
         return result
+
+    def _cancel_confirmed(self, handle) -> bool:
+        """The goal's cancel was accepted (rclpy may not have moved it to CANCELING yet:
+        that follows the cancel callback in the executor's thread, within moments)."""
+        if self._robot.cancel_accepted != bytes(handle.goal_id.uuid):
+            return handle.is_cancel_requested
+        end = time.monotonic() + 1.0
+        while not handle.is_cancel_requested and time.monotonic() < end and self.context.ok():
+            time.sleep(0.005)
+        return handle.is_cancel_requested
 
     def destroy_node(self) -> None:
         # The action server first: its pending tasks must not outlive the node's handles.

@@ -1,0 +1,64 @@
+"""The task node in-process (issue 24, item 2): a cancel the node has accepted is seen by the
+task's thread at once. rclpy moves the goal to CANCELING only after the cancel callback has
+returned; in that window (after the "cancel requested" line) the task thread used to see no
+cancel and started its first step (one `make test` run: `step 1/12` logged after the cancel
+of a Ctrl-C that came as the goal was accepted)."""
+from __future__ import annotations
+
+import pytest
+
+pytestmark = [pytest.mark.node]
+
+
+def test_an_accepted_cancel_is_seen_before_rclpy_moves_the_goal(rclpy_context, executor,
+                                                                 wait_for):
+    import rclpy
+    from action_msgs.msg import GoalStatus
+    from rclpy.action import ActionClient
+
+    from hyperarm_description import contract
+    from hyperarm_interfaces.action import RunTask
+    from hyperarm_tasks.task_node import TaskNode
+
+    node = TaskNode(context=rclpy_context)
+    seen = []
+
+    def on_cancel(handle):
+        answer = node._on_cancel(handle)
+        # what the task thread sees the moment the callback has answered: the goal is not
+        # CANCELING yet, the cancel must be seen all the same
+        seen.append((handle.is_cancel_requested, node._robot.cancel_requested()))
+        return answer
+
+    node._server.register_cancel_callback(on_cancel)
+    client_node = rclpy.create_node("cancel_probe", context=rclpy_context)
+    client = ActionClient(client_node, RunTask, f"{contract.DEFAULT_NAMESPACE}/"
+                          f"{contract.RUN_TASK}".replace("//", "/"))
+    executor.add_node(node)
+    executor.add_node(client_node)
+    try:
+        assert client.wait_for_server(timeout_sec=10.0)
+        # no driver runs: the task waits for joint_states before its first step
+        send = client.send_goal_async(RunTask.Goal(task="block_transfer"))
+        wait_for(send.done, 10.0, what="the goal's answer")
+        handle = send.result()
+        assert handle.accepted
+        wait_for(lambda: node._robot.goal_handle is not None, 10.0,
+                 what="the task loaded (its goal handed to the robot)")
+        cancel = handle.cancel_goal_async()
+        wait_for(cancel.done, 10.0, what="the cancel's answer")
+        assert cancel.result().goals_canceling, "the cancel was refused"
+        assert seen and seen[0] == (False, True), \
+            f"(goal CANCELING, cancel seen by the task) at the callback's answer: {seen}"
+        result = handle.get_result_async()
+        wait_for(result.done, 10.0, what="the result")
+        res = result.result()
+        assert res.status == GoalStatus.STATUS_CANCELED, f"status {res.status}, not CANCELED: {res.result.message}"
+        assert not res.result.success and res.result.failure_kind == "cancelled"
+        assert "cancelled before" in res.result.message, res.result.message
+    finally:
+        executor.remove_node(client_node)
+        client.destroy()
+        client_node.destroy_node()
+        executor.remove_node(node)
+        node.destroy_node()
