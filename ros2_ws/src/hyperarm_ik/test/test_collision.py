@@ -178,6 +178,38 @@ def test_joint_path_check_finds_the_first_collision():
         check_joint_path(model, a, up, max_step=0.0)
 
 
+def test_a_path_may_escape_a_contact_it_starts_in_but_not_go_deeper():
+    """``escape``: the arm measured touching the table (a press pushed it there) may leave
+    along any path that gets no deeper; a path that presses further in fails, naming the
+    depths; without ``escape`` the start itself fails."""
+    model = CollisionModel(ARM, WORLD)
+    a = np.zeros(9)
+    lo, hi = 0.0, math.radians(80)            # bisect joint2 to just touching the table
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        a[1] = mid
+        lo, hi = (lo, mid) if model.in_collision(a) else (mid, hi)
+    a[1] = hi + math.radians(0.5)             # a little way in (a few mm)
+    depth = model.clearance_gradient(a)[0]
+    assert depth < 0.0
+    up, down = a.copy(), a.copy()
+    up[1] -= math.radians(20)
+    down[1] += math.radians(5)
+    assert not check_joint_path(model, a, up).free           # the start is in collision
+    out = model.check_path(a, up, escape=True)
+    assert out.free, out.message
+    deeper = model.check_path(a, down, escape=True)
+    assert not deeper.free and "deeper into a contact" in deeper.message, deeper.message
+    assert model.clearance_gradient(deeper.q)[0] < depth
+    # leaving, then coming back into the table further on: caught as a plain collision
+    back = a.copy()
+    back[1] += math.radians(10)
+    via = model.check_path(up, back)
+    assert not via.free
+    free_start = model.check_path(np.zeros(9), up, escape=True)   # no contact: as without
+    assert free_start.free
+
+
 def test_vertical_approach_to_a_peg_is_checked_along_the_line():
     model = CollisionModel(ARM, WORLD)
     s = make_solver("default", ARM)
