@@ -43,6 +43,7 @@ _HOLDING = (ControlMode.POSITION, ControlMode.CURRENT_POSITION)
 FRICTION_VELOCITY = 0.01   # rad/s (m/s): the friction feed-forward's smoothing speed
 INTEGRAL_TIME = 0.1       # s, the arm's position loops' integral time (kp / ki)
 INTEGRAL_LIMIT = 3.0      # x the joint's Coulomb friction: the integral's bound
+INTEGRAL_FADE = 0.2       # s, time constant of the integral's fade while the reference rests
 CRITICAL_DAMPING = 1.0     # damping ratio of the arm's position loops, stretched arm
 
 
@@ -224,12 +225,17 @@ class JointSim(ServoBank):
         # the firmware's integral action on what the feed-forward misses (friction's
         # stick-slip at reversals, the torque constant's error): I·∫(reference - joint),
         # bounded to ±INTEGRAL_LIMIT x the joint's Coulomb friction (no wind-up against a
-        # contact), cleared while the joint is not position-held. Without it the figure-8's
-        # joints trailed their references by up to 1.8 mrad (0.03 N·m of friction / kp)
+        # contact), cleared while the joint is not position-held, and fading out (over
+        # INTEGRAL_FADE s) while the reference rests: integrating there hunts across the
+        # static friction (the arm at rest crept 0.066 mm in 30 s), keeping it shifted
+        # where a move ended
         cap = INTEGRAL_LIMIT * self.coulomb
+        moving = self._ref_v != 0.0
         self._integral = np.where(
             self._is_position & held,
-            np.clip(self._integral + self._ki * (start - ph.q + self.offset) * h, -cap, cap),
+            np.where(moving, np.clip(self._integral + self._ki * (start - ph.q + self.offset)
+                                     * h, -cap, cap),
+                     self._integral * math.exp(-h / INTEGRAL_FADE)),
             0.0)
         pos = ph.position_ctrl(start + self.offset, self._prev_ref_v,
                                self._feedforward() + self._integral)
