@@ -48,6 +48,12 @@ TABLE_THICKNESS = 0.1  # m, of the table box under its top surface (bounded tabl
 DEFAULT_HELD_POSE = pin.SE3(pin.utils.rotate("x", -math.pi / 2), np.zeros(3)).homogeneous
 
 
+#: m, how far below the table's top the hand's capsules (envelopes of the wrist, palm and
+#: closed fingers, reaching 5 mm below the finger pads) may go: the pads themselves meet the
+#: table
+HAND_TABLE_ALLOWANCE = 0.006
+
+
 class CollisionError(IKError):
     """A collision model cannot be built from the description and work cell given."""
 
@@ -119,6 +125,11 @@ class CollisionModel:
             for name, geom, pose in _world_objects(world):
                 self._world.append(gm.addGeometryObject(pin.GeometryObject(
                     name, 0, 0, pin.SE3(pose), geom)))
+                if name == "table":      # the hand's floor (see _pairs)
+                    floor = pose.copy()
+                    floor[2, 3] -= HAND_TABLE_ALLOWANCE
+                    self._world.append(gm.addGeometryObject(pin.GeometryObject(
+                        "table (the hand's envelope)", 0, 0, pin.SE3(floor), geom)))
         # the held block: four boxes around its hole, on tool0
         self._block: list[int] = []
         if world is not None and world.block is not None:
@@ -152,11 +163,15 @@ class CollisionModel:
         # and closed fingers) meets neither a peg nor the table, as in the MuJoCo model the
         # mock steps (hyperarm_description.mjcf): the peg passes between the fingers into
         # the block's hole, and the finger pads (not modelled here) meet the table, the
-        # envelope reaching 5 mm below them
+        # envelope reaching 5 mm below them: the hand meets the table's top lowered by
+        # HAND_TABLE_ALLOWANCE instead (a tool target in the table is still refused)
         passed = {w for w in self._world if names[w].startswith("peg ") or names[w] == "table"}
+        hand_floor = {w for w in self._world if names[w].startswith("table (")}
         world_pairs = [(a, w) for a in self._robot for w in self._world
-                       if not (names[a] in holders and w in passed)]
-        block_pairs = [(blk, w) for blk in self._block for w in self._world]
+                       if not (names[a] in holders and w in passed)
+                       and (names[a] in holders or w not in hand_floor)]
+        block_pairs = [(blk, w) for blk in self._block for w in self._world
+                       if w not in hand_floor]
         block_pairs += [(blk, a) for blk in self._block for a in self._robot
                         if names[a] not in holders]
         self._hand_pegs: list[tuple[int, int]] = []

@@ -106,6 +106,23 @@ def test_the_held_block_threads_a_peg_and_hits_the_table():
     assert "held block with table" in {str(c) for c in model.check(low, held=True)}
 
 
+def test_the_hand_reaches_a_block_on_the_table_but_not_into_it():
+    """The hand's capsules meet the table's top lowered by HAND_TABLE_ALLOWANCE (the finger
+    pads meet the table itself, in the mock's MuJoCo model): tool0 at a block's centre on
+    the table is free, tool0 3 cm into the table is refused, naming the hand."""
+    from hyperarm_ik.collision import HAND_TABLE_ALLOWANCE
+
+    model = CollisionModel(ARM, WORLD)
+    z_table = WORLD.table_height
+    on_table = _hand_down_at(ARM, (0.35, 0.0, z_table + 0.015))   # a 3 cm block's centre
+    assert not model.check(on_table), [str(c) for c in model.check(on_table)]
+    into = _hand_down_at(ARM, (0.35, 0.0, z_table - 0.03))
+    hits = {str(c) for c in model.check(into)}
+    assert any("with table (the hand's envelope)" in h for h in hits), hits
+    # the allowance is the envelope's reach below the pads (5 mm), not more
+    assert 0.005 <= HAND_TABLE_ALLOWANCE < 0.015
+
+
 def test_target_inside_the_base_fails_with_the_pair():
     s = make_solver("default", ARM)
     s.use_collision_model(CollisionModel(ARM))
