@@ -150,6 +150,11 @@ class Runner:
         self.step: Step | None = None
         self.attempt = 0                    # retries of the current step so far
         self.holding: float | None = None   # grip effort while a grasp is held
+        # the peg a force_insert put the held block on (its hole around the peg): moves are
+        # then planned without the held block, which the peg guides (its modelled pose is
+        # the grasp's nominal one, millimetres off the real hole's), until the gripper
+        # next opens or closes
+        self.threaded_on: str | None = None
         self.tool_target: np.ndarray | None = None   # last commanded tool0 pose
         self.q_target: np.ndarray | None = None      # last commanded chain joints
         self.force_on = False
@@ -209,6 +214,10 @@ class Runner:
                 raise StepFailed("driver", f"driver refused: {reason}")
         if self.holding is not None:
             self.check_holding()
+
+    def block_in_hand(self) -> bool:
+        """A held block the collision checks carry (not while it is on a peg)."""
+        return self.holding is not None and self.threaded_on is None
 
     def check_holding(self) -> None:
         g = self.desc.gripper.name
@@ -312,7 +321,7 @@ class Runner:
         """IK for ``pose`` from ``seed``; ``collisions`` ("avoid", "ignore")."""
         return self.solver.solve(pose[:3, 3], pose[:3, :3], seed, position_tolerance=1e-4,
                                  orientation_tolerance=1e-3, timeout=0.1, collisions=collisions,
-                                 held=self.holding is not None)
+                                 held=self.block_in_hand())
 
     def plan_line(self, target: np.ndarray, spacing: float, allow_fallback: bool,
                   label: str) -> tuple[list[np.ndarray], np.ndarray]:
@@ -367,7 +376,7 @@ class Runner:
         (the held block included while a grasp is held). Nothing is sent before the check."""
         if self.collisions is None or len(qs) == 0:
             return
-        held = self.holding is not None
+        held = self.block_in_hand()
         segments = list(zip(qs[:-1], qs[1:])) or [(qs[0], qs[0])]
         for k, (a, b) in enumerate(segments):
             # the first segment starts where the arm is: it may touch (a press deflected a
@@ -595,6 +604,7 @@ class Runner:
                 used = retries.get(i, 0)
                 if used < r.attempts and (not r.on or exc.kind in r.on):
                     retries[i] = used + 1
+                    self.threaded_on = None      # the retry lifts the block off again
                     self.force_off()
                     self.robot.log("warn", f"step {step.name} failed ({exc}); retry "
                                    f"{used + 1}/{r.attempts} from {steps[r.from_index].name}")

@@ -173,8 +173,11 @@ class World:
             self.events.append(WorldEvent("grasped", where))
         elif was is BlockState.HELD and not held:
             x, y, z = pose[:3, 3].tolist()
-            self.events.append(WorldEvent("released" if opening else "dropped",
-                                          f"at ({x:.3f}, {y:.3f}, {z:.3f})"))
+            # threaded: it stays on that peg (as the mock's events always said); else where
+            # it was let go (a "landed" event says where it comes to rest)
+            where = f"on peg {threaded}" if threaded is not None else \
+                f"at ({x:.3f}, {y:.3f}, {z:.3f})"
+            self.events.append(WorldEvent("released" if opening else "dropped", where))
         if held and was is BlockState.HELD and threaded != self.threaded:
             if threaded is not None:
                 self.events.append(WorldEvent("threaded", threaded))
