@@ -191,6 +191,8 @@ class TaskNode(Node):
             # right after it is not refused as "running")
             self._runner = None
             self._robot.goal_handle = None
+            if self._robot.cancel_accepted == bytes(handle.goal_id.uuid):
+                self._robot.cancel_accepted = None     # (a client reusing the id later)
             with self._lock:
                 self._busy = None
                 self._worker = None
