@@ -488,9 +488,23 @@ def test_a_late_host_pose_moves_nothing_and_is_counted(launch, rclpy_context, ex
     with probe.lock:
         steady = probe.command_list[-1][1]
         first = len(probe.command_list)
+    def counted(key: str) -> bool:
+        """The node's diagnostics count a rejection ``key``; meanwhile joint_states only
+        (host_pose keeps a history of 1: a good pose sent now would replace the bad one
+        before a loaded node takes it; one CI run counted no out-of-order pose so)"""
+        st = JointState()
+        st.header.stamp = clock.now().to_msg()
+        st.name, st.position = ARM, list(Q0)
+        states.publish(st)
+        with probe.lock:
+            return int(probe.diag.get(key, 0)) >= 1
+
     tick(x=0.03, age=2.0)                      # late by 2 s, 3 cm off
-    time.sleep(0.01)
+    wait_for(lambda: counted("host_pose_rejected_stale"), 2.0, period=0.01,
+             what="the late host pose counted")
     tick(x=0.03, before_last=0.03)             # older than the newest used, 3 cm off
+    wait_for(lambda: counted("host_pose_rejected_out_of_order"), 2.0, period=0.01,
+             what="the out-of-order host pose counted")
     for _ in range(30):
         time.sleep(0.01)
         tick()
