@@ -436,7 +436,7 @@ def test_a_late_host_pose_moves_nothing_and_is_counted(launch, rclpy_context, ex
                                                        wait_for):
     """Issue 24 item 3 through the installed host_compensation (fixed arm, host from
     host_pose): joint states and host poses at 100 Hz from the test, compensation enabled;
-    then one host pose stamped now - 2 s and one 30 ms out of order, each 3 cm off. The
+    then one host pose 0.2 s out of order and one stamped now - 2 s, each 3 cm off. The
     commands do not move the tool (the old node took each as the current host pose: ~6 mm),
     the diagnostics count them, the log says why."""
     comp = launch("hyperarm_control", "host_compensation", params={
@@ -499,12 +499,16 @@ def test_a_late_host_pose_moves_nothing_and_is_counted(launch, rclpy_context, ex
         with probe.lock:
             return int(probe.diag.get(key, 0)) >= 1
 
+    # older than the newest used, 3 cm off: 0.2 s before the newest sent, so older than any
+    # the node took lately (host_pose keeps 1: a loaded node skips poses; 30 ms before the
+    # newest sent was not older than the newest it had taken, in two fresh-clone runs), and
+    # sent first, well within max_message_age (0.5 s)
+    tick(x=0.03, before_last=0.2)
+    wait_for(lambda: counted("host_pose_rejected_out_of_order"), 2.0, period=0.01,
+             what="the out-of-order host pose counted")
     tick(x=0.03, age=2.0)                      # late by 2 s, 3 cm off
     wait_for(lambda: counted("host_pose_rejected_stale"), 2.0, period=0.01,
              what="the late host pose counted")
-    tick(x=0.03, before_last=0.03)             # older than the newest used, 3 cm off
-    wait_for(lambda: counted("host_pose_rejected_out_of_order"), 2.0, period=0.01,
-             what="the out-of-order host pose counted")
     for _ in range(30):
         time.sleep(0.01)
         tick()
