@@ -2,7 +2,8 @@
 task's thread at once. rclpy moves the goal to CANCELING only after the cancel callback has
 returned; in that window (after the "cancel requested" line) the task thread used to see no
 cancel and started its first step (one `make test` run: `step 1/12` logged after the cancel
-of a Ctrl-C that came as the goal was accepted)."""
+of a Ctrl-C that came as the goal was accepted). Two goals in a row: the first's cancel
+does not carry over to the second, whose own cancel is seen the same way."""
 from __future__ import annotations
 
 import pytest
@@ -61,6 +62,23 @@ def test_an_accepted_cancel_is_seen_before_rclpy_moves_the_goal(rclpy_context, e
         assert res.status == GoalStatus.STATUS_CANCELED, f"status {res.status}, not CANCELED: {res.result.message}"
         assert not res.result.success and res.result.failure_kind == "cancelled"
         assert "cancelled before" in res.result.message, res.result.message
+        # the next goal (in sequence) is not taken for cancelled: it waits for joint_states
+        # until its own cancel, which is seen as the first one was
+        assert node._robot.cancel_accepted is None        # cleared with its goal
+        wait_for(lambda: node._busy is None, 5.0, what="the slot free")
+        send = client.send_goal_async(RunTask.Goal(task="block_transfer"))
+        wait_for(send.done, 10.0, what="the second goal's answer")
+        second = send.result()
+        assert second.accepted
+        wait_for(lambda: node._robot.goal_handle is not None, 10.0, what="the second task")
+        assert not node._robot.cancel_requested(), "the second goal taken for cancelled"
+        seen.clear()
+        cancel = second.cancel_goal_async()
+        wait_for(cancel.done, 10.0, what="the second cancel's answer")
+        assert seen and seen[0][1], seen
+        result = second.get_result_async()
+        wait_for(result.done, 10.0, what="the second result")
+        assert result.result().status == GoalStatus.STATUS_CANCELED
     finally:
         executor.remove_node(client_node)
         client.destroy()
