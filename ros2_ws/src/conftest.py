@@ -103,6 +103,47 @@ def _terminal_signals() -> None:
     _terminal_signal_state()
 
 
+#: niceness of a worker while it runs a test of the pure-Python tiers (CPU-bound batch work)
+BATCH_NICENESS = 10
+_TIMED_MARKERS = ("node", "e2e", "emulator")
+
+
+def _may_renice_back() -> bool:
+    """Whether this process may lower its niceness again (root or CAP_SYS_NICE): only then is
+    a test's niceness raised and restored afterwards."""
+    if os.geteuid() == 0:
+        return True
+    try:
+        caps = next(line for line in Path("/proc/self/status").read_text().splitlines()
+                    if line.startswith("CapEff:"))
+        return bool(int(caps.split()[1], 16) & (1 << 23))     # CAP_SYS_NICE
+    except (OSError, StopIteration, ValueError, IndexError):
+        return False
+
+
+_RENICE = _may_renice_back()
+_START_NICENESS = os.getpriority(os.PRIO_PROCESS, 0)
+
+
+@pytest.fixture(autouse=True)
+def _batch_priority(request: pytest.FixtureRequest):
+    """A test of the pure-Python tiers (marked ``core`` and none of node, e2e, emulator) runs
+    at niceness :data:`BATCH_NICENESS`: on a 2-core machine with two workers it is CPU-bound
+    batch work beside the other worker's test, whose node processes have deadlines of the
+    robot's kind (a 100 Hz loop, a 2 s stop). Restored after the test; nothing where it could
+    not be restored (no root, no CAP_SYS_NICE)."""
+    marks = {m.name for m in request.node.iter_markers()}
+    if not _RENICE or "core" not in marks or marks & set(_TIMED_MARKERS):
+        yield
+        return
+    before = os.getpriority(os.PRIO_PROCESS, 0)
+    os.setpriority(os.PRIO_PROCESS, 0, max(before, BATCH_NICENESS))
+    try:
+        yield
+    finally:
+        os.setpriority(os.PRIO_PROCESS, 0, before)
+
+
 def processes_on_domain(domain: int) -> list[tuple[int, str]]:
     """(pid, command line) of every live process of this test session started with
     ROS_DOMAIN_ID=``domain`` (this process excepted): what a test started on its own

@@ -72,6 +72,7 @@ PARAMETERS: ParamSpec = {
 
 #: s the renderer may take to start (MuJoCo's model and OpenGL context) before the node gives up
 _START_TIMEOUT = 60.0
+_JOIN_TIMEOUT = 0.5   # s: the render thread's time to end at the node's stop
 
 #: joint states kept to pick the one nearest a truth's stamp (at 100 Hz: 0.5 s)
 _JOINT_HISTORY = 50
@@ -271,7 +272,10 @@ class MockCameraNode(Node):
     def destroy_node(self) -> None:
         self._stop.set()               # the render thread ends its picture and frees OpenGL
         if self._thread.is_alive():
-            self._thread.join(timeout=2.0)
+            # a picture takes ~30 ms; a thread held longer (a loaded machine's software
+            # OpenGL) does not hold up the stop: it publishes nothing once stopped, and the
+            # process ends with it (it held a lifecycle test's SIGINT stop 2.0 s once)
+            self._thread.join(timeout=_JOIN_TIMEOUT)
         super().destroy_node()
 
     def _publish_diagnostics(self) -> None:
