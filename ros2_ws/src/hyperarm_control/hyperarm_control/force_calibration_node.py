@@ -8,7 +8,10 @@ hybrid_force loads with ``calibration_file``. Exits 0 when the file is written, 
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
+import pinocchio as pin
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
@@ -21,6 +24,7 @@ from hyperarm_description.ros_main import declare_robot_description, run_node
 from .force.calibration import (CalibrationError, CalibrationRun, calibration_poses,
                                 fit_calibration, fit_friction, save_calibration)
 from .force.law import GravityModel, Payload
+from hyperarm_ik.collision import CollisionModel
 from hyperarm_ik.kinematics import Kinematics
 from hyperarm_ik.ros_conversions import JointStateInput
 
@@ -30,7 +34,8 @@ PARAMETERS: ParamSpec = {
     "spread": (0.6, "rad: each joint (but joint1) moves up to this from the present pose",
                Range(0.05, 1.5)),
     "seed": (0, "seed of the pose draw", Range(0, 2**31 - 1)),
-    "min_tool_height": (-0.10, "m: poses with tool0 below this height (root z) are skipped",
+    "min_tool_height": (-0.10, "m: poses with tool0 or any link's collision capsule below "
+                        "this height (root z) are skipped",
                         Range(-10.0, 10.0)),
     "approach": (0.05, "rad: each pose is approached from this far on both sides",
                  Range(0.0, 0.5)),
@@ -49,6 +54,8 @@ class CalibrationNode(Node):
         desc = declare_robot_description(self)
         self._p = declare_parameters(self, PARAMETERS)
         self._kin = Kinematics(desc)
+        self._self = CollisionModel(self._kin, None)    # the arm's self-collisions
+        self._cal_data = self._kin.model.createData()
         self._gravity = GravityModel(self._kin)
         self._payload = Payload(self._p["payload_mass"])
         self._arm = list(desc.arm_joint_names)
@@ -84,21 +91,44 @@ class CalibrationNode(Node):
         elif self._run.done:
             self._finish(q)
 
+    def _lowest_link(self, q: np.ndarray) -> float:
+        """The lowest point (root z, m) of the links' collision capsules at q (a link on the
+        table would stall a servo there: the contact, not gravity, in its effort)."""
+        model, data = self._kin.model, self._cal_data
+        pin.framesForwardKinematics(model, data, q)
+        low = math.inf
+        for cap in self._kin.desc.capsules:
+            m = data.oMf[model.getFrameId(cap.frame)]
+            for end in cap.endpoints():
+                low = min(low, float((m.rotation @ end + m.translation)[2]) - cap.radius)
+        return low
+
     def _start(self, q: np.ndarray) -> CalibrationRun:
         p = self._p
         arm = self._arm_idx
         poses = calibration_poses(self._kin.lower[arm], self._kin.upper[arm], q[arm],
                                   4 * p["poses"], p["spread"], p["seed"])
         keep = []
+        shift = np.r_[0.0, np.full(len(arm) - 1, p["approach"])]   # the approach points
         for pose in poses:
             full = q.copy()
             full[arm] = pose
-            if self._kin.forward(full)[2, 3] >= p["min_tool_height"]:
-                keep.append(pose)
+            if self._kin.forward(full)[2, 3] < p["min_tool_height"] \
+                    or self._lowest_link(full) < p["min_tool_height"]:
+                continue
+            # the arm must not touch itself at the pose or its approach points (it would
+            # stall there: the servos' friction and the contact, not gravity, in the efforts)
+            ends = [full.copy(), full.copy()]
+            ends[0][arm] += shift
+            ends[1][arm] -= shift
+            if any(self._self.in_collision(c) for c in [full, *ends]):
+                continue
+            keep.append(pose)
             if len(keep) == p["poses"]:
                 break
         if len(keep) < 3:
-            raise CalibrationError("fewer than 3 poses keep the tool above min_tool_height")
+            raise CalibrationError("fewer than 3 poses keep the tool above min_tool_height "
+                                   "with the arm clear of itself")
         self.get_logger().info(f"calibrating over {len(keep)} poses")
         return CalibrationRun(np.array(keep), p["approach"], p["settle"], p["average"],
                               timeout=p["timeout"])

@@ -102,7 +102,7 @@ _CONTACT = {
 #: half sizes (m) along tool0 x, y, z, their inner faces ``gripper.max_opening`` apart at
 #: the gripper's upper limit and touching at its lower limit, centred on tool0's origin in
 #: x and y (where the held block's centre is); each finger's mass (kg).
-PAD_HALF_SIZE = (0.012, 0.015, 0.003)
+PAD_HALF_SIZE = (0.012, 0.012, 0.003)
 FINGER_MASS = 0.01
 
 

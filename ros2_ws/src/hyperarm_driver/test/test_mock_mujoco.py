@@ -17,7 +17,7 @@ from hyperarm_description.mjcf import FINGER_MASS, finger_travel
 from hyperarm_description.model import load_description
 from hyperarm_driver.mock.config import load_mock_config
 from hyperarm_driver.mock.joint_sim import ControlMode
-from hyperarm_driver.mock.mujoco_sim import MujocoSim
+from hyperarm_driver.mock.joint_sim import JointSim as MujocoSim
 from hyperarm_driver.mock.scenario import Scenario, self_contacts, tool_down_ik
 from hyperarm_driver.mock.world import BlockState
 
@@ -115,9 +115,9 @@ def test_a_weak_grip_slips_within_20_percent_of_coulombs_prediction():
 
 
 def test_servo_modes_are_mujocos_actuator_parameters():
-    """Position class: a PD within the true current limit; current: a motor on its
-    torque-speed line; off (and a mode switch's gap): no force. Set at run time on the
-    same model."""
+    """Position class: a PD within the true current limit; current: a motor whose force is
+    its control (the servo model keeps it on the torque-speed line); off (and a mode
+    switch's gap): no force. Set at run time on the same model."""
     desc = load_description()
     sim = MujocoSim(desc, _cfg())
     ph, m = sim.physics, sim.physics.model
@@ -135,7 +135,7 @@ def test_servo_modes_are_mujocos_actuator_parameters():
     sim.step(DT)
     assert sim.mode[0] is ControlMode.TORQUE
     assert m.actuator_gainprm[a, 0] == 1.0
-    assert m.actuator_biasprm[a, 2] == pytest.approx(-sim.stall[0] / sim.vmax[0])
+    assert m.actuator_biasprm[a, 2] == 0.0    # no damping: the current loop holds its goal
     sim.set_torque(False, ["joint1"])
     sim.step(DT)
     assert tuple(m.actuator_forcerange[a]) == (0.0, 0.0)

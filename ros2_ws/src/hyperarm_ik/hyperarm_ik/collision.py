@@ -48,6 +48,12 @@ TABLE_THICKNESS = 0.1  # m, of the table box under its top surface (bounded tabl
 DEFAULT_HELD_POSE = pin.SE3(pin.utils.rotate("x", -math.pi / 2), np.zeros(3)).homogeneous
 
 
+#: m, how far below the table's top the hand's capsules (envelopes of the wrist, palm and
+#: closed fingers, reaching 5 mm below the finger pads) may go: the pads themselves meet the
+#: table
+HAND_TABLE_ALLOWANCE = 0.006
+
+
 class CollisionError(IKError):
     """A collision model cannot be built from the description and work cell given."""
 
@@ -119,6 +125,11 @@ class CollisionModel:
             for name, geom, pose in _world_objects(world):
                 self._world.append(gm.addGeometryObject(pin.GeometryObject(
                     name, 0, 0, pin.SE3(pose), geom)))
+                if name == "table":      # the hand's floor (see _pairs)
+                    floor = pose.copy()
+                    floor[2, 3] -= HAND_TABLE_ALLOWANCE
+                    self._world.append(gm.addGeometryObject(pin.GeometryObject(
+                        "table (the hand's envelope)", 0, 0, pin.SE3(floor), geom)))
         # the held block: four boxes around its hole, on tool0
         self._block: list[int] = []
         if world is not None and world.block is not None:
@@ -147,16 +158,23 @@ class CollisionModel:
                 if abs(ja - jb) <= 1 or (a, b) in touching:
                     continue  # same or adjacent links, or parts that share a joint
                 self_pairs.append((a, b))
-        world_pairs = [(a, w) for a in self._robot for w in self._world]
         holders = {n for n in ("gripper", f"link{len(self.kin.desc.joints)}") if n in order}
-        block_pairs = [(blk, w) for blk in self._block for w in self._world]
+        # the hand (the last link's capsule and the gripper's, envelopes of the wrist, palm
+        # and closed fingers) meets neither a peg nor the table, as in the MuJoCo model the
+        # mock steps (hyperarm_description.mjcf): the peg passes between the fingers into
+        # the block's hole, and the finger pads (not modelled here) meet the table, the
+        # envelope reaching 5 mm below them: the hand meets the table's top lowered by
+        # HAND_TABLE_ALLOWANCE instead (a tool target in the table is still refused)
+        passed = {w for w in self._world if names[w].startswith("peg ") or names[w] == "table"}
+        hand_floor = {w for w in self._world if names[w].startswith("table (")}
+        world_pairs = [(a, w) for a in self._robot for w in self._world
+                       if not (names[a] in holders and w in passed)
+                       and (names[a] in holders or w not in hand_floor)]
+        block_pairs = [(blk, w) for blk in self._block for w in self._world
+                       if w not in hand_floor]
         block_pairs += [(blk, a) for blk in self._block for a in self._robot
                         if names[a] not in holders]
-        # while the block is held, the peg it threads passes through the space between the
-        # fingers that the gripper's capsule fills: the block's hole model stands in for it
-        pegs = {w for w in self._world if names[w].startswith("peg ")}
-        self._hand_pegs = [(a, w) for a, w in world_pairs
-                           if names[a] == "gripper" and w in pegs] if self._block else []
+        self._hand_pegs: list[tuple[int, int]] = []
         self._groups = {"self": self_pairs, "world": world_pairs, "block": block_pairs}
         for a, b in self_pairs + world_pairs + block_pairs:
             gm.addCollisionPair(pin.CollisionPair(a, b))
@@ -284,9 +302,13 @@ class CollisionModel:
 
     # --- paths ----------------------------------------------------------------------------
     def check_path(self, q_a: np.ndarray, q_b: np.ndarray, held: bool = False,
-                   max_step: float = 0.02) -> PathCheck:
+                   max_step: float = 0.02, escape: bool = False) -> PathCheck:
         """Check the straight joint-space segment from q_a to q_b, sampled so that no joint
-        moves more than ``max_step`` rad (rail: m) between samples, both ends included."""
+        moves more than ``max_step`` rad (rail: m) between samples, both ends included.
+        ``escape``: q_a is where the arm is (measured) and may already touch (a press, a
+        servo deflected into a contact): the path may start in collision as long as its
+        deepest pair gets no deeper (signed distance, 0.1 mm of slack) until it is free;
+        from then on as without."""
         qa, qb = np.asarray(q_a, dtype=float), np.asarray(q_b, dtype=float)
         if not (np.all(np.isfinite(qa)) and np.all(np.isfinite(qb))) \
                 or qa.shape != (self.model.nq,) or qb.shape != (self.model.nq,):
@@ -294,21 +316,40 @@ class CollisionModel:
         if not math.isfinite(max_step) or max_step <= 0.0:
             raise InvalidOptionError(f"max_step must be > 0, got {max_step!r}")
         n = max(1, int(math.ceil(float(np.max(np.abs(qb - qa))) / max_step)))
-        return self._scan([(i / n, qa + (qb - qa) * (i / n)) for i in range(n + 1)], held)
+        samples = [(i / n, qa + (qb - qa) * (i / n)) for i in range(n + 1)]
+        if escape:
+            start = self.clearance_gradient(qa, held)
+            if start is not None:
+                depth = start[0]
+                for k, (s, q) in enumerate(samples):
+                    now = self.clearance_gradient(q, held)
+                    if now is None:
+                        return self._scan(samples[k:], held, offset=k)
+                    if now[0] < depth - 1e-4:
+                        contacts = self.check(q, held)
+                        return PathCheck(False, k + 1, s, np.array(q), contacts,
+                                         f"deeper into a contact at s = {s:.3f} "
+                                         f"({-now[0] * 1e3:.1f} mm, from "
+                                         f"{-start[0] * 1e3:.1f} mm): "
+                                         + ", ".join(str(c) for c in contacts))
+                    depth = max(depth, now[0])
+                return PathCheck(True, len(samples), message="leaves no contact it started in "
+                                 "deeper")
+        return self._scan(samples, held)
 
     def check_configurations(self, path: Sequence[tuple[float, np.ndarray]],
                              held: bool = False) -> PathCheck:
         """Check given (s, q) samples in order (e.g. IK solutions along a Cartesian line)."""
         return self._scan(path, held)
 
-    def _scan(self, samples, held: bool) -> PathCheck:
-        for k, (s, q) in enumerate(samples):
+    def _scan(self, samples, held: bool, offset: int = 0) -> PathCheck:
+        for k, (s, q) in enumerate(samples, start=offset):
             if self.in_collision(q, held):
                 contacts = self.check(q, held)
                 return PathCheck(False, k + 1, s, np.array(q), contacts,
                                  f"in collision at s = {s:.3f}: "
                                  + ", ".join(str(c) for c in contacts))
-        return PathCheck(True, len(samples), message="collision-free")
+        return PathCheck(True, offset + len(samples), message="collision-free")
 
 
 def _transform(m: pin.SE3) -> coal.Transform3s:

@@ -106,6 +106,23 @@ def test_the_held_block_threads_a_peg_and_hits_the_table():
     assert "held block with table" in {str(c) for c in model.check(low, held=True)}
 
 
+def test_the_hand_reaches_a_block_on_the_table_but_not_into_it():
+    """The hand's capsules meet the table's top lowered by HAND_TABLE_ALLOWANCE (the finger
+    pads meet the table itself, in the mock's MuJoCo model): tool0 at a block's centre on
+    the table is free, tool0 3 cm into the table is refused, naming the hand."""
+    from hyperarm_ik.collision import HAND_TABLE_ALLOWANCE
+
+    model = CollisionModel(ARM, WORLD)
+    z_table = WORLD.table_height
+    on_table = _hand_down_at(ARM, (0.35, 0.0, z_table + 0.015))   # a 3 cm block's centre
+    assert not model.check(on_table), [str(c) for c in model.check(on_table)]
+    into = _hand_down_at(ARM, (0.35, 0.0, z_table - 0.03))
+    hits = {str(c) for c in model.check(into)}
+    assert any("with table (the hand's envelope)" in h for h in hits), hits
+    # the allowance is the envelope's reach below the pads (5 mm), not more
+    assert 0.005 <= HAND_TABLE_ALLOWANCE < 0.015
+
+
 def test_target_inside_the_base_fails_with_the_pair():
     s = make_solver("default", ARM)
     s.use_collision_model(CollisionModel(ARM))
@@ -176,6 +193,38 @@ def test_joint_path_check_finds_the_first_collision():
     assert check_joint_path(model, a, up).free
     with pytest.raises(InvalidOptionError):
         check_joint_path(model, a, up, max_step=0.0)
+
+
+def test_a_path_may_escape_a_contact_it_starts_in_but_not_go_deeper():
+    """``escape``: the arm measured touching the table (a press pushed it there) may leave
+    along any path that gets no deeper; a path that presses further in fails, naming the
+    depths; without ``escape`` the start itself fails."""
+    model = CollisionModel(ARM, WORLD)
+    a = np.zeros(9)
+    lo, hi = 0.0, math.radians(80)            # bisect joint2 to just touching the table
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        a[1] = mid
+        lo, hi = (lo, mid) if model.in_collision(a) else (mid, hi)
+    a[1] = hi + math.radians(0.5)             # a little way in (a few mm)
+    depth = model.clearance_gradient(a)[0]
+    assert depth < 0.0
+    up, down = a.copy(), a.copy()
+    up[1] -= math.radians(20)
+    down[1] += math.radians(5)
+    assert not check_joint_path(model, a, up).free           # the start is in collision
+    out = model.check_path(a, up, escape=True)
+    assert out.free, out.message
+    deeper = model.check_path(a, down, escape=True)
+    assert not deeper.free and "deeper into a contact" in deeper.message, deeper.message
+    assert model.clearance_gradient(deeper.q)[0] < depth
+    # leaving, then coming back into the table further on: caught as a plain collision
+    back = a.copy()
+    back[1] += math.radians(10)
+    via = model.check_path(up, back)
+    assert not via.free
+    free_start = model.check_path(np.zeros(9), up, escape=True)   # no contact: as without
+    assert free_start.free
 
 
 def test_vertical_approach_to_a_peg_is_checked_along_the_line():

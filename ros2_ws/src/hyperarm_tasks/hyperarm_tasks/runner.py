@@ -135,20 +135,26 @@ class Runner:
                  on_feedback: Callable[[Feedback], None] | None = None,
                  collisions: CollisionModel | None = None) -> None:
         self.robot, self.kin, self.task = robot, kin, task
-        # the IK library's collision model (self-collisions and the work cell): every planned
-        # joint path is checked before it is sent (None: not checked)
-        self.collisions = collisions
+        # the IK library's collision model: every planned joint path is checked before it is
+        # sent and the IK avoids it. None: the arm's self-collisions only (always: a folded
+        # wrist that put link9 into link6 jams the real arm, and the mock's MuJoCo physics);
+        # the task node's collision_check adds the work cell
+        self.collisions = collisions if collisions is not None else CollisionModel(kin, None)
         self.params = params or RunnerParams()
         self.period = 1.0 / self.params.command_rate
         self.desc = kin.desc
         self.solver = make_solver(self.params.solver, kin)
-        if collisions is not None:
-            self.solver.use_collision_model(collisions)
+        self.solver.use_collision_model(self.collisions)
         self.on_feedback = on_feedback or (lambda fb: None)
         self.fb = Feedback(count=len(task.steps))
         self.step: Step | None = None
         self.attempt = 0                    # retries of the current step so far
         self.holding: float | None = None   # grip effort while a grasp is held
+        # the peg a force_insert put the held block on (its hole around the peg): moves are
+        # then planned without the held block, which the peg guides (its modelled pose is
+        # the grasp's nominal one, millimetres off the real hole's), until the gripper
+        # next opens or closes
+        self.threaded_on: str | None = None
         self.tool_target: np.ndarray | None = None   # last commanded tool0 pose
         self.q_target: np.ndarray | None = None      # last commanded chain joints
         self.force_on = False
@@ -208,6 +214,10 @@ class Runner:
                 raise StepFailed("driver", f"driver refused: {reason}")
         if self.holding is not None:
             self.check_holding()
+
+    def block_in_hand(self) -> bool:
+        """A held block the collision checks carry (not while it is on a peg)."""
+        return self.holding is not None and self.threaded_on is None
 
     def check_holding(self) -> None:
         g = self.desc.gripper.name
@@ -308,12 +318,10 @@ class Runner:
 
     # --- IK and motion ---------------------------------------------------------------------
     def ik(self, pose: np.ndarray, seed: np.ndarray, collisions: str = "avoid"):
-        """IK for ``pose`` from ``seed``; ``collisions`` ("avoid", "ignore") applies when
-        the runner has a collision model."""
-        mode = collisions if self.collisions is not None else "ignore"
+        """IK for ``pose`` from ``seed``; ``collisions`` ("avoid", "ignore")."""
         return self.solver.solve(pose[:3, 3], pose[:3, :3], seed, position_tolerance=1e-4,
-                                 orientation_tolerance=1e-3, timeout=0.1, collisions=mode,
-                                 held=self.holding is not None)
+                                 orientation_tolerance=1e-3, timeout=0.1, collisions=collisions,
+                                 held=self.block_in_hand())
 
     def plan_line(self, target: np.ndarray, spacing: float, allow_fallback: bool,
                   label: str) -> tuple[list[np.ndarray], np.ndarray]:
@@ -348,7 +356,18 @@ class Runner:
                     return [q, final.q], target
                 raise StepFailed("collision" if res.contacts else "ik", where)
             qs.append(res.q)
-        self.check_collisions(label, *qs)
+        try:
+            self.check_collisions(label, *qs)
+        except StepFailed as exc:
+            # every waypoint is free but the joint line between two is not (the IK changed
+            # branch): the joint-space move instead, if allowed and free
+            final = self.ik(target, q)
+            if not (allow_fallback and final.success):
+                raise
+            self.robot.log("warn", f"{exc}; "
+                           "falling back to a joint-space move")
+            self.check_collisions(label, q, final.q)
+            return [q, final.q], target
         return qs, target
 
     def check_collisions(self, label: str, *qs: np.ndarray) -> None:
@@ -357,10 +376,12 @@ class Runner:
         (the held block included while a grasp is held). Nothing is sent before the check."""
         if self.collisions is None or len(qs) == 0:
             return
-        held = self.holding is not None
+        held = self.block_in_hand()
         segments = list(zip(qs[:-1], qs[1:])) or [(qs[0], qs[0])]
         for k, (a, b) in enumerate(segments):
-            chk = self.collisions.check_path(a, b, held=held)
+            # the first segment starts where the arm is: it may touch (a press deflected a
+            # servo into a contact), the path must not go deeper (escape)
+            chk = self.collisions.check_path(a, b, held=held, escape=k == 0)
             if not chk.free:
                 raise StepFailed("collision", f"{label}: the planned path would collide "
                                  f"(segment {k + 1}/{len(segments)}): {chk.message}")
@@ -583,6 +604,7 @@ class Runner:
                 used = retries.get(i, 0)
                 if used < r.attempts and (not r.on or exc.kind in r.on):
                     retries[i] = used + 1
+                    self.threaded_on = None      # the retry lifts the block off again
                     self.force_off()
                     self.robot.log("warn", f"step {step.name} failed ({exc}); retry "
                                    f"{used + 1}/{r.attempts} from {steps[r.from_index].name}")

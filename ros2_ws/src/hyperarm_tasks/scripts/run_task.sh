@@ -205,7 +205,7 @@ if [ "$force_node" = 1 ]; then
   start hybrid_force "$(exe hyperarm_control hybrid_force)" --ros-args "${ros[@]}"
 fi
 task_args=("${ros[@]}")
-[ -z "$workcell" ] || task_args+=(-p "world_file:=$workcell")
+[ -z "$workcell" ] || task_args+=(-p "world_file:=$workcell" -p "collision_check:=true")
 [ -z "$tasks_dir" ] || task_args+=(-p "tasks_dir:=$tasks_dir")
 start task_node "$(exe hyperarm_tasks task_node)" --ros-args "${task_args[@]}"
 if [ -n "$record" ]; then

@@ -167,7 +167,10 @@ def test_a_cancel_as_a_step_ends_starts_no_next_step(desc, kin, monkeypatch, las
 def test_ready_and_rest(desc, kin):
     result, sim, _ = run(desc, kin, cell(1), task="rest")
     assert result.success, result.message
-    assert sim.position[1] == pytest.approx(np.pi / 2, abs=0.02)
+    pose = load_task("rest", desc).steps[-1].goal            # the task's folded pose
+    assert pose["joint2"] == pytest.approx(np.radians(60)) and pose["joint4"] < 0.0
+    for name, goal in pose.items():
+        assert sim.position[sim.names.index(name)] == pytest.approx(goal, abs=0.02), name
     result, sim, _ = run(desc, kin, cell(1), task="ready")
     assert result.success, result.message
 
@@ -176,7 +179,9 @@ def test_grasp_missed_is_retried_then_reported(desc, kin):
     sim = JointSim(desc, cell(8))
     robot = SimRobot(sim)
     wrong = np.eye(4)
-    wrong[:3, 3] = (0.35, 0.16, -0.185)          # 4 cm beside the block: nothing to grasp
+    # 6 cm beside the block along x, nothing to grasp (the fingers close along y: 4 cm
+    # beside along y, one open finger comes down on the block's top, in MuJoCo)
+    wrong[:3, 3] = (0.41, 0.12, -0.185)
     robot.given["block"] = wrong
     result = Runner(robot, kin, load_task("block_transfer", desc)).run()
     assert not result.success and result.failure_kind == "grasp"

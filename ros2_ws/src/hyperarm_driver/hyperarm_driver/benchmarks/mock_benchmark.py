@@ -222,7 +222,7 @@ def bench_core(steps: int = 2000, workcell: str | None = None, engine: str = "ha
 
     from ..mock.config import load_mock_config
     from ..mock.joint_sim import JointSim
-    from ..mock.mujoco_sim import MujocoSim
+    from ..mock.joint_sim import JointSim as MujocoSim
 
     sim_class = MujocoSim if engine == "mujoco" else JointSim
     cfg = load_mock_config(workcell)

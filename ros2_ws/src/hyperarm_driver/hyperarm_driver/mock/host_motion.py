@@ -7,14 +7,14 @@ the arm variant, the rail's fixed frame on ``rail_arm``): the work cell (table, 
 poles) and the camera stay where they are in it, gravity stays along world -z.
 
 How it enters the simulation (:class:`JointSim` calls :meth:`HostMotion.before_step` and
-:meth:`HostMotion.after_step` around every step): the placement of the model's first joint
-(and of the frames fixed to the root, e.g. ``base_link`` on the arm variant) becomes
-``T_world_root @ placement``, so every link, tool and capsule pose the simulation computes
-is in world, where the work cell's geometry is; the gravity of the model stays world -z
-and also carries the root's acceleration (``g - a_root``), so the joints' gravity and
-inertia torques, the reported efforts and the contacts see the tilt and the sway. The
-velocity-product terms of the root's own rotation (centrifugal, Coriolis with the joints'
-velocities) are neglected: below 0.05 m/s² for the shipped motions (0.27 rad/s at most).
+:meth:`HostMotion.after_step` around every MuJoCo step): the generated model has the
+robot's root on a mocap body ``host`` (hyperarm_description.mjcf), whose pose the script
+sets; MuJoCo then computes every link, tool and capsule pose in world, where the work cell
+is. The root's acceleration enters as d'Alembert forces on every body below the host
+(-m·(a + α × r) at each body's centre of mass, r from the root's origin; the velocity
+products of the root's own rotation are neglected: below 0.05 m/s² for the shipped
+motions), so the joints' torques, the reported efforts, the mount and the contacts see the
+tilt and the sway; gravity stays world -z.
 
 - Rail sweep (``rail``, rail_arm only): the rail's profile follows a back-and-forth between
   ``center - amplitude`` and ``center + amplitude`` at ``speed`` with ``acceleration`` at
@@ -25,19 +25,13 @@ velocities) are neglected: below 0.05 m/s² for the shipped motions (0.27 rad/s 
   ``R = Rz(yaw) Ry(pitch) Rx(roll)``), amplitude scaled by the ramp: it starts and ends at
   the rest pose with no jump in position, velocity or acceleration.
 - Ramp: smootherstep (C2) over ``ramp`` s; stopping midway reverses it.
-- Passive mount (``mount``): the root hangs on a 6-D spring-damper (diagonal stiffness and
-  damping in the root's axes, translations then rotations) from the scripted host frame;
-  the mounted body (``mass``, diagonal ``inertia``, at the root's origin) and the arm's
-  composite inertia move under the arm's reaction wrench on its mount (pinocchio RNEA of the
-  arm's motion and gravity, plus the work cell's contact forces on the robot). The spring is
-  preloaded with the load at the moment it engages (when the motion starts), so the base
-  moves only with changes of that load; its displacement is faded by the ramp. Linearised
-  (small displacements), integrated with Newmark's average-acceleration rule
-  (unconditionally stable, no numerical damping). The reaction is evaluated at the last
-  step's state (where the joints' backward-difference velocity and acceleration are
-  consistent), and, as the root's motion above, without the products of the base's own
-  velocity with the joints' (pinocchio's RNEA on a fixed base): a few % of the reaction for
-  the shipped mount, more on a very soft one (a free-floating mount drifts).
+- Passive mount (``mount``): the root hangs on six spring-damper joints of MuJoCo
+  (``mount_x`` .. ``mount_yaw``: diagonal stiffness and damping, translations then
+  rotations in the host's axes) from the scripted host frame, the mounted body (``mass``,
+  diagonal ``inertia``, at the root's origin) between them; MuJoCo moves it under the arm's
+  reaction, gravity and contacts. The springs' rest positions are set so that they carry
+  the load at the moment the motion starts (preloaded), so the base moves only with
+  changes of that load.
 """
 from __future__ import annotations
 
@@ -54,14 +48,14 @@ import pinocchio as pin
 from hyperarm_description.model import read_yaml
 
 from .config import MockError, default_workcell_path
-from .joint_sim import ControlMode
+from .servos import ControlMode
 from .world import WorldEvent
 
 if TYPE_CHECKING:
     from .joint_sim import JointSim
 
 __all__ = ["HostMotionError", "HostMotionConfigError", "AXES", "Oscillation", "RailSweep",
-           "MountSpec", "HostMotionSpec", "Phase", "Ramp", "PassiveMount", "HostMotion",
+           "MountSpec", "HostMotionSpec", "Phase", "Ramp", "HostMotion",
            "smootherstep", "host_motion_schema", "parse_host_motion", "load_host_motion",
            "shipped_host_motions", "host_motion_path", "GRAVITY"]
 
@@ -69,7 +63,6 @@ AXES = ("x", "y", "z", "roll", "pitch", "yaw")
 GRAVITY = np.array([0.0, 0.0, -9.81])    # m/s², world
 MAX_TRANSLATION = 0.2    # m, amplitude of one sine of the base
 MAX_ROTATION = 0.35      # rad (20°), amplitude of one sine of the base (small-angle host)
-_ROOT_FIXED = ("universe", "world", "camera_link", "camera_link_joint")  # stay in world
 
 
 class HostMotionError(MockError):
@@ -368,50 +361,6 @@ class Ramp:
 
 
 # -- passive mount --------------------------------------------------------------------------
-class PassiveMount:
-    """6-D linear spring-damper, M δ̈ + C δ̇ + K δ = F, δ = (translation m, rotation rad) in
-    the root's axes. :meth:`step` takes the mass matrix ``M`` (6x6, kg / kg·m) and the load
-    ``F`` (N, N·m) at the step's end; the load is interpolated linearly from the last step's
-    and integrated with Newmark's average-acceleration rule (β = 1/4, γ = 1/2) in sub-steps
-    of at most ``MAX_OMEGA_H`` / ω_max (the period error stays below 2e-4)."""
-
-    MAX_OMEGA_H = 0.05
-
-    def __init__(self, spec: MountSpec) -> None:
-        self.spec = spec
-        self.k = np.array(spec.stiffness, dtype=float)
-        self.c = np.array(spec.damping, dtype=float)
-        self.reset()
-
-    def reset(self) -> None:
-        self.displacement = np.zeros(6)
-        self.velocity = np.zeros(6)
-        self.acceleration = np.zeros(6)
-        self.load = np.zeros(6)
-
-    def step(self, h: float, mass: np.ndarray, force: np.ndarray) -> None:
-        omega = math.sqrt(float(np.max(self.k / np.diag(mass))))
-        n = max(1, math.ceil(h * omega / self.MAX_OMEGA_H))
-        hs = h / n
-        # one sub-step as a linear map of x = (δ, δ̇, δ̈) and the load f: x' = T x + G f
-        inv = np.linalg.inv(mass + np.diag(0.5 * hs * self.c + 0.25 * hs * hs * self.k))
-        ic, ik = inv * self.c, inv * self.k             # inv @ diag(c), inv @ diag(k)
-        eye = np.eye(6)
-        a_d, a_v = -ik, -(ic + hs * ik)
-        a_a = -(0.5 * hs * ic + 0.25 * hs * hs * ik)
-        tv = np.block([[0.5 * hs * a_d, eye + 0.5 * hs * a_v, 0.5 * hs * (eye + a_a)]])
-        td = np.block([[eye + 0.25 * hs * hs * a_d, hs * eye + 0.25 * hs * hs * a_v,
-                        0.25 * hs * hs * (eye + a_a)]])
-        t = np.vstack([td, tv, np.hstack([a_d, a_v, a_a])])
-        g = np.vstack([0.25 * hs * hs * inv, 0.5 * hs * inv, inv])
-        x = np.r_[self.displacement, self.velocity, self.acceleration]
-        g0, g1 = g @ self.load, g @ (force - self.load)
-        for i in range(1, n + 1):                       # the load interpolated linearly
-            x = t @ x + g0 + (i / n) * g1
-        self.displacement, self.velocity, self.acceleration = x[:6], x[6:12], x[12:]
-        self.load = np.array(force, dtype=float)
-
-
 # -- the host motion in a simulation --------------------------------------------------------
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a x b of two 3-vectors (np.cross costs ~20x more on tiny arrays)."""
@@ -443,9 +392,30 @@ class _Script:
     accel: np.ndarray = field(default_factory=lambda: np.zeros(6))  # spatial, world origin
 
 
+class _MountView:
+    """The passive mount's state as MuJoCo has it: ``displacement`` (6: m, then rad, the
+    mount joints' positions from their preloaded rest), ``velocity``."""
+
+    def __init__(self, motion: "HostMotion") -> None:
+        self._motion = motion
+
+    @property
+    def displacement(self) -> np.ndarray:
+        ph = self._motion.sim.physics
+        dofs = ph.mount_dofs
+        return ph.data.qpos[ph.model.jnt_qposadr[ph.model.dof_jntid[dofs]]] - \
+            self._motion._rest
+
+    @property
+    def velocity(self) -> np.ndarray:
+        ph = self._motion.sim.physics
+        return ph.data.qvel[ph.mount_dofs].copy()
+
+
 class HostMotion:
     """A :class:`HostMotionSpec` acting on a :class:`JointSim` (attach with ``sim.host =
-    HostMotion(spec, sim)``). Starts at rest (:attr:`phase` OFF); :meth:`enable` ramps it in,
+    HostMotion(spec, sim)``: the simulation rebuilds its MuJoCo model with the host and
+    mount). Starts at rest (:attr:`phase` OFF); :meth:`enable` ramps it in,
     :meth:`disable` ramps it out; :meth:`abort` stops it at once (the rail lost its torque)."""
 
     def __init__(self, spec: HostMotionSpec, sim: "JointSim") -> None:
@@ -453,33 +423,29 @@ class HostMotion:
             raise HostMotionConfigError(f"{spec.source}: rail: the {sim.desc.variant} variant "
                                         "has no rail")
         self.spec, self.sim = spec, sim
-        model = sim.model
-        self._model = model
-        self._data = model.createData()
-        self._root0 = pin.SE3(model.jointPlacements[1])
-        self._frames0 = [(i, pin.SE3(f.placement)) for i, f in enumerate(model.frames)
-                         if f.parentJoint == 0 and f.name not in _ROOT_FIXED]
-        self._base_fid = model.getFrameId(sim.desc.base_frame)
         self._ri = sim.names.index(sim.rail) if sim.rail is not None else None
         self.ramp = Ramp(spec.ramp)
-        self.mount = PassiveMount(spec.mount) if spec.mount is not None else None
-        self._body = spec.mount.body_inertia() if spec.mount is not None else None
+        self.mount = _MountView(self) if spec.mount is not None else None
+        self._rest = np.zeros(6)
         self.script_time = 0.0       # s since the motion first started (the sines' clock)
         self.tau = 0.0               # s of rail-profile time (the ramp's time warp)
         self.rail_center = 0.0       # m
         self.rail_target = 0.0       # m, the rail profile's position this step
         self.last_abort = ""
-        self._preload: np.ndarray | None = None
         self._script = _Script()
         self._root = pin.SE3.Identity()          # T_world_root this step
-        self._mount_accel_world = np.zeros(6)
-        self._v_before = np.zeros(sim.nk)
-        self._q_before = np.zeros(sim.nk)
         self.base_pose = np.eye(4)               # T_world_base_link, after the last step
-        self.reaction = np.zeros(6)              # N, N·m: arm on its mount, root axes
-        self._apply(pin.SE3.Identity(), np.zeros(6))
-        self._at_rest = True                     # OFF with the model at rest: nothing to do
-        self.after_step(0.0)
+        self._bodies: np.ndarray | None = None   # MuJoCo bodies below the host
+        self._at_rest = True
+
+    def mjcf_mount(self):
+        """The mount of the generated model (hyperarm_description.mjcf.Mount), or None."""
+        from hyperarm_description.mjcf import Mount
+
+        m = self.spec.mount
+        return None if m is None else Mount(mass=m.mass, inertia=tuple(m.inertia),
+                                            stiffness=tuple(m.stiffness),
+                                            damping=tuple(m.damping))
 
     # -- commands -----------------------------------------------------------------------
     @property
@@ -498,9 +464,26 @@ class HostMotion:
             return f"host motion {self.spec.name} already {self.phase.value}"
         if self.spec.rail is not None and self.phase is Phase.OFF:
             self._check_rail()
+        if self.phase is Phase.OFF:
+            self._preload()
         self.last_abort = ""
         self.ramp.start()
         return f"host motion {self.spec.name} started (ramp {self.spec.ramp:g} s)"
+
+    def _preload(self) -> None:
+        """The mount springs' rest positions: where they carry the load now (MuJoCo's
+        ``qpos_spring``), so the base stays where it is until the load changes."""
+        ph = self.sim.physics
+        if self.mount is None or not len(ph.mount_dofs):
+            return
+        m, d = ph.model, ph.data
+        dofs = ph.mount_dofs
+        qadr = m.jnt_qposadr[m.dof_jntid[dofs]]
+        k = m.jnt_stiffness[m.dof_jntid[dofs]]
+        # the spring force -k (q - q_rest) balances the load: the bias forces at rest
+        load = d.qfrc_bias[dofs]
+        m.qpos_spring[qadr] = d.qpos[qadr] + load / k
+        self._rest = d.qpos[qadr].copy()
 
     def _check_rail(self) -> None:
         sim, i = self.sim, self._ri
@@ -532,11 +515,9 @@ class HostMotion:
 
     # -- simulation hooks -----------------------------------------------------------------
     def before_step(self, dt: float) -> None:
-        """Advance the script by ``dt`` s and put the host's pose and acceleration into the
-        model (JointSim.step calls this first)."""
-        sim = self.sim
-        self._v_before = sim.velocity[:sim.nk].copy()
-        self._q_before = sim.position[:sim.nk] + sim.offset[:sim.nk]
+        """Advance the script by ``dt`` s: the host's pose into MuJoCo's mocap body, its
+        acceleration as d'Alembert forces on the bodies below it (JointSim calls this
+        before each MuJoCo step)."""
         was = self.phase
         if was is Phase.OFF and self._at_rest:
             return
@@ -548,15 +529,7 @@ class HostMotion:
         if self.spec.rail is not None and (was is not Phase.OFF):
             self._drive_rail(dt, s0, s)
         self._script = self._base_script(s, sd, sdd)
-        root, accel = self._script.pose, self._script.accel.copy()
-        if self.mount is not None and self.phase is not Phase.OFF:
-            root = root * pin.exp6(pin.Motion(s * self.mount.displacement))
-            accel += s * self._mount_accel_world
-        elif self.mount is not None:
-            self.mount.reset()
-            self._preload = None
-            self._mount_accel_world = np.zeros(6)
-        self._apply(root, accel)
+        self._apply(self._script.pose, self._script.accel)
         self._at_rest = self.phase is Phase.OFF
 
     def _drive_rail(self, dt: float, s0: float, s: float) -> None:
@@ -568,8 +541,7 @@ class HostMotion:
             return
         self.tau += 0.5 * (s0 + s) * dt
         self.rail_target = self.rail_center + self.spec.rail.position(self.tau)[0]
-        sim.goal[i] = self.rail_target
-        sim._prof_p[i] = self.rail_target   # the profile generator's state (JointSim)
+        sim.set_profile_position(i, self.rail_target)
 
     def _base_script(self, s: float, sd: float, sdd: float) -> _Script:
         if not self.spec.base or s == 0.0 and sd == 0.0 and sdd == 0.0:
@@ -591,57 +563,34 @@ class HostMotion:
         return _Script(pin.SE3(rot, p.copy()), np.r_[cdd[:3] - _cross(alpha, p), alpha])
 
     def _apply(self, root: pin.SE3, accel: np.ndarray) -> None:
-        """Root placement and gravity (g - a_root) of the simulation's model."""
-        model = self._model
+        """The host's pose (mocap) and the d'Alembert forces of its acceleration (spatial,
+        at the world origin) on every body below it."""
+        ph = self.sim.physics
         self._root = root
-        model.jointPlacements[1] = root * self._root0
-        for i, f0 in self._frames0:
-            frame = model.frames[i]
-            frame.placement = root * f0
-            model.frames[i] = frame
-        model.gravity = pin.Motion(GRAVITY - accel[:3], -accel[3:])
+        ph.set_host_pose(root.homogeneous)
+        m, d = ph.model, ph.data
+        if self._bodies is None:
+            host = ph.body["host"]
+            below = [b for b in range(m.nbody) if b != host and _descends(m, b, host)]
+            self._bodies = np.array(below)
+        b = self._bodies
+        if not np.any(accel):
+            d.xfrc_applied[b] = 0.0
+            return
+        com = d.xipos[b]
+        a_lin, alpha = accel[:3], accel[3:]
+        acc = a_lin + np.cross(alpha, com)           # the spatial field at each centre
+        d.xfrc_applied[b, :3] = -m.body_mass[b, None] * acc
+        d.xfrc_applied[b, 3:] = 0.0
 
     def after_step(self, dt: float) -> None:
-        """After JointSim's step: the base's pose, the reaction, the passive mount."""
-        sim = self.sim
-        nk = sim.nk
-        q = sim.position[:nk] + sim.offset[:nk]
-        model, data = self._model, self._data
-        if self.mount is None or self.phase is Phase.OFF or dt <= 0.0:
-            pin.forwardKinematics(model, data, q)
-            self.base_pose = pin.updateFramePlacement(model, data, self._base_fid).homogeneous
-            return
-        v = sim.velocity[:nk]
-        # the reaction at the last step's time, where the backward differences of the
-        # joints' velocity (v at t - dt/2) give a consistent state: (q_prev, v_mid, a)
-        a = (v - self._v_before) / dt
-        q_prev = self._q_before
-        v_mid = 0.5 * (v + self._v_before)
-        pin.forwardKinematics(model, data, q)
-        self.base_pose = pin.updateFramePlacement(model, data, self._base_fid).homogeneous
-        gravity = model.gravity
-        model.gravity = pin.Motion(GRAVITY - self._script.accel[:3], -self._script.accel[3:])
-        pin.rnea(model, data, q_prev, v_mid, a)  # the root accelerating with the script only
-        model.gravity = gravity
-        pin.forwardKinematics(model, data, q_prev)   # rnea leaves data.oMi as it was
-        root = self._root
-        on_mount = pin.Force(sim.contact_wrench()) - data.oMi[1].act(data.f[1])
-        w_local = root.actInv(on_mount).vector
-        arm = pin.Inertia.Zero()
-        for i in range(1, model.njoints):
-            arm += data.oMi[i].act(model.inertias[i])
-        mass = root.actInv(arm).matrix() + self._body.matrix()
-        a0 = root.actInv(pin.Motion(self._script.accel[:3] - GRAVITY, self._script.accel[3:]))
-        load = w_local - (self._body * a0).vector
-        self.reaction = w_local
-        if self._preload is None:
-            self._preload = load.copy()      # engaged: the spring carries the load now
-        self.mount.step(dt, mass, load - self._preload)
-        self._mount_accel_world = root.act(pin.Motion(self.mount.acceleration)).vector
+        """After each MuJoCo step: the base's pose in world."""
+        ph = self.sim.physics
+        self.base_pose = ph.body_pose(ph.base_body)
 
     # -- outputs --------------------------------------------------------------------------
     def root_pose(self) -> np.ndarray:
-        """T_world_root (4x4) of the last step."""
+        """T_world_root (4x4) of the last step: the scripted host frame."""
         return self._root.homogeneous
 
     def status(self) -> dict[str, str]:
@@ -661,3 +610,10 @@ class HostMotion:
                         "mount_rotation_deg": " ".join(f"{math.degrees(v):.3f}" for v in d[3:])})
         return out
 
+
+def _descends(model, body: int, ancestor: int) -> bool:
+    while body > 0:
+        if body == ancestor:
+            return True
+        body = int(model.body_parentid[body])
+    return False

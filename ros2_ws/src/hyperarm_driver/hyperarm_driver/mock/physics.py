@@ -12,8 +12,8 @@ rebuilt; :meth:`Physics.set_servo`):
   force = kp·(ctrl - q) - kv·q̇ within ±limit, the servo model putting its goal, the
   hidden offset, the velocity term and its feed-forward into ``ctrl``
   (:meth:`Physics.position_ctrl`);
-- current: force = ctrl - (stall / no-load speed)·q̇ within ±limit (the motor's
-  torque-speed line: back-EMF);
+- current: force = ctrl within ±limit (the servo model keeps ctrl on the motor's
+  torque-speed line);
 - off: no force.
 
 Units: m, rad, s, N, N·m; poses are 4x4 homogeneous matrices in the root frame (the world
@@ -127,9 +127,9 @@ class Physics:
         self.model.dof_damping[self._dadr] = damping
 
     def set_servo(self, i: int, kind: ServoKind, limit: float, kp: float = 0.0,
-                  kv: float = 0.0, back_emf: float = 0.0) -> None:
+                  kv: float = 0.0) -> None:
         """Joint ``i``'s actuator: ``position`` (a PD, kp, kv), ``current`` (a motor with
-        ``back_emf`` N·m·s/rad of torque-speed slope) or ``off``, its force within
+        its force the control: the servo model applies the torque-speed line) or ``off``, its force within
         ±``limit``."""
         a = self._act[i]
         m = self.model
@@ -139,7 +139,7 @@ class Physics:
         if kind == "position":
             gain[0], bias[1], bias[2] = kp, -kp, -kv
         elif kind == "current":
-            gain[0], bias[2] = 1.0, -back_emf
+            gain[0] = 1.0
         else:
             limit = 0.0
         m.actuator_forcerange[a] = (-limit, limit)
@@ -198,6 +198,23 @@ class Physics:
         out = np.zeros(self.model.nv)
         mujoco.mj_mulM(self.model, self.data, out, vec)
         return out[self._dadr]
+
+    def joint_inertia(self, q: np.ndarray) -> np.ndarray:
+        """Each actuated joint's inertia (the mass matrix's diagonal, armature included:
+        kg·m², kg) at joints ``q``, the rest of the state as it is (scratch data)."""
+        m = self.model
+        d = mujoco.MjData(m)
+        d.qpos[:] = self.data.qpos
+        d.qpos[self._qadr] = q
+        mujoco.mj_forward(m, d)
+        out = np.zeros(len(self._dadr))
+        vec, res = np.zeros(m.nv), np.zeros(m.nv)
+        for k, dof in enumerate(self._dadr):
+            vec[:] = 0.0
+            vec[dof] = 1.0
+            mujoco.mj_mulM(m, d, res, vec)
+            out[k] = res[dof]
+        return out
 
     def body_load(self, body: int, point: np.ndarray, force: np.ndarray) -> np.ndarray:
         """Torques (N·m, N) on the actuated joints that hold a ``force`` (N, world) acting at

@@ -102,7 +102,7 @@ class Scenario:
         With ``effort`` (N·m, one for all or one per arm joint) the arm joints run
         current-based position with that limit.
         Returns the final joint goals."""
-        target = np.asarray(xyz, dtype=float)
+        target = np.array(xyz, dtype=float)     # a copy: the caller may reuse its array
         start = self.tool_target if self.tool_target is not None else target
         n = max(1, int(np.ceil(np.linalg.norm(target - start) / step)))  # 1st move: joint space
         per = 0.7 * seconds / n if n > 1 else 0.0   # 70 % on the way, the rest settling

@@ -249,6 +249,7 @@ def _enable(runner, patience: float = 2.0) -> str | None:
 
 def run(step: ForceInsert, runner) -> None:
     robot = runner.robot
+    runner.threaded_on = None
     if runner.holding is None:
         robot.log("warn", f"{step.name}: no grasp is held (inserting anyway)")
     target = runner.resolve(step.target)
@@ -423,6 +424,7 @@ def run(step: ForceInsert, runner) -> None:
                 runner.metrics["insertion_depth"] = depth
                 runner.metrics["dither_turns"] = dither.turns
                 runner.metrics["insertion_attempts"] = runner.attempt + 1.0
+                runner.threaded_on = step.target.relative_to
                 robot.log("info", f"{step.name}: {depth * 1000:.1f} mm down the peg after "
                           f"{now - t0:.1f} s ({dither.turns:.1f} dither turns, radius "
                           f"{dither.radius() * 1000:.1f} mm)")

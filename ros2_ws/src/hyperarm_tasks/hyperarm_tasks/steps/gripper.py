@@ -42,6 +42,7 @@ def build(raw: dict, ctx: BuildContext, index: int) -> Gripper:
 def run(step: Gripper, runner) -> None:
     g = runner.desc.gripper
     p = runner.params
+    runner.threaded_on = None
     if step.action == "open":
         runner.holding = None
         goal = g.upper if step.position is None else step.position
