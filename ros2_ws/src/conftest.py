@@ -93,7 +93,8 @@ SESSION_VAR = "HYPERARM_TEST_SESSION"
 
 def pytest_configure(config: pytest.Config) -> None:
     _terminal_signal_state()
-    os.environ.setdefault(SESSION_VAR, f"{os.getpid()}-{time.time_ns()}")
+    if not hasattr(config, "workerinput"):   # the session itself (an xdist worker inherits it)
+        os.environ[SESSION_VAR] = f"{os.getpid()}-{time.time_ns()}"   # (a nested run: its own)
 
 
 @pytest.fixture(autouse=True)
@@ -125,6 +126,12 @@ _RENICE = _may_renice_back()
 _START_NICENESS = os.getpriority(os.PRIO_PROCESS, 0)
 
 
+def _reniced(request: pytest.FixtureRequest) -> bool:
+    """Whether the test runs as reniced batch work (see :func:`_batch_priority`)."""
+    marks = {m.name for m in request.node.iter_markers()}
+    return _RENICE and "core" in marks and not marks & set(_TIMED_MARKERS)
+
+
 @pytest.fixture(autouse=True)
 def _batch_priority(request: pytest.FixtureRequest):
     """A test of the pure-Python tiers (marked ``core`` and none of node, e2e, emulator) runs
@@ -132,8 +139,7 @@ def _batch_priority(request: pytest.FixtureRequest):
     batch work beside the other worker's test, whose node processes have deadlines of the
     robot's kind (a 100 Hz loop, a 2 s stop). Restored after the test; nothing where it could
     not be restored (no root, no CAP_SYS_NICE)."""
-    marks = {m.name for m in request.node.iter_markers()}
-    if not _RENICE or "core" not in marks or marks & set(_TIMED_MARKERS):
+    if not _reniced(request):
         yield
         return
     before = os.getpriority(os.PRIO_PROCESS, 0)
@@ -142,6 +148,42 @@ def _batch_priority(request: pytest.FixtureRequest):
         yield
     finally:
         os.setpriority(os.PRIO_PROCESS, 0, before)
+
+
+@pytest.fixture(autouse=True)
+def _alone(request: pytest.FixtureRequest):
+    """Under pytest-xdist, a test marked ``alone`` runs while no other test of the session
+    runs: a stop of 16 node processes at once within 2 s measures our shutdown, not how busy
+    the other worker keeps the machine (on a 2-core machine, rclpy's destroy then took
+    2-2.7 s beside three busy loops, 0.05 s alone). The others wait at a gate while it runs;
+    it waits for the test the other worker is in to end, unless that is low-priority batch
+    work (a reniced core test, or one marked ``batch`` that runs its work under ``nice``),
+    which takes no lock: it hardly takes CPU from an ``alone`` test (CFS weights: 110
+    against 1024), and waiting for it kept an ``alone`` test 66 s. Two flock()ed files in
+    a directory of the session: ``gate`` (exclusive, briefly; held by an ``alone`` test
+    throughout, so that it is not starved) and ``room`` (shared by the others, exclusive
+    for it)."""
+    if (int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1") or 1) <= 1
+            or request.node.get_closest_marker("batch") is not None or _reniced(request)):
+        yield
+        return
+    import fcntl
+    import tempfile
+
+    folder = Path(tempfile.gettempdir()) / f"hyperarm-test-{os.environ.get(SESSION_VAR, '')}"
+    folder.mkdir(exist_ok=True)
+    alone = request.node.get_closest_marker("alone") is not None
+    with open(folder / "gate", "a") as gate, open(folder / "room", "a") as room:
+        fcntl.flock(gate, fcntl.LOCK_EX)
+        fcntl.flock(room, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
+        if not alone:
+            fcntl.flock(gate, fcntl.LOCK_UN)
+        try:
+            yield
+        finally:
+            fcntl.flock(room, fcntl.LOCK_UN)
+            if alone:
+                fcntl.flock(gate, fcntl.LOCK_UN)
 
 
 def processes_on_domain(domain: int) -> list[tuple[int, str]]:

@@ -122,6 +122,7 @@ def test_every_third_party_import_has_an_apt_key_or_a_robot_pip_line():
 
 
 @pytest.mark.slow
+@pytest.mark.batch          # its pytest runs under nice 10
 @pytest.mark.timeout(600)   # on a fresh machine it first builds its venv from PyPI (minutes)
 def test_core_tests_pass_under_numpy_1_26():
     """scripts/robot_route/core_tests.sh: pytest -m core in a venv with the apt versions

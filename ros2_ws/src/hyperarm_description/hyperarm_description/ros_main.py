@@ -265,11 +265,12 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None,
         name = None
         if node is not None:
             name = node.get_name()
-            if stop.building_aborted:
-                _destroy_half_built(node)
-            else:
-                node.destroy_node()
-            phases.done("node")
+            with _RclpyDestroyTimer() as rclpy_destroy:
+                if stop.building_aborted:
+                    _destroy_half_built(node)
+                else:
+                    node.destroy_node()
+            phases.done("node", rclpy_destroy.spans())
         rclpy.try_shutdown()
         phases.done("rclpy")
         phases.report(name)
@@ -350,6 +351,35 @@ def _destroy_half_built(node: Node) -> None:
                   f"({type(exc).__name__}: {exc})", file=sys.stderr, flush=True)
 
 
+class _RclpyDestroyTimer:
+    """Times rclpy's own ``Node.destroy_node`` (its entities and the rcl node; with the last
+    node, the DDS participant) apart from what a node's override does around it (its
+    shutdown policy), while the ``with`` block runs: a slow stop's report says which."""
+
+    def __init__(self) -> None:
+        self._spans: list[float] = []
+        self._original = Node.destroy_node
+
+    def __enter__(self) -> "_RclpyDestroyTimer":
+        original, spans = self._original, self._spans
+
+        def timed(node: Node) -> None:
+            t0 = time.monotonic()
+            try:
+                original(node)
+            finally:
+                spans.append(time.monotonic() - t0)
+
+        Node.destroy_node = timed   # (the process is on its way out; restored below)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        Node.destroy_node = self._original
+
+    def spans(self) -> str:
+        return f"rclpy's destroy {sum(self._spans):.2f} s" if self._spans else ""
+
+
 class _Phases:
     """Durations of the clean-up's phases; :meth:`report` prints them on stderr when the
     whole took longer than :data:`SLOW_SHUTDOWN` (a stop that keeps a script waiting says
@@ -359,15 +389,16 @@ class _Phases:
         self._t0 = self._last = time.monotonic()
         self._parts: list[tuple[str, float]] = []
 
-    def done(self, what: str) -> None:
+    def done(self, what: str, detail: str = "") -> None:
         now = time.monotonic()
-        self._parts.append((what, now - self._last))
+        self._parts.append((what, now - self._last, detail))
         self._last = now
 
     def report(self, name: str | None) -> None:
         total = self._last - self._t0
         if total > SLOW_SHUTDOWN:
-            parts = ", ".join(f"{what} {dt:.2f} s" for what, dt in self._parts)
+            parts = ", ".join(f"{what} {dt:.2f} s" + (f" ({detail})" if detail else "")
+                              for what, dt, detail in self._parts)
             print(f"[{name or 'node'}] shutdown took {total:.2f} s ({parts})", file=sys.stderr,
                   flush=True)
 

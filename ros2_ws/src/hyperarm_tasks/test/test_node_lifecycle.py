@@ -154,6 +154,7 @@ def _wait_ready(rclpy_context, wait_for, procs) -> None:
         probe.destroy_node()
 
 
+@pytest.mark.alone   # 16 processes stopping at once: our shutdown, not the other worker's load
 @pytest.mark.parametrize("signals", [(signal.SIGINT,), (signal.SIGINT, signal.SIGINT),
                                      (signal.SIGTERM,)], ids=["sigint", "double-sigint",
                                                               "sigterm"])
