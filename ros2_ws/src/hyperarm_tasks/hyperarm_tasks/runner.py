@@ -155,6 +155,9 @@ class Runner:
         # the grasp's nominal one, millimetres off the real hole's), until the gripper
         # next opens or closes
         self.threaded_on: str | None = None
+        # a block grasped on a peg is threaded on it the same way, until the first move
+        # after the grasp (the lift) has ended
+        self.lifting_off = False
         self.tool_target: np.ndarray | None = None   # last commanded tool0 pose
         self.q_target: np.ndarray | None = None      # last commanded chain joints
         self.force_on = False
@@ -214,6 +217,18 @@ class Runner:
                 raise StepFailed("driver", f"driver refused: {reason}")
         if self.holding is not None:
             self.check_holding()
+
+    def peg_around_grasped_block(self) -> str | None:
+        """The obstacle (a peg) that the held block's model touches right after a grasp:
+        the block was taken off a peg, its hole around it (the model's block sits at the
+        grasp's nominal pose, millimetres off the real hole's, so it may touch the peg);
+        None when it touches nothing, or without a work cell."""
+        if self.collisions is None or not self.collisions.has_block:
+            return None
+        for contact in self.collisions.check(self.q_measured(), held=True):
+            if contact.a == "held block" and "peg" in contact.b:
+                return contact.b
+        return None
 
     def block_in_hand(self) -> bool:
         """A held block the collision checks carry (not while it is on a peg)."""
@@ -605,6 +620,7 @@ class Runner:
                 if used < r.attempts and (not r.on or exc.kind in r.on):
                     retries[i] = used + 1
                     self.threaded_on = None      # the retry lifts the block off again
+                    self.lifting_off = False
                     self.force_off()
                     self.robot.log("warn", f"step {step.name} failed ({exc}); retry "
                                    f"{used + 1}/{r.attempts} from {steps[r.from_index].name}")
@@ -632,6 +648,9 @@ class Runner:
                 raise
             result.step_names.append(step.name)
             result.step_durations.append(self.robot.now() - t0)
+            if self.lifting_off and step.type != "gripper":   # the lift off the peg is done
+                self.lifting_off = False
+                self.threaded_on = None
             i += 1
         else:
             if i > len(steps):          # refused before any motion

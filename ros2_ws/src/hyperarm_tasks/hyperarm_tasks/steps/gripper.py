@@ -43,6 +43,7 @@ def run(step: Gripper, runner) -> None:
     g = runner.desc.gripper
     p = runner.params
     runner.threaded_on = None
+    runner.lifting_off = False
     if step.action == "open":
         runner.holding = None
         goal = g.upper if step.position is None else step.position
@@ -62,6 +63,9 @@ def run(step: Gripper, runner) -> None:
                              f"(a grasp needs >= {p.grasp_min_effort_ratio * step.effort:.2f})")
         runner.holding = step.effort
         runner.metrics["grasp_position"] = pos
+        peg = runner.peg_around_grasped_block()
+        if peg is not None:     # taken off a peg: the next move lifts it along the peg
+            runner.threaded_on, runner.lifting_off = peg, True
     elif step.expect == "empty" and held:
         raise StepFailed("grasp", f"something is between the fingers ({pos:.3f} rad)")
 
