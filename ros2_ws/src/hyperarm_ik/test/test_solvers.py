@@ -360,3 +360,37 @@ def test_step_rule_of_the_paper_solvers():
         make_solver("pinv", ARM, step_rule="halve")
     with pytest.raises(InvalidOptionError, match="k_w"):
         make_solver("weighted_pinv", ARM, k_w=-1.0)
+
+
+@pytest.mark.parametrize("name", ["default", "pinv", "heuristic"])
+def test_a_cpu_clock_timeout_is_not_cut_by_preemption(monkeypatch, name):
+    """``clock="cpu"``: the timeout counts the solving thread's CPU time, so a solve whose
+    wall clock jumps (the process preempted for a second) gives the same answer as an
+    undisturbed one; with the wall clock the same jump cuts it at the first clock read."""
+    import time
+
+    kin = ARM
+    # (the default without its start table: from q = 0 a solve reads the clock at all)
+    solver = make_solver(name, kin, **({"start_table": 0} if name == "default" else {}))
+    rng = np.random.default_rng(7)
+    targets = [_target(kin, rng.uniform(kin.lower, kin.upper) * 0.8) for _ in range(12)]
+    seed = np.zeros(kin.nq)
+
+    def answers(clock):
+        return [solver.solve(p, r, seed, timeout=0.5, clock=clock) for p, r in targets]
+
+    calm = answers("cpu")
+    real = time.perf_counter
+    jumps = iter(range(10 ** 9))          # every read of the wall clock is a second later
+    monkeypatch.setattr(time, "perf_counter", lambda: real() + 1.0 * next(jumps))
+    jumped_cpu = answers("cpu")
+    jumps = iter(range(10 ** 9))
+    jumped_wall = answers("wall")
+    monkeypatch.undo()
+    for a, b in zip(calm, jumped_cpu):
+        assert a.success == b.success and np.array_equal(a.q, b.q), (a.message, b.message)
+    # the wall clock's jump cut at least one solve that needed more than one clock read
+    assert any(a.iterations != b.iterations or not np.array_equal(a.q, b.q)
+               for a, b in zip(calm, jumped_wall))
+    with pytest.raises(InvalidOptionError, match="clock"):
+        solver.solve(*targets[0], seed, clock="sundial")

@@ -299,7 +299,7 @@ class Runner:
                 # collisions are not asked here: the capsules flag the shipped task's own
                 # postures (docs/tasks.md); each planned path is checked before it is sent
                 res = self.solver.solve(p, target[:3, :3], seed, position_tolerance=1e-4,
-                                        orientation_tolerance=1e-3, timeout=0.3)
+                                        orientation_tolerance=1e-3, timeout=0.3, clock="cpu")
                 if res.success:
                     break
             if not res.success:
@@ -309,11 +309,13 @@ class Runner:
     # --- IK and motion ---------------------------------------------------------------------
     def ik(self, pose: np.ndarray, seed: np.ndarray, collisions: str = "avoid"):
         """IK for ``pose`` from ``seed``; ``collisions`` ("avoid", "ignore") applies when
-        the runner has a collision model."""
+        the runner has a collision model. The 0.1 s timeout counts this thread's CPU time:
+        a plan does not depend on how busy the machine is (a waypoint's solve cut by its
+        deadline sends the move to joint space: reproduced with a 0.1 ms deadline)."""
         mode = collisions if self.collisions is not None else "ignore"
         return self.solver.solve(pose[:3, 3], pose[:3, :3], seed, position_tolerance=1e-4,
                                  orientation_tolerance=1e-3, timeout=0.1, collisions=mode,
-                                 held=self.holding is not None)
+                                 held=self.holding is not None, clock="cpu")
 
     def plan_line(self, target: np.ndarray, spacing: float, allow_fallback: bool,
                   label: str) -> tuple[list[np.ndarray], np.ndarray]:

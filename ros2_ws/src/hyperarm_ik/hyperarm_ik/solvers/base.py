@@ -47,6 +47,10 @@ class IKResult:
     contacts: list[str] = field(default_factory=list)  # "link4 with table" (if checked)
 
 
+#: what a solve's timeout counts (:meth:`Solver.solve`'s ``clock``): the ``time`` function
+CLOCKS = {"wall": "perf_counter", "cpu": "thread_time"}
+
+
 class Solver:
     """Base class: validates requests, times the solve and builds honest results.
 
@@ -76,6 +80,7 @@ class Solver:
                 f"not {kin.variant!r}")
         self.kin = kin
         self.max_iterations = max_iterations
+        self._now = time.perf_counter   # the clock of the solve in progress (solve's clock)
 
     # --- public entry point --------------------------------------------------------------
     def solve(self, position: np.ndarray, rotation: np.ndarray | None = None,
@@ -83,13 +88,16 @@ class Solver:
               position_tolerance: float = DEFAULT_POSITION_TOLERANCE,
               orientation_tolerance: float = DEFAULT_ORIENTATION_TOLERANCE,
               timeout: float = DEFAULT_TIMEOUT, collisions: str = "ignore",
-              held: bool = False) -> IKResult:
+              held: bool = False, clock: str = "wall") -> IKResult:
         """Solve for tool0 at (position, rotation). ``seed`` defaults to q = 0.
 
         ``rotation`` may be None only with ``position_only``. ``collisions``: "ignore",
         "check" or "avoid" (needs :meth:`use_collision_model`); ``held``: the block is in
-        the gripper. Raises IKError subclasses on malformed input; an unreachable target
-        is a result with success False, not an error.
+        the gripper. ``clock``: what ``timeout`` (s) counts, "wall" (elapsed time) or
+        "cpu" (this thread's CPU time: a solve that other processes preempt is not cut
+        short, so the answer does not depend on the machine's load; a planner's choice,
+        e.g. the task runner's). Raises IKError subclasses on malformed input; an
+        unreachable target is a result with success False, not an error.
         """
         t0 = time.perf_counter()
         p, r = self._check_target(position, rotation, position_only)
@@ -103,7 +111,10 @@ class Solver:
         if collisions != "ignore" and self.collision is None:
             raise InvalidOptionError(f"collisions={collisions!r} needs a collision model "
                                      f"(use_collision_model)")
-        deadline = t0 + timeout
+        if clock not in CLOCKS:
+            raise InvalidOptionError(f"clock must be one of {', '.join(CLOCKS)}, got {clock!r}")
+        self._now = getattr(time, CLOCKS[clock])
+        deadline = self._now() + timeout
         self._mode, self._held = collisions, bool(held)
         try:
             out = self._solve(p, r, q0, position_only, position_tolerance,

@@ -57,7 +57,6 @@ from __future__ import annotations
 import hashlib
 import math
 import struct
-import time
 
 import eigenpy
 import numpy as np
@@ -342,7 +341,7 @@ class DefaultSolver(Solver):
                 if best_cost > 0.99 * window_cost:
                     return best_q, best_cost, it, None
                 window_cost = best_cost
-                if time.perf_counter() > deadline:
+                if self._now() > deadline:
                     return best_q, best_cost, it, None
             lam = c * e2 + self.lambda0
             z = None
@@ -409,7 +408,7 @@ class DefaultSolver(Solver):
             if not model.in_collision(qa, held):
                 return qa, total
             q = qa
-            if time.perf_counter() > deadline:
+            if self._now() > deadline:
                 break
         return None, total
 
@@ -500,7 +499,7 @@ class DefaultSolver(Solver):
                         colliding = qa
                         collided += 1
                         if collided >= self.collision_attempts or \
-                                time.perf_counter() > deadline:
+                                self._now() > deadline:
                             return colliding, total, (
                                 f"no collision-free configuration found in {attempts} "
                                 f"attempts ({collided} reached the pose in collision)")
@@ -533,7 +532,7 @@ class DefaultSolver(Solver):
                 return (best_q if colliding is None else colliding), total, (
                     f"gave up after {attempts} attempts (max_attempts); best approximate "
                     f"solution returned")
-            if time.perf_counter() > deadline:
+            if self._now() > deadline:
                 if colliding is not None:
                     return colliding, total, (f"timeout after {attempts} attempts: no "
                                               f"collision-free configuration found")

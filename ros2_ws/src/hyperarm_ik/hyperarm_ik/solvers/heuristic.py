@@ -23,7 +23,6 @@ Interpretations (see docs/ik.md):
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 
@@ -70,7 +69,7 @@ class HeuristicSolver(Solver):
                 cost = math.hypot(perr, self.rho * oerr)
             if perr <= ptol and oerr <= otol:
                 return q, it - 1, ""
-            if time.perf_counter() > deadline:
+            if self._now() > deadline:
                 return q, it - 1, "timeout"
             while True:
                 # Candidate moves of every joint up and down, clipped to the limits.

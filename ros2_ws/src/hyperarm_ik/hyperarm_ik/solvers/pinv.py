@@ -20,7 +20,6 @@ Interpretations (the paper leaves them open; see docs/ik.md):
 """
 from __future__ import annotations
 
-import time
 
 import numpy as np
 
@@ -70,7 +69,7 @@ class StepHalvingSolver(Solver):
         for it in range(self.max_iterations):
             if np.linalg.norm(e[:3]) <= ptol and (position_only or np.linalg.norm(e[3:]) <= otol):
                 return q, it, ""
-            if time.perf_counter() > deadline:
+            if self._now() > deadline:
                 return q, it, "timeout"
             dq = self._direction(q, j[rows], e)
             alpha = alpha0
