@@ -104,67 +104,17 @@ def _terminal_signals() -> None:
     _terminal_signal_state()
 
 
-#: niceness of a worker while it runs a test of the pure-Python tiers (CPU-bound batch work)
-BATCH_NICENESS = 10
-_TIMED_MARKERS = ("node", "e2e", "emulator")
-
-
-def _may_renice_back() -> bool:
-    """Whether this process may lower its niceness again (root or CAP_SYS_NICE): only then is
-    a test's niceness raised and restored afterwards."""
-    if os.geteuid() == 0:
-        return True
-    try:
-        caps = next(line for line in Path("/proc/self/status").read_text().splitlines()
-                    if line.startswith("CapEff:"))
-        return bool(int(caps.split()[1], 16) & (1 << 23))     # CAP_SYS_NICE
-    except (OSError, StopIteration, ValueError, IndexError):
-        return False
-
-
-_RENICE = _may_renice_back()
-_START_NICENESS = os.getpriority(os.PRIO_PROCESS, 0)
-
-
-def _reniced(request: pytest.FixtureRequest) -> bool:
-    """Whether the test runs as reniced batch work (see :func:`_batch_priority`)."""
-    marks = {m.name for m in request.node.iter_markers()}
-    return _RENICE and "core" in marks and not marks & set(_TIMED_MARKERS)
-
-
-@pytest.fixture(autouse=True)
-def _batch_priority(request: pytest.FixtureRequest):
-    """A test of the pure-Python tiers (marked ``core`` and none of node, e2e, emulator) runs
-    at niceness :data:`BATCH_NICENESS`: on a 2-core machine with two workers it is CPU-bound
-    batch work beside the other worker's test, whose node processes have deadlines of the
-    robot's kind (a 100 Hz loop, a 2 s stop). Restored after the test; nothing where it could
-    not be restored (no root, no CAP_SYS_NICE)."""
-    if not _reniced(request):
-        yield
-        return
-    before = os.getpriority(os.PRIO_PROCESS, 0)
-    os.setpriority(os.PRIO_PROCESS, 0, max(before, BATCH_NICENESS))
-    try:
-        yield
-    finally:
-        os.setpriority(os.PRIO_PROCESS, 0, before)
-
-
 @pytest.fixture(autouse=True)
 def _alone(request: pytest.FixtureRequest):
     """Under pytest-xdist, a test marked ``alone`` runs while no other test of the session
     runs: a stop of 16 node processes at once within 2 s measures our shutdown, not how busy
     the other worker keeps the machine (on a 2-core machine, rclpy's destroy then took
     2-2.7 s beside three busy loops, 0.05 s alone). The others wait at a gate while it runs;
-    it waits for the test the other worker is in to end, unless that is low-priority batch
-    work (a reniced core test, or one marked ``batch`` that runs its work under ``nice``),
-    which takes no lock: it hardly takes CPU from an ``alone`` test (CFS weights: 110
-    against 1024), and waiting for it kept an ``alone`` test 66 s. Two flock()ed files in
-    a directory of the session: ``gate`` (exclusive, briefly; held by an ``alone`` test
-    throughout, so that it is not starved) and ``room`` (shared by the others, exclusive
-    for it)."""
-    if (int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1") or 1) <= 1
-            or request.node.get_closest_marker("batch") is not None or _reniced(request)):
+    it waits for the test the other worker is in to end (give it a pytest timeout that
+    covers that wait: the longest test's). Two flock()ed files in a directory of the
+    session: ``gate`` (exclusive, briefly; held by an ``alone`` test throughout, so that it
+    is not starved) and ``room`` (shared by the others, exclusive for it)."""
+    if int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1") or 1) <= 1:
         yield
         return
     import fcntl

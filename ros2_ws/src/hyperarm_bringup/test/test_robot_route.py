@@ -122,15 +122,11 @@ def test_every_third_party_import_has_an_apt_key_or_a_robot_pip_line():
 
 
 @pytest.mark.slow
-@pytest.mark.batch          # its pytest runs under nice 10
 @pytest.mark.timeout(600)   # on a fresh machine it first builds its venv from PyPI (minutes)
 def test_core_tests_pass_under_numpy_1_26():
     """scripts/robot_route/core_tests.sh: pytest -m core in a venv with the apt versions
     (numpy 1.26.4); modules needing pinocchio/rclpy are skipped by name, nothing fails."""
-    # batch work (a whole core tier, ~90 s of CPU): at low priority beside the other
-    # worker's tests, whose node processes have deadlines
-    proc = subprocess.run(["nice", "-n", "10", "bash",
-                           str(ROOT / "scripts/robot_route/core_tests.sh"),
+    proc = subprocess.run(["bash", str(ROOT / "scripts/robot_route/core_tests.sh"),
                            "--ignore", str(Path(__file__))],
                           capture_output=True, text=True, timeout=600)
     tail = proc.stdout[-3000:] + proc.stderr[-2000:]

@@ -99,6 +99,7 @@ def test_unreachable_destination_is_refused_before_any_motion(executable, ros_do
 
 
 @pytest.mark.alone   # a 2 s bound on stopping the stack: our stop, not the other worker's load
+@pytest.mark.timeout(420)   # the wait at the gate (the other worker's test) included
 def test_sigint_twice_mid_task_cancels_and_leaves_no_process(executable, ros_domain, tmp_path,
                                                              still_running):
     logs = tmp_path / "logs"

@@ -155,6 +155,7 @@ def _wait_ready(rclpy_context, wait_for, procs) -> None:
 
 
 @pytest.mark.alone   # 16 processes stopping at once: our shutdown, not the other worker's load
+@pytest.mark.timeout(420)   # the wait at the gate (the other worker's test) included
 @pytest.mark.parametrize("signals", [(signal.SIGINT,), (signal.SIGINT, signal.SIGINT),
                                      (signal.SIGTERM,)], ids=["sigint", "double-sigint",
                                                               "sigterm"])

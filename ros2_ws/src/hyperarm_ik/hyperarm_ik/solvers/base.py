@@ -124,6 +124,7 @@ class Solver:
                                 out[3] if len(out) > 3 else None)
         finally:
             self._mode, self._held = "ignore", False
+            self._now = time.perf_counter   # (a direct _solve call's deadline is wall time)
 
     def use_collision_model(self, model) -> None:
         """Check (and, for the default solver, avoid) collisions with ``model`` (a
