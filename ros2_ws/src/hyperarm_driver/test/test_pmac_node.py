@@ -465,7 +465,12 @@ def test_installed_watchdog_never_re_enables_a_motor_another_host_killed(
                 assert armed == 0
             wait_for(lambda: len(probe.diags) > seen + 1 and probe.diag()["latched_faults"]
                      != "none", 5.0, what=f"{phase}: latched by the driver")
-        assert "motor killed" in probe.diag()["latched_faults"]
+        # the kill, seen by the driver's first poll after the hang; or, when its read timed
+        # out across the hang first (a fresh-clone run under load), the link loss, after
+        # which it reconnects with torque off (a kill is latched only with torque on)
+        faults = probe.diag()["latched_faults"]
+        assert "motor killed" in faults or "link lost while torque was on" in faults, faults
+        assert probe.diag()["torque"] == "off"
         assert not status().amp_enabled
     finally:
         other.close()
