@@ -109,7 +109,8 @@ def _alone(request: pytest.FixtureRequest):
     """Under pytest-xdist, a test marked ``alone`` runs while no other test of the session
     runs: a stop of 16 node processes at once within 2 s measures our shutdown, not how busy
     the other worker keeps the machine (on a 2-core machine, rclpy's destroy then took
-    2-2.7 s beside three busy loops, 0.05 s alone). The others wait at a gate while it runs;
+    2-2.7 s beside three busy loops, 0.05 s alone; a fresh-clone run still saw 2.3-3.0 s
+    once alone, docs/benchmarks.md). The others wait at a gate while it runs;
     it waits for the test the other worker is in to end (give it a pytest timeout that
     covers that wait: the longest test's). Two flock()ed files in a directory of the
     session: ``gate`` (exclusive, briefly; held by an ``alone`` test throughout, so that it
