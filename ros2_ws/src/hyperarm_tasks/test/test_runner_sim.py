@@ -306,6 +306,42 @@ def test_first_moves_from_the_ready_pose_are_mostly_straight(desc, kin):
     assert len(fallbacks) <= 3, "\n".join(fallbacks)
 
 
+def test_a_plan_does_not_depend_on_a_preempted_wall_clock(desc, kin, monkeypatch):
+    """The runner's IK counts its timeouts in CPU time: with every read of the wall clock a
+    second later than the last (a process preempted again and again on a loaded machine),
+    lines from the ready pose to random "down" targets are planned exactly as on a calm
+    machine (with wall-clock deadlines every waypoint's solve was cut: joint space)."""
+    import time
+
+    from hyperarm_tasks.perception import DOWN
+
+    rng = np.random.default_rng(5)
+    targets = []
+    for _ in range(4):
+        target = np.eye(4)
+        target[:3, :3] = DOWN
+        target[:3, 3] = [rng.uniform(0.28, 0.5), rng.uniform(-0.2, 0.2), rng.uniform(-0.1, 0.05)]
+        targets.append(target)
+
+    def plans():
+        out = []
+        for i, target in enumerate(targets):
+            robot = SimRobot(JointSim(desc, cell(11)))
+            runner = Runner(robot, kin, load_task("block_transfer", desc))
+            qs, _ = runner.plan_line(target, 0.005, True, f"line {i}")
+            out.append((np.array(qs), [m for _lv, m in robot.logs if "falling back" in m]))
+        return out
+
+    calm = plans()
+    real, jumps = time.perf_counter, iter(range(10 ** 9))
+    monkeypatch.setattr(time, "perf_counter", lambda: real() + 1.0 * next(jumps))
+    preempted = plans()
+    monkeypatch.undo()
+    for (qa, fa), (qb, fb) in zip(calm, preempted):
+        assert fa == fb and qa.shape == qb.shape and np.array_equal(qa, qb), (fa, fb)
+    assert any(len(qa) > 2 for qa, _ in calm)       # straight lines were planned at all
+
+
 def _move_over_source(desc, tmp_path, extra: str = ""):
     """A task of one move_to from the ready pose to 5 cm above the source peg (~14 s)."""
     from hyperarm_tasks.sequence import load_task_file
