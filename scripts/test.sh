@@ -5,8 +5,11 @@ ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
 # shellcheck disable=SC1091
 source scripts/env.sh
-# Tests that start ROS processes isolate themselves (ROS_DOMAIN_ID per test, localhost only).
-export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+# Tests that start ROS processes isolate themselves (ROS_DOMAIN_ID per test, localhost only:
+# Fast DDS over UDP loopback, without shared memory; TEST_DDS_ENV in ros2_ws/src/conftest.py
+# sets the same for each test).
+export ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT
+export FASTRTPS_DEFAULT_PROFILES_FILE="$ROOT/ros2_ws/src/hyperarm_bringup/config/fastdds_localhost.xml"
 export PYTHONDONTWRITEBYTECODE=1
 # Two pytest-xdist workers by default (HYPERARM_TEST_WORKERS=1 for one process): most tests
 # wait on processes and DDS, so two run side by side on a 2-core machine; each worker has its

@@ -169,6 +169,22 @@ def _kill(processes: list[tuple[int, str]]) -> None:
             pass
 
 
+#: The DDS set-up of every test's processes: Fast DDS over UDP loopback only, no shared
+#: memory (the profile's header says why: its transport stalls a node's stop for 1-3 s when
+#: many participants stop at once, and the processes a test kills leave zombie ports in
+#: /dev/shm). SYSTEM_DEFAULT: rmw_fastrtps keeps the profile's transports (LOCALHOST would
+#: put its own UDP + shared-memory pair in their place); the profile's single interface,
+#: 127.0.0.1, keeps discovery on this machine as LOCALHOST did.
+TEST_DDS_ENV = {
+    "ROS_AUTOMATIC_DISCOVERY_RANGE": "SYSTEM_DEFAULT",
+    "FASTRTPS_DEFAULT_PROFILES_FILE": str(Path(__file__).resolve().parent / "hyperarm_bringup"
+                                          / "config" / "fastdds_localhost.xml"),
+}
+# for this process too (scripts/test.sh sets the same): Fast DDS reads its profile once per
+# process, at the first participant, so a fixture's setenv would come too late for pytest's own
+os.environ.update(TEST_DDS_ENV)
+
+
 @pytest.fixture
 def ros_domain(monkeypatch: pytest.MonkeyPatch) -> int:
     """A ROS domain of the test's own. Afterwards, nothing the test started may still run
@@ -185,7 +201,8 @@ def ros_domain(monkeypatch: pytest.MonkeyPatch) -> int:
         warnings.warn(f"ROS domain {dom}: killed before the test, left by an earlier one:\n"
                       + "\n".join(f"  {pid} {cmd[:200]}" for pid, cmd in stray))
     monkeypatch.setenv("ROS_DOMAIN_ID", str(dom))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    for key, value in TEST_DDS_ENV.items():
+        monkeypatch.setenv(key, value)
     yield dom
     deadline = time.monotonic() + 3.0
     while (left := processes_on_domain(dom)) and time.monotonic() < deadline:
@@ -286,7 +303,7 @@ def launch(ros_domain: int, tmp_path: Path):
             cmd += ["--ros-args", *ros_args]
         log = tmp_path / f"{name}-{len(started)}.log"
         full_env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain), PYTHONUNBUFFERED="1",
-                        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", **(env or {}))
+                        **TEST_DDS_ENV, **(env or {}))
         with open(log, "wb") as fh:
             # cwd: the test's own directory (a node's relative output, e.g. the recorder's
             # task.mcap, must not land in the repository)
