@@ -61,6 +61,9 @@ def test_the_localhost_profile_announces_as_often_and_has_one_loopback_udp_trans
     descriptors = root.findall("d:profiles/d:transport_descriptors/d:transport_descriptor", NS)
     assert [d.find("d:transport_id", NS).text for d in descriptors] == used and len(used) == 1
     assert descriptors[0].find("d:type", NS).text == "UDPv4"
+    # a 640x480 picture is 307-921 kB: Linux' default 208 kB socket buffers drop most of them
+    for size in ("sendBufferSize", "receiveBufferSize"):
+        assert int(descriptors[0].find(f"d:{size}", NS).text) >= 4 * 1024 * 1024, size
     assert [a.text for a in descriptors[0].findall("d:interfaceWhiteList/d:address", NS)] == [
         "127.0.0.1"]
 
