@@ -247,15 +247,18 @@ def executor(rclpy_context):
 
 
 def wait_until(cond: Callable[[], Any], timeout: float, period: float = 0.01,
-               what: str = "condition") -> Any:
-    """Poll ``cond`` until it returns a truthy value; raise AssertionError at ``timeout``."""
+               what: str | Callable[[], str] = "condition") -> Any:
+    """Poll ``cond`` until it returns a truthy value; raise AssertionError at ``timeout``.
+    ``what`` names the wait in that error; a callable is called then, so that e.g. a
+    process' log in it is the log at the timeout, not the log when the wait began."""
     deadline = time.monotonic() + timeout
     while True:
         value = cond()
         if value:
             return value
         if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout:.1f} s waiting for {what}")
+            said = what() if callable(what) else what
+            raise AssertionError(f"timed out after {timeout:.1f} s waiting for {said}")
         time.sleep(period)
 
 

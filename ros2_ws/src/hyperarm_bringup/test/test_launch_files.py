@@ -780,7 +780,7 @@ def test_launched_controllers_serve_their_actions_and_stay_silent(
              for name in ("mock_driver", *CONTROLLERS)}
     for name in CONTROLLERS:
         wait_for(lambda: "serving" in procs[name].output(), 60.0,
-                 what=f"{name} serving its action\n{procs[name].output()}")
+                 what=lambda: f"{name} serving its action\n{procs[name].output()}")
         wait_for(clients[name].server_is_ready, 30.0, what=f"{name}'s action server")
     first = procs["arm_controller"].output()
     assert ("rail, joint1" in first) == (variant == "rail_arm"), first

@@ -205,7 +205,7 @@ def test_action_on_the_dynamixel_driver_and_emulator(launch, tmp_path, rclpy_con
     ctl = launch("hyperarm_control", "arm_controller", params={"rate": RATE})
     probe = Probe(executor, rclpy_context, "action_probe_dxl")
     torque = probe.node.create_client(SetBool, contract.SET_TORQUE)
-    wait_for(torque.service_is_ready, 30.0, what=f"set_torque\n{driver.output()[-2000:]}")
+    wait_for(torque.service_is_ready, 30.0, what=lambda: f"set_torque\n{driver.output()[-2000:]}")
     fut = torque.call_async(SetBool.Request(data=True))
     wait_for(fut.done, 10.0, what="set_torque's answer")
     assert fut.result().success, fut.result().message

@@ -70,7 +70,7 @@ def test_follows_rejects_preempts_and_stops(launch, rclpy_context, executor, wai
     # the controller has the arm's joint_states too once it serves its action
     wait_for(lambda: pub.get_subscription_count() and all(n in states for n in NAMES)
              and diags and "joint_states of every joint received" in ctl.output(), 60.0,
-             what=f"arm_controller up\n{ctl.output()}")
+             what=lambda: f"arm_controller up\n{ctl.output()}")
 
     def q_now():
         return np.array([states[n] for n in NAMES])
@@ -93,7 +93,7 @@ def test_follows_rejects_preempts_and_stops(launch, rclpy_context, executor, wai
     mid, goal = q0 + 0.15, q0 + np.where(np.arange(9) % 2, -0.2, 0.25)
     pub.publish(_trajectory(NAMES, [(1.0, mid), (2.0, goal)]))
     wait_for(lambda: last_diag().get("succeeded") == "1", 20.0,
-             what=f"success\n{ctl.output()[-2000:]}")
+             what=lambda: f"success\n{ctl.output()[-2000:]}")
     wait_for(lambda: np.max(np.abs(q_now() - goal)) < 0.03, 10.0, what="the arm at the goal")
 
     # 3. preempted half-way by another, then stopped by an empty one: no jump, it holds
@@ -150,7 +150,7 @@ def test_late_and_out_of_order_joint_states_are_not_used(launch, rclpy_context, 
                                     qos_for(contract.JOINT_STATES))
     traj = probe.create_publisher(JointTrajectory, "arm_controller/joint_trajectory", 10)
     wait_for(lambda: states.get_subscription_count() and traj.get_subscription_count()
-             and diags, 30.0, what=f"arm_controller up\n{ctl.output()}")
+             and diags, 30.0, what=lambda: f"arm_controller up\n{ctl.output()}")
 
     def send(q, age):
         msg = JointState(name=NAMES, position=[float(x) for x in q])
@@ -161,7 +161,7 @@ def test_late_and_out_of_order_joint_states_are_not_used(launch, rclpy_context, 
     send(np.full(9, 0.9), 2.0)                 # 2 s late
     send(np.full(9, 0.5), 0.05)                # older than the newest used
     wait_for(lambda: {kv.key: kv.value for kv in diags[-1].values}.get("bad_joint_states")
-             == "2", 10.0, what=f"two rejections\n{ctl.output()}")
+             == "2", 10.0, what=lambda: f"two rejections\n{ctl.output()}")
     for _ in range(3):                         # keep the state fresh while it runs
         send(np.full(9, 0.1), 0.0)
     pub_goal = np.full(9, 0.1)
@@ -197,7 +197,7 @@ def test_a_goal_running_at_shutdown_is_aborted_saying_so(launch, rclpy_context, 
     client = TrajectoryClient(probe)
     executor.add_node(probe)
     wait_for(lambda: client.server_ready() and all(n in states for n in NAMES), 60.0,
-             what=f"arm_controller up\n{ctl.output()}")
+             what=lambda: f"arm_controller up\n{ctl.output()}")
     q0 = np.array([states[n] for n in NAMES])
     client.send(goal_from_points(NAMES, [4.0], [q0 + 0.4]))
     wait_for(lambda: client.accepted() and len(commands) > 30, 10.0, what="the goal running")

@@ -244,22 +244,23 @@ def test_torque_on_start_waits_for_servos_that_come_up_late_never_a_reconnection
     drv = launch("hyperarm_driver", "dynamixel_driver", params={
         "port": link, "torque_on_start": True, "reconnect_period": 0.2,
         "diagnostics_period": 0.2})
-    wait_for(lambda: "retrying" in drv.output(), 30.0, what=f"the retries\n{drv.output()}")
+    wait_for(lambda: "retrying" in drv.output(), 30.0, what=lambda: f"the retries\n{drv.output()}")
     emu = launch("hyperarm_driver", "dxl_emulator", "--link", link, "--control", ctl)
     control = wait_for(lambda: _connect(ctl), 20.0, what="emulator control socket")
     wait_for(lambda: all(servo(control, j.id)["torque_enable"] == 1 for j in CFG.joints), 20.0,
-             what=f"torque on at the late first connection\n{drv.output()}")
+             what=lambda: f"torque on at the late first connection\n{drv.output()}\n"
+                          f"dxl_emulator said:\n{emu.output()}")
     # (the driver says so after the writes: its line may come a moment after the servos)
     wait_for(lambda: "torque on (torque_on_start)" in drv.output(), 5.0,
-             what=f"the driver's torque-on line\n{drv.output()}")
+             what=lambda: f"the driver's torque-on line\n{drv.output()}")
     # the bus goes away and comes back (a new emulator: every servo's torque off)
     emu.proc.send_signal(signal.SIGINT)
     assert emu.proc.wait(timeout=10.0) == 0
-    wait_for(lambda: "port lost" in drv.output(), 10.0, what=f"the loss\n{drv.output()}")
+    wait_for(lambda: "port lost" in drv.output(), 10.0, what=lambda: f"the loss\n{drv.output()}")
     launch("hyperarm_driver", "dxl_emulator", "--link", link, "--control", ctl)
     control = wait_for(lambda: _connect(ctl), 20.0, what="the new emulator's control socket")
     wait_for(lambda: drv.output().count("connected to") >= 2, 20.0,
-             what=f"the reconnection\n{drv.output()}")
+             what=lambda: f"the reconnection\n{drv.output()}")
     time.sleep(1.0)
     assert all(servo(control, j.id)["torque_enable"] == 0 for j in CFG.joints)
     assert drv.output().count("torque on (torque_on_start)") == 1

@@ -132,7 +132,7 @@ def test_ctrl_c_during_a_move_cancels_it_and_writes_nothing(launch, executable, 
     assert "interrupted; nothing written" in log.read_text() and not out.exists()
     assert "did not confirm the cancel" not in log.read_text()   # its answer was heard
     wait_for(lambda: "goal cancelled, holding" in ctl.output(), 5.0,
-             what=f"the cancel\n{ctl.output()}")
+             what=lambda: f"the cancel\n{ctl.output()}")
 
 
 @pytest.mark.parametrize("args, says", [

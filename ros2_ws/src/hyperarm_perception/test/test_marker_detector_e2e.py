@@ -30,7 +30,7 @@ def test_starts_waits_for_camera_info_and_stops_cleanly(launch, rclpy_context, e
                               lambda m: seen.extend(s.message for s in m.status
                                                     if s.name == "marker_detector"),
                               qos_for(contract.DIAGNOSTICS))
-    wait_for(lambda: seen, 30.0, what=f"diagnostics\n{node.output()}")
+    wait_for(lambda: seen, 30.0, what=lambda: f"diagnostics\n{node.output()}")
     assert "waiting for a valid CameraInfo on camera/camera_info" in seen[-1]
     other.proc.send_signal(signal.SIGTERM)
     assert other.proc.wait(timeout=10.0) == 0, other.output()

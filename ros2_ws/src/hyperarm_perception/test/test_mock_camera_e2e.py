@@ -51,7 +51,7 @@ def test_pegs_seen_in_the_rendered_pictures_where_the_mock_has_them(launch, rclp
                                                        stamp_seconds(m.header.stamp))),
                               qos_profile_sensor_data)
     wait_for(lambda: len([m for m in seen if len(m.names) >= 2]) >= 5, 90.0,
-             what=f"5 detections of the pegs\n{cam.output()}")
+             what=lambda: f"5 detections of the pegs\n{cam.output()}")
     assert images[0][:3] == ("mono8", 640, 480)
     assert infos[-1].k[0] > 500 and infos[-1].header.frame_id == "camera_optical_frame"
     # every picture is a truth's exposure, drawn once (those after the probe's first truth:
@@ -121,7 +121,7 @@ def test_bad_truths_dropped_a_truth_waits_for_joint_states(launch, rclpy_context
     joints_pub = probe.create_publisher(JointState, contract.JOINT_STATES,
                                         qos_for(contract.JOINT_STATES))
     wait_for(lambda: truth_pub.get_subscription_count() and joints_pub.get_subscription_count()
-             and diags, 30.0, what=f"mock_camera up\n{cam.output()}")
+             and diags, 30.0, what=lambda: f"mock_camera up\n{cam.output()}")
 
     def truth(sec, names, poses):
         msg = Detections()
@@ -156,7 +156,7 @@ def test_bad_truths_dropped_a_truth_waits_for_joint_states(launch, rclpy_context
     time.sleep(0.3)
     truth_pub.publish(truth(4, ["block"], [good]))
     wait_for(lambda: images and images[-1].header.stamp.sec == 4, 10.0,
-             what=f"the picture of truth 4: {values()}\n{cam.output()}")
+             what=lambda: f"the picture of truth 4: {values()}\n{cam.output()}")
     # truth 3, waiting for joint states, is drawn once they come; then truth 4; each once
     assert [m.header.stamp.sec for m in images] == [3, 4]
     assert images[-1].encoding == "rgb8" and (images[-1].width, images[-1].height) == (160, 120)

@@ -75,14 +75,14 @@ def test_replayed_images_become_the_blocks_pose(launch, rclpy_context, executor,
                          "reopen_period": 0.2, "diagnostics_period": 0.2})
     launch("hyperarm_perception", "marker_detector", params={"diagnostics_period": 0.5})
     # 1. no camera yet: an error in the diagnostics, naming the source
-    wait_for(lambda: got["diag"], 30.0, what=f"diagnostics\n{cam.output()}")
+    wait_for(lambda: got["diag"], 30.0, what=lambda: f"diagnostics\n{cam.output()}")
     assert got["diag"][-1].level == bytes([2]), got["diag"][-1]
     assert "cannot open" in got["diag"][-1].message and "frames" in got["diag"][-1].message
     assert not got["info"]
     # 2. the camera appears: images and the calibration flow, the block is detected
     _frames(frames, marker)
     wait_for(lambda: got["det"] and list(got["det"][-1].names) == ["block"], 30.0,
-             what=f"the block detected\n{cam.output()}")
+             what=lambda: f"the block detected\n{cam.output()}")
     info = got["info"][-1]
     assert (info.width, info.height) == (640, 480) and info.distortion_model == "plumb_bob"
     assert np.allclose(np.array(info.k).reshape(3, 3), CAM.K)
@@ -113,7 +113,7 @@ def test_a_calibration_for_another_size_is_an_error_and_not_published(
                          "camera_info_file": str(_calibration(tmp_path, small)),
                          "diagnostics_period": 0.2})
     wait_for(lambda: got["info"] and got["diag"] and got["diag"][-1].level == bytes([2]),
-             30.0, what=f"camera_info and an error\n{cam.output()}")
+             30.0, what=lambda: f"camera_info and an error\n{cam.output()}")
     assert not any(got["info"][-1].k), "a calibration for 320x240 published for 640x480"
     assert "calibration is for 320x240" in got["diag"][-1].message
     wait_for(lambda: "calibration is for 320x240" in cam.output(), 10.0, what="log line")
@@ -142,7 +142,7 @@ def test_a_missing_device_is_one_clear_line_and_an_error(launch, rclpy_context, 
     cam = launch("hyperarm_perception", "usb_camera",
                  params={"device": "/dev/hyperarm-no-camera", "reopen_period": 0.2,
                          "diagnostics_period": 0.2})
-    wait_for(lambda: got["diag"], 30.0, what=f"diagnostics\n{cam.output()}")
+    wait_for(lambda: got["diag"], 30.0, what=lambda: f"diagnostics\n{cam.output()}")
     time.sleep(1.5)
     last = got["diag"][-1]
     assert last.level == bytes([2]) and "cannot open /dev/hyperarm-no-camera" in last.message
