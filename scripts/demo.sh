@@ -11,13 +11,24 @@
 # Output directory: HYPERARM_DEMO_OUT (default demo_output/ in the repository).
 # Ctrl-C at any moment stops it within about 2 s (exit 130; nothing plotted): run_task.sh
 # cancels the task and stops every node it started.
+# DDS: this computer only. Unless you set ROS_AUTOMATIC_DISCOVERY_RANGE or
+# FASTRTPS_DEFAULT_PROFILES_FILE yourself, over UDP loopback without Fast DDS' shared memory
+# (hyperarm_bringup/config/fastdds_localhost.xml, as the tests run; its header says why: the
+# shared-memory transport stalls stops for 1-3 s when many nodes stop at once). Nodes in
+# other shells with ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST still see these.
 set -eo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
+users_dds="${ROS_AUTOMATIC_DISCOVERY_RANGE:-}${FASTRTPS_DEFAULT_PROFILES_FILE:-}"
 # shellcheck disable=SC1091
 source scripts/env.sh
 export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-42}"
-export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
+if [ -z "$users_dds" ]; then
+  export ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT
+  export FASTRTPS_DEFAULT_PROFILES_FILE="$ROOT/ros2_ws/install/hyperarm_bringup/share/hyperarm_bringup/config/fastdds_localhost.xml"
+else
+  export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
+fi
 OUT="${HYPERARM_DEMO_OUT:-$ROOT/demo_output}"
 mkdir -p "$OUT"
 rm -f "$OUT/block_transfer.mcap"

@@ -10,6 +10,15 @@ source scripts/env.sh
 # sets the same for each test).
 export ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT
 export FASTRTPS_DEFAULT_PROFILES_FILE="$ROOT/ros2_ws/src/hyperarm_bringup/config/fastdds_localhost.xml"
+# that profile asks for 4 MB socket buffers (whole camera pictures over UDP); Linux grants
+# at most net.core.rmem_max / wmem_max, silently
+for buf in rmem_max wmem_max; do
+  have=$(cat "/proc/sys/net/core/$buf" 2>/dev/null || echo 0)
+  if [ "$have" -lt 4194304 ]; then
+    echo "[test] warning: net.core.$buf is $have bytes (< 4 MB): pictures over UDP loopback" \
+         "will be lost; as root: sysctl -w net.core.$buf=4194304" >&2
+  fi
+done
 export PYTHONDONTWRITEBYTECODE=1
 # Two pytest-xdist workers by default (HYPERARM_TEST_WORKERS=1 for one process): most tests
 # wait on processes and DDS, so two run side by side on a 2-core machine; each worker has its

@@ -172,14 +172,17 @@ def _kill(processes: list[tuple[int, str]]) -> None:
 #: The DDS set-up of every test's processes: Fast DDS over UDP loopback only, no shared
 #: memory (the profile's header says why: its transport stalls a node's stop for 1-3 s when
 #: many participants stop at once, and the processes a test kills leave zombie ports in
-#: /dev/shm). SYSTEM_DEFAULT: rmw_fastrtps keeps the profile's transports (LOCALHOST would
-#: put its own UDP + shared-memory pair in their place); the profile's single interface,
-#: 127.0.0.1, keeps discovery on this machine as LOCALHOST did.
+#: /dev/shm). SYSTEM_DEFAULT: rmw_fastrtps keeps the profile's transports as they are
+#: (LOCALHOST would add its own shared-memory and UDP transports to them); the profile's
+#: single interface, 127.0.0.1, keeps discovery on this machine as LOCALHOST did.
 TEST_DDS_ENV = {
     "ROS_AUTOMATIC_DISCOVERY_RANGE": "SYSTEM_DEFAULT",
     "FASTRTPS_DEFAULT_PROFILES_FILE": str(Path(__file__).resolve().parent / "hyperarm_bringup"
                                           / "config" / "fastdds_localhost.xml"),
 }
+# without it Fast DDS would fall back to its defaults (multicast on every interface, shared
+# memory), so its absence stops the run
+assert Path(TEST_DDS_ENV["FASTRTPS_DEFAULT_PROFILES_FILE"]).is_file(), TEST_DDS_ENV
 # for this process too (scripts/test.sh sets the same): Fast DDS reads its profile once per
 # process, at the first participant, so a fixture's setenv would come too late for pytest's own
 os.environ.update(TEST_DDS_ENV)
@@ -257,7 +260,12 @@ def wait_until(cond: Callable[[], Any], timeout: float, period: float = 0.01,
         if value:
             return value
         if time.monotonic() > deadline:
-            said = what() if callable(what) else what
+            said = what
+            if callable(what):
+                try:
+                    said = what()
+                except Exception as exc:   # the timeout is the failure, not its description
+                    said = f"<the wait's description failed: {exc!r}>"
             raise AssertionError(f"timed out after {timeout:.1f} s waiting for {said}")
         time.sleep(period)
 
@@ -288,6 +296,19 @@ class Launched:
         return self.log.read_text(errors="replace") if self.log.exists() else ""
 
 
+def _node_env(ros_domain: int, env: dict | None = None) -> dict:
+    """The environment of a node the ``launch`` fixture starts on ``ros_domain``."""
+    return dict(os.environ, ROS_DOMAIN_ID=str(ros_domain), PYTHONUNBUFFERED="1",
+                **TEST_DDS_ENV, **(env or {}))
+
+
+@pytest.fixture
+def launch_env(ros_domain: int) -> Callable[..., dict]:
+    """``launch_env(env=None)``: the environment ``launch`` gives a node (for a process a
+    test starts itself)."""
+    return lambda env=None: _node_env(ros_domain, env)
+
+
 @pytest.fixture
 def launch(ros_domain: int, tmp_path: Path):
     started: list[Launched] = []
@@ -305,8 +326,7 @@ def launch(ros_domain: int, tmp_path: Path):
         if ros_args:
             cmd += ["--ros-args", *ros_args]
         log = tmp_path / f"{name}-{len(started)}.log"
-        full_env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain), PYTHONUNBUFFERED="1",
-                        **TEST_DDS_ENV, **(env or {}))
+        full_env = _node_env(ros_domain, env)
         with open(log, "wb") as fh:
             # cwd: the test's own directory (a node's relative output, e.g. the recorder's
             # task.mcap, must not land in the repository)

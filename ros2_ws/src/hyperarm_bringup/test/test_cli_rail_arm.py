@@ -145,7 +145,7 @@ def test_one_shot_commands_confirm_or_fail_50_times(rail_arm, capsys, wait_for):
         assert code == 0 and out.startswith("taken: "), (i, goal, out, err)
         # no silent loss: the drivers' own joint_states show every goal reached
         wait_for(lambda: all(abs(positions[n] - v) < 0.01 for n, v in goal.items()), 10.0,
-                 what=f"move {i} {goal} to arrive (at {[positions[n] for n in goal]})")
+                 what=lambda: f"move {i} {goal} to arrive (at {[positions[n] for n in goal]})")
 
         if i % 2:       # and every other round one of the services (25 in all)
             argv = services[(i // 2) % len(services)]

@@ -87,7 +87,7 @@ rclpy.shutdown()
 
 
 @pytest.mark.e2e
-def test_test_processes_use_loopback_udp_without_shared_memory(rclpy_context):
+def test_test_processes_use_loopback_udp_without_shared_memory(rclpy_context, launch_env):
     """A process started as the tests start nodes (TEST_DDS_ENV) has no shared-memory
     receive thread (Fast DDS names them dds.shm.<port>; LOCALHOST would add them) and still
     meets this test's participant over loopback."""
@@ -97,10 +97,17 @@ def test_test_processes_use_loopback_udp_without_shared_memory(rclpy_context):
     node = rclpy.create_node("transport_peer", context=rclpy_context)
     try:
         node.create_subscription(JointState, "transport_probe", lambda _m: None, 10)
-        out = subprocess.run([sys.executable, "-c", _PROBE], env=dict(os.environ),
+        # the environment the launch fixture gives a node (conftest's TEST_DDS_ENV)
+        env = launch_env()
+        assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "SYSTEM_DEFAULT", env
+        out = subprocess.run([sys.executable, "-c", _PROBE], env=env,
                              capture_output=True, text=True, timeout=60)
+        mine = [open(f"/proc/self/task/{t}/comm").read().strip()
+                for t in os.listdir("/proc/self/task")]
     finally:
         node.destroy_node()
+    # this process' own participant (the in-process node tests') is on UDP alone too
+    assert not [t for t in mine if t.startswith("dds.shm.") and t[8:].isdigit()], mine
     lines = dict(line.split(" ", 1) for line in out.stdout.splitlines() if " " in line)
     assert "threads" in lines, out.stdout + out.stderr
     threads = lines["threads"].split()
@@ -116,8 +123,10 @@ def test_fast_dds_loads_the_profile_without_complaint(profile):
     element it does not know, and rclpy still starts, so look for the error."""
     code = ("import rclpy; rclpy.init(); n = rclpy.create_node('profile_probe'); "
             "n.destroy_node(); rclpy.shutdown(); print('ok')")
+    # domain 232: outside the suite's (100-231), where another worker's test would take the
+    # probe for a stray process of its own domain
     env = dict(os.environ, FASTRTPS_DEFAULT_PROFILES_FILE=str(profile),
-               RMW_IMPLEMENTATION="rmw_fastrtps_cpp", ROS_DOMAIN_ID="231")
+               RMW_IMPLEMENTATION="rmw_fastrtps_cpp", ROS_DOMAIN_ID="232")
     good = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
                           text=True, timeout=60)
     assert good.stdout.strip() == "ok" and "XMLPARSER" not in good.stderr, good.stderr

@@ -61,8 +61,11 @@ def run_in_one_shell(name: str, script: str, ros_domain: int, timeout: float) ->
     if any process it started is still alive 3 s after it ended ('no line to stop them');
     those are killed afterwards either way. Logs the blocks wrote to /tmp/hyperarm-$$ (the
     shell's PID) are shown on failure and removed."""
+    # a reader's shell: the docs' own DDS settings (LOCALHOST; env.sh's profile), not the
+    # tests' (conftest's TEST_DDS_ENV)
     env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain),
                ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    env.pop("FASTRTPS_DEFAULT_PROFILES_FILE", None)
     # output to files, not pipes: a process left behind would hold a pipe open
     with tempfile.TemporaryFile("w+") as out_f, tempfile.TemporaryFile("w+") as err_f:
         proc = subprocess.Popen(["bash", "-e", "-x", "-c", script], cwd=ROOT, env=env,

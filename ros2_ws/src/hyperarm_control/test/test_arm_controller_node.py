@@ -235,7 +235,7 @@ def test_a_wrong_joint_states_message_is_not_used(rclpy_context, executor, wait_
     wait_for(lambda: node._counts["bad_joint_states"] > bad_before, 5.0,
              what="the wrong state counted")
     wait_for(lambda: node._follower.goal_status == "succeeded", 10.0,
-             what=f"the goal to succeed ({node._last_result})")
+             what=lambda: f"the goal to succeed ({node._last_result})")
     qs = np.array([q for t, q in driver.commands if t >= t0])
     assert qs.max() <= 0.3 + 1e-9, qs.max()               # never towards the fake 1.0
 

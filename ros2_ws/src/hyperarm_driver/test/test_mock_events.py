@@ -213,8 +213,8 @@ def test_node_keeps_publishing_through_every_event_kind(variant, launch, rclpy_c
         """Wait for ``seconds`` of simulated time: joint_states must keep coming."""
         start = stamps[-1]
         wait_for(lambda: stamps[-1] >= start + seconds, 30.0 + 2.0 * seconds,
-                 what=f"joint_states {seconds:.2f} s of sim time after {start:.2f} s "
-                      f"(log tail: {proc.output()[-400:]!r})")
+                 what=lambda: f"joint_states {seconds:.2f} s of sim time after {start:.2f} s "
+                              f"(log tail: {proc.output()[-400:]!r})")
 
     for s in steps:
         if s.service == "reboot":   # a hardware error stays latched until a reboot

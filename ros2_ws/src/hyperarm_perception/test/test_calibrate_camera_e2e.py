@@ -72,7 +72,7 @@ def test_calibration_recovers_the_mocks_camera(launch, executable, tmp_path, ros
         # the mock stalls 0.6 s during the third move (as a loaded computer can): the
         # controller aborts on stale joint_states, the calibration moves again from there
         wait_for(lambda: "posture 2/" in log.read_text(), 120.0,
-                 what=f"the second posture\n{log.read_text()}")
+                 what=lambda: f"the second posture\n{log.read_text()}")
         time.sleep(0.5)
         os.kill(mock.proc.pid, signal.SIGSTOP)
         time.sleep(0.6)
@@ -122,7 +122,7 @@ def test_ctrl_c_during_a_move_cancels_it_and_writes_nothing(launch, executable, 
                                 env=dict(os.environ, PYTHONUNBUFFERED="1"))
     try:
         wait_for(lambda: "posture 1/" in log.read_text(), 120.0,
-                 what=f"the first posture\n{log.read_text()}")
+                 what=lambda: f"the first posture\n{log.read_text()}")
         time.sleep(0.4)                  # under way to the second (a move lasts >= 1 s)
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=15.0) == 130, log.read_text()
