@@ -175,10 +175,14 @@ def _kill(processes: list[tuple[int, str]]) -> None:
 #: /dev/shm). SYSTEM_DEFAULT: rmw_fastrtps keeps the profile's transports as they are
 #: (LOCALHOST would add its own shared-memory and UDP transports to them); the profile's
 #: single interface, 127.0.0.1, keeps discovery on this machine as LOCALHOST did.
+_PROFILE = (Path(__file__).resolve().parent / "hyperarm_bringup" / "config"
+            / "fastdds_localhost.xml")
+if not _PROFILE.is_file():   # a copy of this file elsewhere (test_suite_scheduling's nested
+    # run): the profile the outer run exported
+    _PROFILE = Path(os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE", _PROFILE))
 TEST_DDS_ENV = {
     "ROS_AUTOMATIC_DISCOVERY_RANGE": "SYSTEM_DEFAULT",
-    "FASTRTPS_DEFAULT_PROFILES_FILE": str(Path(__file__).resolve().parent / "hyperarm_bringup"
-                                          / "config" / "fastdds_localhost.xml"),
+    "FASTRTPS_DEFAULT_PROFILES_FILE": str(_PROFILE),
 }
 # without it Fast DDS would fall back to its defaults (multicast on every interface, shared
 # memory), so its absence stops the run

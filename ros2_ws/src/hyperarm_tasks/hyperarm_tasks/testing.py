@@ -15,6 +15,7 @@ import numpy as np
 from hyperarm_driver.mock.camera import Camera
 from hyperarm_driver.mock.config import MockConfig, load_mock_config
 from hyperarm_driver.mock.joint_sim import JointSim
+from hyperarm_driver.mock.world import BlockState
 from hyperarm_control.testing import wrap_postures
 
 from .perception import DetectionBuffer, camera_pose, matrix_to_quat
@@ -58,6 +59,9 @@ class SimRobot:
         self.camera_on = True
         self.held = 0
         self.given: dict[str, np.ndarray] = {}    # object poses "from the goal"
+        #: objects the camera does not see while the block is held (a camera the hand
+        #: hides them from, e.g. looking down on the block in the gripper)
+        self.hidden_while_held: set[str] = set()
         self.at_time: list[tuple[float, object]] = []   # (sim time, fn(sim)) to inject events
 
     def now(self) -> float:
@@ -70,7 +74,11 @@ class SimRobot:
                 self.at_time.pop(0)[1](self.sim)
             for frame in self.camera.step(self.sim.time, self.sim.truth):
                 if self.camera_on:
-                    self.detections.add(frame.stamp, frame.names, frame.detected)
+                    names, poses = frame.names, frame.detected
+                    if self.hidden_while_held and self.sim.world.state is BlockState.HELD:
+                        keep = [i for i, n in enumerate(names) if n not in self.hidden_while_held]
+                        names, poses = [names[i] for i in keep], [poses[i] for i in keep]
+                    self.detections.add(frame.stamp, names, poses)
 
     def cancel_requested(self) -> bool:
         return self.cancel_at is not None and self.sim.time >= self.cancel_at
