@@ -6,6 +6,7 @@ only a log line)."""
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -130,3 +131,20 @@ def test_fast_dds_loads_the_profile_without_complaint(profile):
     good = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
                           text=True, timeout=60)
     assert good.stdout.strip() == "ok" and "XMLPARSER" not in good.stderr, good.stderr
+
+
+@pytest.mark.e2e
+def test_the_stop_benchmark_measures_both_transports(ros_domain):
+    """docs/benchmarks.md's figures for stopping many nodes at once come from this script: a
+    small run of it on the test's domain prints one round per transport."""
+    out = subprocess.run([sys.executable, "-m", "hyperarm_bringup.dds_stop_benchmark",
+                          "--processes", "2", "--endpoints", "2", "--rounds", "1",
+                          "--settle", "0.2"], env=dict(os.environ), capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 0, out.stdout + out.stderr
+    rounds = re.findall(r"^(shm|udp) round 1: destroy slowest ([\d.]+) s \(its CPU [\d.]+ s\), "
+                        r"median ([\d.]+) s; last exit ([\d.]+) s after the signal$",
+                        out.stdout, re.M)
+    assert [r[0] for r in rounds] == ["shm", "udp"], out.stdout
+    for _, slowest, median, last in rounds:
+        assert 0 < float(median) <= float(slowest) <= float(last), out.stdout
