@@ -119,10 +119,14 @@ def test_service_answers_good_and_bad_requests(rclpy_context, executor, client_n
     # sub-second timeout honoured by a slow solver (impossible tolerance keeps it busy). The
     # time is wall time: a loaded machine that does not schedule the service around the
     # deadline overran it once (0.47 s), so up to 3 tries, each failing on its timeout, and
-    # one within 0.1 s of it (a solver that ignored its deadline would overrun every try)
+    # one within 0.1 s of it (a solver that ignored its deadline would overrun every try).
+    # Seeded at 0.9 x the upper limits the heuristic needs ~16k iterations (1.5 s here)
+    # before it stops on its own at a local minimum; from q = 0 it needs 1.9k (0.2 s), and a
+    # faster CI machine reached that before the deadline
+    far_seed = JointState(name=list(ARM.joint_names), position=[float(v) for v in 0.9 * ARM.upper])
     times = []
     for _ in range(3):
-        resp = c.call(_request(ARM, q, solver="heuristic", timeout=0.2,
+        resp = c.call(_request(ARM, q, solver="heuristic", timeout=0.2, seed=far_seed,
                                position_tolerance=1e-300, orientation_tolerance=1e-300))
         assert not resp.success and "timeout" in resp.message, resp.message
         times.append(resp.solve_time)
