@@ -3,12 +3,15 @@
 #
 # run_task.sh starts mock_driver (its default work cell and noise: the arm's repeatability
 # is worse than the peg clearance, so the insertion needs the force-controlled dither),
-# hybrid_force (the force-controlled insertion), task_node and task_recorder as separate
-# processes (what `ros2 run` starts on the robot),
+# mock_camera (the camera's pictures, rendered by MuJoCo) and marker_detector (the objects'
+# markers found in them: the task moves on what the camera sees), hybrid_force (the
+# force-controlled insertion), task_node and task_recorder as separate processes (what
+# `ros2 run` starts on the robot),
 # and runs block_transfer (the block from the source peg onto the destination peg) then
 # block_transfer_back (and back), printing every step. The run is recorded to an MCAP file
 # and plotted to PNGs; the script says where. Real time: about 2 minutes.
 # Output directory: HYPERARM_DEMO_OUT (default demo_output/ in the repository).
+# Camera: HYPERARM_DEMO_CAMERA (default rendered; oracle: the mock's noisy true poses).
 # Ctrl-C at any moment stops it within about 2 s (exit 130; nothing plotted): run_task.sh
 # cancels the task and stops every node it started.
 # DDS: this computer only. Unless you set ROS_AUTOMATIC_DISCOVERY_RANGE or
@@ -30,12 +33,14 @@ else
   export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
 fi
 OUT="${HYPERARM_DEMO_OUT:-$ROOT/demo_output}"
+CAMERA="${HYPERARM_DEMO_CAMERA:-rendered}"
+case "$CAMERA" in oracle|rendered) ;; *) echo "demo: HYPERARM_DEMO_CAMERA is oracle or rendered, not '$CAMERA'" >&2; exit 2 ;; esac
 mkdir -p "$OUT"
 rm -f "$OUT/block_transfer.mcap"
 
-echo "== hyperarm demo: block transfer there and back on the mock (ROS_DOMAIN_ID=$ROS_DOMAIN_ID)"
+echo "== hyperarm demo: block transfer there and back on the mock, camera $CAMERA (ROS_DOMAIN_ID=$ROS_DOMAIN_ID)"
 set +e
-ros2_ws/src/hyperarm_tasks/scripts/run_task.sh --record "$OUT/block_transfer.mcap" \
+ros2_ws/src/hyperarm_tasks/scripts/run_task.sh --camera "$CAMERA" --record "$OUT/block_transfer.mcap" \
   --logs "$OUT/logs" block_transfer block_transfer_back
 rc=$?
 set -e

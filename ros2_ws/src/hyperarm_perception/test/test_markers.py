@@ -237,7 +237,7 @@ def test_the_packaged_map_loads():
     mm = load_marker_map()
     assert mm.dictionary == DICT
     assert mm.objects == ["block", "calibration_target", "destination_peg", "source_peg"]
-    np.testing.assert_allclose(mm.markers[0].offset[:3, 3], [0.0, 0.0, 0.015])
+    np.testing.assert_allclose(mm.markers[0].offset[:3, 3], [0.045, 0.0, 0.015])   # the tab
     assert mm.config.min_side_px == 20 and math.isclose(mm.config.max_view_angle,
                                                          math.radians(60))
     assert mm.config.corner_refinement == "edges"

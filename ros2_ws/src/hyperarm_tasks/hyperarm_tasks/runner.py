@@ -25,7 +25,8 @@ from .sequence import Task
 from .steps import STALE_STATES, STEP_TYPES, PoseSpec, Step
 from .tracking import PathClock
 
-__all__ = ["Robot", "HybridCommand", "Feedback", "RunResult", "RunnerParams", "Runner"]
+__all__ = ["Robot", "HybridCommand", "Feedback", "RunResult", "RunnerParams", "Runner",
+           "Located"]
 
 
 @dataclass(frozen=True)
@@ -80,6 +81,15 @@ class Feedback:
     depth: float = 0.0                  # m, insertion depth (force_insert)
 
 
+@dataclass(frozen=True)
+class Located:
+    """Where the camera last located an object: ``pose`` (4x4, root frame) from sightings
+    whose newest was exposed at ``stamp`` (s, the robot's clock)."""
+
+    stamp: float
+    pose: np.ndarray
+
+
 @dataclass
 class RunResult:
     success: bool
@@ -100,6 +110,9 @@ class RunnerParams:
     detection_max_age: float = 1.0      # s, older sightings are stale
     detection_timeout: float = 3.0      # s, waiting for fresh sightings
     detection_outlier: float = 0.01     # m, from the median
+    # s: an object the camera located and the arm has not touched since keeps that pose this
+    # long while the camera cannot see it (the arm hides it); 0: only fresh sightings count
+    located_max_age: float = 60.0
     solver: str = ""                    # IK solver ("" = default)
     joint_tolerance: float = 0.01       # rad, joint-space goal reached
     grasp_min_position: float = 0.05    # rad, gripper closed further = nothing held
@@ -114,8 +127,12 @@ class RunnerParams:
                      "joint_tolerance", "grasp_min_position"):
             if not getattr(self, name) > 0.0:
                 raise ValueError(f"{name} must be > 0")
+        if not self.located_max_age >= 0.0:
+            raise ValueError("located_max_age must be >= 0")
 
 
+TOUCH_RADIUS = 0.04   # m: a gripper closing or opening this near a located object moves it
+                      # (the block's centre is 6.5 cm from its peg's top on the table)
 STATE_WAIT = 5.0   # s: at a task's start, wait this long for the first joint_states
 STREAM_STALL_LIMIT = 5.0   # s of stale joint_states that fail a streamed move (kind driver)
 TURN_FROM = 0.3   # a move_to line turns the tool over its last 70 % (plan_line)
@@ -157,6 +174,8 @@ class Runner:
         # when something else moves the arm: a hold, force control)
         self.last_sent: dict[str, float] = {}
         self.commanded = False              # any joint_command or force control yet
+        # objects the camera located and the arm has not touched since (see object_pose)
+        self.located: dict[str, Located] = {}
         self._limits = {j.name: (j.lower, j.upper, j.velocity) for j in self.desc.joints}
         if self.desc.rail is not None:
             r = self.desc.rail
@@ -233,6 +252,8 @@ class Runner:
                                                  max(p.detection_max_age, 0.15 * n),
                                                  p.detection_outlier, since)
             if est is not None:
+                if since is None:
+                    self.located[name] = Located(self.robot.now() - est.age, est.pose.copy())
                 return est
             if self.robot.now() - t0 > timeout:
                 newest = self.robot.detections.newest(name)
@@ -246,10 +267,43 @@ class Runner:
             self.tick()
 
     def object_pose(self, name: str) -> np.ndarray:
+        """``name``'s pose: given with the goal; else the camera's fresh sightings (a
+        ``detection_frames`` average) if it has them now; else, for an object the camera
+        located (a ``locate`` step, or an earlier estimate) at most ``located_max_age`` s
+        ago and the arm has not touched since (:meth:`touch`), where it was located (logged:
+        the arm hides it from the camera); else fresh sightings waited for as
+        :meth:`detect` does (failing kind "detection")."""
         given = self.robot.given_object(name)
         if given is not None:
             return np.asarray(given, dtype=float)
+        p = self.params
+        n = p.detection_frames
+        now = self.robot.now()
+        est = self.robot.detections.estimate(name, now, n, max(p.detection_max_age, 0.15 * n),
+                                             p.detection_outlier)
+        if est is not None:
+            self.located[name] = Located(now - est.age, est.pose.copy())
+            return est.pose
+        loc = self.located.get(name)
+        if loc is not None and now - loc.stamp <= p.located_max_age:
+            xyz = ", ".join(f"{v:.3f}" for v in loc.pose[:3, 3])
+            self.robot.log("info", f"{name} not in view now: using where the camera located "
+                           f"it {now - loc.stamp:.1f} s ago, ({xyz}) m (untouched since; "
+                           f"located_max_age {p.located_max_age:g} s)")
+            self.metrics["located_used"] = self.metrics.get("located_used", 0.0) + 1.0
+            return loc.pose.copy()
         return self.detect(name).pose
+
+    def touch(self, xyz: np.ndarray, radius: float = TOUCH_RADIUS) -> list[str]:
+        """The gripper closes or opens at ``xyz`` (m, root frame): every located object within
+        ``radius`` of it may move now, so its located pose is forgotten (only fresh
+        sightings place it again). Returns the names forgotten."""
+        xyz = np.asarray(xyz, dtype=float)
+        gone = [n for n, loc in self.located.items()
+                if float(np.linalg.norm(loc.pose[:3, 3] - xyz)) <= radius]
+        for n in gone:
+            del self.located[n]
+        return gone
 
     def resolve(self, spec: PoseSpec) -> np.ndarray:
         """The 4x4 tool0 target of ``spec`` in the root frame."""
@@ -573,7 +627,7 @@ class Runner:
             self.step, self.attempt = step, retries.get(i, 0)
             self.fb.step, self.fb.index = step.name, i
             # logged before the feedback goes out: a client reacting to the feedback (a
-            # Ctrl-C on "[1/12]") acts after the step's logged start, never before it
+            # Ctrl-C on "[1/13]") acts after the step's logged start, never before it
             self.robot.log("info", f"step {i + 1}/{len(steps)} {step.name} ({step.type})"
                            + (f", retry {self.attempt}" if self.attempt else ""))
             self.feedback("start", 0.0)

@@ -205,6 +205,7 @@ def _read_checked(path: Path) -> tuple[Any, dict]:
 def _renamed(value: Any, rename: dict[str, str]) -> Any:
     if isinstance(value, dict):
         return {k: (rename.get(v, v) if k in ("relative_to", "detection") and isinstance(v, str)
+                    else [rename.get(o, o) for o in v] if k == "objects" and isinstance(v, list)
                     else _renamed(v, rename)) for k, v in value.items()}
     if isinstance(value, list):
         return [_renamed(v, rename) for v in value]

@@ -65,6 +65,10 @@ PARAMETERS: ParamSpec = {
     "detection_timeout": (3.0, "s: wait this long for fresh detections", Range(0.1, 60.0)),
     "detection_outlier": (0.01, "m: detections this far from the median are rejected",
                           Range(0.0005, 1.0)),
+    "located_max_age": (60.0, "s: an object the camera located (a locate step, or an "
+                              "earlier estimate) and the gripper has not touched since keeps "
+                              "that pose this long while the camera cannot see it; 0: only "
+                              "fresh detections count", Range(0.0, 3600.0)),
     "solver": ("", "IK solver ('' = the default; see hyperarm_ik)", None),
     "collision_check": (False, "IK avoids, and every planned joint path (move_to, "
                                "move_joints, retreat) is checked for, collisions of the arm "

@@ -51,6 +51,7 @@ class SimRobot:
         pose = camera_pose(sim.desc)
         self.camera = Camera(sim.cfg.camera, pose)
         self.detections = DetectionBuffer(pose)
+        self._cam = pose
         self._inv_cam = np.linalg.inv(pose)
         self.cancel_at = cancel_at
         self.refused: str | None = None
@@ -62,6 +63,11 @@ class SimRobot:
         #: objects the camera does not see while the block is held (a camera the hand
         #: hides them from, e.g. looking down on the block in the gripper)
         self.hidden_while_held: set[str] = set()
+        #: m: the hand hides an object from the (fixed, overhead) camera while tool0 is within
+        #: this horizontal distance of the object's frame and above it (0: never), as the
+        #: wrist hides the block and the peg tiles from the rendered camera
+        self.hand_hides = 0.0
+        self.hidden_frames = 0    # frames in which the hand hid something
         self.at_time: list[tuple[float, object]] = []   # (sim time, fn(sim)) to inject events
 
     def now(self) -> float:
@@ -78,7 +84,24 @@ class SimRobot:
                     if self.hidden_while_held and self.sim.world.state is BlockState.HELD:
                         keep = [i for i, n in enumerate(names) if n not in self.hidden_while_held]
                         names, poses = [names[i] for i in keep], [poses[i] for i in keep]
+                    if self.hand_hides > 0.0:
+                        names, poses = self._not_under_the_hand(frame, names, poses)
                     self.detections.add(frame.stamp, names, poses)
+
+    def _not_under_the_hand(self, frame, names, poses):
+        """(The hand where it is when the frame is delivered, its latency later.)"""
+        tool = self.sim.tool_pose()[:3, 3]
+        truth = dict(zip(frame.names, frame.truth))
+        keep = []
+        for name, pose in zip(names, poses):
+            xyz = self._cam @ truth[name][:, 3]        # camera_link -> root
+            if (np.linalg.norm(tool[:2] - xyz[:2]) <= self.hand_hides
+                    and tool[2] >= xyz[2] - 0.01):
+                continue
+            keep.append((name, pose))
+        if len(keep) < len(names):
+            self.hidden_frames += 1
+        return [n for n, _ in keep], [p for _, p in keep]
 
     def cancel_requested(self) -> bool:
         return self.cancel_at is not None and self.sim.time >= self.cancel_at

@@ -34,15 +34,22 @@ def _run(script, args, ros_domain, timeout):
 
 def test_two_cycles_there_and_back_recorded_and_plotted(executable, ros_domain, tmp_path,
                                                         still_running, node_logs):
+    """`make demo`'s run: there and back on the mock's rendered pictures (issue 27: the
+    demo sees), recorded and plotted. The camera cannot see the block once the hand is over
+    it: each leg uses where `locate` found it (`located_used` in the result)."""
     logs, rec = tmp_path / "logs", tmp_path / "run.mcap"
-    done = _run(_script(executable), ["--seed", "21", "--logs", str(logs), "--record", str(rec),
-                                      "block_transfer", "block_transfer_back"], ros_domain, 170)
+    done = _run(_script(executable), ["--camera", "rendered", "--seed", "21", "--logs",
+                                      str(logs), "--record", str(rec), "block_transfer",
+                                      "block_transfer_back"], ros_domain, 200)
     out = done.stdout + done.stderr
     assert done.returncode == 0, out + node_logs(logs)
     assert out.count("run_task: succeeded") == 2, out
+    assert len(re.findall(r"succeeded: .*located_used [1-9]", out)) == 2, out
+    names = [line.split()[0] for line in (logs / "pids").read_text().splitlines()]
+    assert "mock_camera" in names and "marker_detector" in names, names
     # and where the time went, step by step (issue 28: the soak's per-step table)
     assert out.count("run_task: time per step (s): ready ") == 2, out
-    for step in ("[8/12] insert (force_insert)", "[12/12] ready_end"):
+    for step in ("[2/13] locate (locate)", "[9/13] insert (force_insert)", "[13/13] ready_end"):
         assert step in out
     assert still_running(logs) == []
     # every move_to a straight tool line, the first from the singular ready pose too (issue
@@ -94,7 +101,7 @@ def test_unreachable_destination_is_refused_before_any_motion(executable, ros_do
     assert found, out
     assert abs(float(found.group(1)) - 0.9) <= 0.01 and abs(float(found.group(2)) + 0.6) <= 0.01, out
     assert "m beyond the arm's workspace" in out
-    assert "[2/12]" not in out and "[1/12]" not in out          # no step ran
+    assert "[2/13]" not in out and "[1/13]" not in out          # no step ran
     assert still_running(logs) == []
 
 
@@ -114,7 +121,7 @@ def test_sigint_twice_mid_task_cancels_and_leaves_no_process(executable, ros_dom
     deadline = time.monotonic() + 90
     for line in proc.stdout:
         lines.append(line)
-        if "[2/12] above_source" in line or time.monotonic() > deadline:
+        if "[3/13] above_source" in line or time.monotonic() > deadline:
             break
     sent = time.monotonic()
     proc.send_signal(signal.SIGINT)
@@ -290,7 +297,7 @@ def _block_transfer_under_way(launch, ros_domain, executable):
     seen = []
     for line in client.stdout:
         seen.append(line)
-        if "[2/12]" in line:
+        if "[3/13]" in line:
             break
     return node, client, seen, env, driver
 
@@ -339,7 +346,7 @@ def test_task_node_stopped_mid_task_stops_it_holds_and_answers(launch, ros_domai
     assert "hold failed" not in out, out[-2000:]
     assert "run_task: failed: task_node stopped: cancelled during above_source" in rest, \
         "".join(seen) + rest
-    assert "[3/12]" not in rest
+    assert "[4/13]" not in rest
 
 
 def test_task_node_stopped_while_the_driver_hangs_still_answers(launch, ros_domain,
@@ -359,7 +366,7 @@ def test_task_node_stopped_while_the_driver_hangs_still_answers(launch, ros_doma
     assert code == 0 and took < 2.0, (code, took, out[-2000:])
     assert "run_task: failed: task_node stopped: task 'block_transfer' did not stop within " \
         "1 s (during above_source)" in rest, "".join(seen) + rest + out[-2000:]
-    assert "[3/12]" not in rest
+    assert "[4/13]" not in rest
 
 
 def test_hardware_mode_runs_on_the_dynamixel_driver(launch, executable, ros_domain, tmp_path,

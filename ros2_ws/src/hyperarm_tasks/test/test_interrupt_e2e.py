@@ -52,7 +52,7 @@ def test_ctrl_c_as_the_task_runs_stops_it_within_2_s(executable, ros_domain, tmp
     for i, delay in enumerate((0.0,)):
         logs = tmp_path / f"run{i}"
         code, took, out, wall = interrupt_at([script, "--logs", str(logs), "block_transfer"],
-                                             delay, after="[1/12]", group=True)
+                                             delay, after="[1/13]", group=True)
         problems = check_stopped(code, took, out, logs, wall)
         if "canceled: cancelled" not in out:
             problems.append("no 'canceled' result")
@@ -68,7 +68,7 @@ def test_ctrl_c_stops_make_demo_within_2_s(tmp_path, ros_domain):
     SIGKILLed or left running (it plotted a partial recording for seconds before)."""
     demo = Path(__file__).resolve().parents[4] / "scripts" / "demo.sh"
     report = []
-    for i, (after, delay) in enumerate((("logs in", 0.5), ("[1/12]", 0.3))):
+    for i, (after, delay) in enumerate((("logs in", 0.5), ("[1/13]", 0.3))):
         out_dir = tmp_path / f"demo{i}"
         env = dict(os.environ, HYPERARM_DEMO_OUT=str(out_dir))
         code, took, out, wall = interrupt_at(["bash", str(demo)], delay, after=after,
@@ -96,7 +96,7 @@ def test_ctrl_c_stops_the_cli_run_within_2_s(launch, executable, wait_for, tmp_p
     wait_for(lambda: "task_node ready" in task.output(), 60.0, what="task_node")
     cli = [executable("hyperarm_bringup", "hyperarm"), "run", "block_transfer"]
     report = []
-    for after, delay in ((None, 0.3), ("[1/12]", 0.0), ("[2/12]", 0.3)):
+    for after, delay in ((None, 0.3), ("[1/13]", 0.0), ("[2/13]", 0.3)):
         code, took, out, wall = interrupt_at(cli, delay, after=after, group=True)
         problems = late_steps(task_node_lines(task.log), wall, out)
         # 0.3 s after the start it may still be in Python's start-up and setuptools'

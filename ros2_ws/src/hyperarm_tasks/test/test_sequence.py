@@ -31,20 +31,25 @@ def test_shipped_tasks_load_and_stay_within_limits(task, variant):
 
 
 def test_block_transfer_follows_the_papers_twelve_steps(desc):
+    """The paper's twelve steps, and a locate after the first (the camera sees the block
+    and the pegs before the hand is over them)."""
     t = load_task("block_transfer", desc)
     assert [s.type for s in t.steps] == [
-        "move_joints", "move_to", "gripper", "move_to", "gripper", "move_to", "move_to",
-        "force_insert", "move_to", "gripper", "retreat", "move_joints"]
-    insert = t.steps[7]
+        "move_joints", "locate", "move_to", "gripper", "move_to", "gripper", "move_to",
+        "move_to", "force_insert", "move_to", "gripper", "retreat", "move_joints"]
+    assert t.steps[1].objects == ("block", "source_peg", "destination_peg")
+    insert = t.steps[8]
     assert insert.depth == pytest.approx(0.005) and insert.radius == pytest.approx(0.015)
     assert insert.retry.attempts == 1 and insert.retry.on == ("insertion",)
     assert t.steps[insert.retry.from_index].name == "above_destination"
-    assert t.steps[4].effort == pytest.approx(0.6) and t.steps[4].expect == "grasp"
+    close = t.steps[5]
+    assert close.effort == pytest.approx(0.6) and close.expect == "grasp"
+    assert t.steps[close.retry.from_index].name == "ready"
 
 
 def test_every_step_type_is_registered():
-    assert sorted(STEP_TYPES) == ["force_insert", "gripper", "home_rail", "move_joints",
-                                  "move_to", "retreat", "track_path", "wait_for"]
+    assert sorted(STEP_TYPES) == ["force_insert", "gripper", "home_rail", "locate",
+                                  "move_joints", "move_to", "retreat", "track_path", "wait_for"]
 
 
 def test_figure8_is_the_benchmarks_and_rail_transport_needs_the_rail(desc):

@@ -9,7 +9,7 @@ time per frame, and each object's errors against the poses it was drawn at, in c
 position (norm), across and along the line of sight, and orientation. Each frame moves the
 pegs by up to 4 cm and lays the block on the table at a random place and yaw, clear of the
 pegs; the arm is turned away (out of view). Also how often the block's marker is found while
-the block is threaded on its peg (the peg stands in the marker's middle). ``--save`` writes
+the block is threaded on its peg (its marker on a tab beside the peg). ``--save`` writes
 the first frame of the first size with the detections drawn. Each of ``--refinements``
 (the marker map's ``corner_refinement``) detects on the same pictures, side by side. docs/perception.md keeps the
 figures."""

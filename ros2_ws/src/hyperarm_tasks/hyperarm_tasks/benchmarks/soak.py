@@ -1,7 +1,7 @@
 """soak_block_transfer: block_transfer N times in a row on the mock, a new seed each cycle.
 
     soak_block_transfer [--cycles 20] [--first-seed 1] [--logs DIR]
-                        [--task T] [--variant V] [--workcell FILE]
+                        [--task T] [--variant V] [--workcell FILE] [--camera C]
 
 Each cycle is one run of run_task.sh (a fresh stack: mock_driver with the default work cell
 and noise, its imperfection and camera seeds set to the cycle's seed; task_node), so every
@@ -10,7 +10,9 @@ figures recorded in docs/benchmarks.md: success rate, mean and p95 cycle time (t
 own time, without the stack's start-up), insertion time, dither turns and insertion
 attempts. Exit code 0 only if every cycle succeeded. ``--task`` soaks another task the same
 way (e.g. ``figure8``; ``rail_transport --variant rail_arm --workcell .../workcell_rail.yaml``)
-and prints the statistics of every metric its result reports.
+and prints the statistics of every metric its result reports. ``--camera rendered`` runs
+every cycle on the mock's rendered pictures and the marker detector (run_task.sh
+``--camera``; default ``oracle``, the mock's noisy true poses).
 """
 from __future__ import annotations
 
@@ -202,9 +204,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--task", default="block_transfer", help="the task to soak")
     ap.add_argument("--variant", default=None, help="run_task.sh --variant")
     ap.add_argument("--workcell", default=None, help="run_task.sh --workcell (the mock's cell)")
+    ap.add_argument("--camera", choices=("oracle", "rendered"), default="oracle",
+                    help="run_task.sh --camera: the mock's noisy true poses (oracle) or its "
+                         "rendered pictures and marker_detector (rendered)")
     args = ap.parse_args(argv)
     logs = Path(args.logs) if args.logs else Path(tempfile.mkdtemp(prefix="hyperarm-soak."))
     options = [*(["--variant", args.variant] if args.variant else []),
+               *(["--camera", args.camera] if args.camera != "oracle" else []),
                *(["--workcell", args.workcell] if args.workcell else [])]
     if args.task != "block_transfer":
         return _soak_task(args, logs, options)
@@ -228,6 +234,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"insertion time (s): {_stats([r['metrics'].get('insertion_time', np.nan) for r in ok])}")
     print(f"dither turns: {_stats([r['metrics'].get('dither_turns', np.nan) for r in ok])}")
     print(f"insertion attempts: {_stats([r['metrics'].get('insertion_attempts', np.nan) for r in ok])}")
+    print(f"located poses used (an object the arm hid): "
+          f"{_stats([r['metrics'].get('located_used', 0.0) for r in ok])}; held block unseen "
+          f"at the insertion's check: {sum('camera_check_unseen' in r['metrics'] for r in ok)}"
+          f"/{len(ok)} cycles")
     print(f"task_node CPU (fraction of one core over the task): "
           f"{_stats([r['metrics'].get('task_node_cpu', np.nan) for r in ok])}")
     print(step_table(ok))

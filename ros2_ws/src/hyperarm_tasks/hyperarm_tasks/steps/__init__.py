@@ -240,6 +240,6 @@ def finite(v: float) -> bool:
 
 
 _MODULES = ("move_to", "move_joints", "gripper", "force_insert", "wait_for", "home_rail",
-            "retreat", "track_path")
+            "retreat", "track_path", "locate")
 for _m in _MODULES:
     importlib.import_module(f"{__name__}.{_m}")

@@ -42,6 +42,11 @@ def build(raw: dict, ctx: BuildContext, index: int) -> Gripper:
 def run(step: Gripper, runner) -> None:
     g = runner.desc.gripper
     p = runner.params
+    # what the fingers close on or let go of may move: its located pose is forgotten
+    gone = runner.touch(runner.tool_measured()[:3, 3]) if runner.located else []
+    if gone:
+        runner.robot.log("info", f"{step.name}: {', '.join(gone)} may move now; only fresh "
+                                 f"sightings place {'it' if len(gone) == 1 else 'them'} again")
     if step.action == "open":
         runner.holding = None
         goal = g.upper if step.position is None else step.position
