@@ -6,7 +6,9 @@ Subscribes ``camera/image_raw`` (sensor_msgs/Image: mono8, bgr8, rgb8, bgra8, rg
 the sensor-data QoS (best effort, so it matches best-effort and reliable drivers); publishes
 ``detections`` (hyperarm_interfaces/Detections, header.stamp = the image's) and
 ``/diagnostics`` (counts of every rejection). The detection itself is
-:mod:`hyperarm_perception.markers`; this node converts messages and wires them up.
+:mod:`hyperarm_perception.markers`; this node converts messages and wires them up. The robot
+description (``variant``, ``description_file``) gives the camera's extrinsics, hence which
+way is up in ``camera_link``: the prior of the map's ``upright`` objects.
 """
 from __future__ import annotations
 
@@ -20,13 +22,14 @@ from hyperarm_description.freshness import StampGate, stamp_seconds
 from hyperarm_description.log_throttle import ReasonThrottle
 from hyperarm_description.params import ParamSpec, Range, declare_parameters
 from hyperarm_description.qos import qos_for
-from hyperarm_description.ros_main import run_node
+from hyperarm_description.model import camera_link_pose
+from hyperarm_description.ros_main import declare_robot_description, run_node
 from hyperarm_ik.ros_conversions import matrix_to_pose
 from hyperarm_interfaces.msg import Detections
 
 from .camera_input import camera_model, image_gray
 from .markers import (REASONS, CameraModelError, ImageError, MarkerDetector, MarkerMapError,
-                      load_marker_map)
+                      load_marker_map, up_in_camera_link)
 
 IMAGE = "camera/image_raw"
 CAMERA_INFO = "camera/camera_info"
@@ -46,11 +49,14 @@ class MarkerDetectorNode(Node):
     def __init__(self, **kwargs) -> None:
         kwargs.setdefault("namespace", contract.DEFAULT_NAMESPACE)
         super().__init__("marker_detector", **kwargs)
+        desc = declare_robot_description(self)
         p = declare_parameters(self, PARAMETERS)
         try:
             self._map = load_marker_map(p["marker_map"] or None)
         except MarkerMapError as exc:
             raise SystemExit(f"marker_detector: {exc}") from None
+        # up (against gravity) in camera_link, from the description's camera extrinsics
+        self._up = up_in_camera_link(camera_link_pose(desc))
         self._detector: MarkerDetector | None = None
         self._gate = StampGate(IMAGE, p["max_age"])
         self._throttle = ReasonThrottle(5.0)
@@ -85,7 +91,7 @@ class MarkerDetectorNode(Node):
             return
         self._info_key = key
         if self._detector is None:
-            self._detector = MarkerDetector(self._map, cam)
+            self._detector = MarkerDetector(self._map, cam, up=self._up)
         else:
             self._detector.set_camera(cam)
 
@@ -139,7 +145,7 @@ class MarkerDetectorNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node(MarkerDetectorNode, args, parameters=PARAMETERS, robot_description=False)
+    run_node(MarkerDetectorNode, args, parameters=PARAMETERS, robot_description=True)
 
 
 if __name__ == "__main__":

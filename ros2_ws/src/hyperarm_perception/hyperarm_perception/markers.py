@@ -10,7 +10,14 @@ Pipeline for one image (:meth:`MarkerDetector.detect`):
 2. Each marker whose id is in the :class:`MarkerMap` and whose shortest side is at least
    ``min_side_px`` pixels gets IPPE's two poses (``cv2.solvePnPGeneric(...,
    SOLVEPNP_IPPE_SQUARE)``, ordered by IPPE's own reprojection error), each refined by
-   ``cv2.solvePnPRefineLM``; the first is the marker's pose.
+   ``cv2.solvePnPRefineLM``; the first is the marker's pose. For an object the map lists
+   as ``upright`` (it rests with its z axis up, as the block and the pegs on the table) and
+   a detector given the camera's ``up`` direction, the solution whose object z axis is
+   nearer to up (by more than 1 deg) comes first instead when the corners cannot tell the
+   two apart (its RMS reprojection error larger by at most ``corner_sigma_px``; counted:
+   ``upright_choices``): a small marker's two solutions fit nearly as well, and noise picked
+   the tilted one in a few frames in 100. An object that really is tilted has a clearly
+   better solution, kept.
 3. It is rejected when it is seen at a grazing angle (its normal more than
    ``max_view_angle`` from the line of sight to its centre) or when its RMS corner
    reprojection error exceeds ``max_reprojection_px``.
@@ -20,6 +27,10 @@ Pipeline for one image (:meth:`MarkerDetector.detect`):
    once.
 5. The object's 6x6 pose covariance comes from the corner reprojection error (see
    :func:`pose_covariance`).
+6. An ``upright`` object whose z axis is within ``upright_snap`` (10 deg) of up is turned
+   upright about its markers' centre (counted: ``upright_snaps``): the centre is measured
+   well, the tilt of a small or partly covered marker is not, and an origin far from its
+   marker (a peg's top, 144 mm from its tile) moved 2.5 mm with every degree.
 
 Frames: OpenCV's optical frame (x right, y down, z along the view) is where the PnP works;
 :data:`T_LINK_OPTICAL` turns it into ``camera_link`` (the ROS body frame of the robot
@@ -47,7 +58,8 @@ __all__ = ["PerceptionError", "MarkerMapError", "CameraModelError", "ImageError"
            "MarkerSpec", "DetectorConfig", "MarkerMap", "CameraModel", "Detection",
            "Rejection", "FrameResult", "MarkerDetector", "load_marker_map",
            "parse_marker_map", "pose_covariance", "marker_corners", "T_LINK_OPTICAL",
-           "REASONS", "rotation_angle", "default_marker_map_path", "aruco_detector"]
+           "REASONS", "rotation_angle", "default_marker_map_path", "aruco_detector",
+           "up_in_camera_link"]
 
 
 class PerceptionError(ValueError):
@@ -70,6 +82,10 @@ class ImageError(PerceptionError):
 #: Every reason a marker (or an object) is rejected; the keys of MarkerDetector.counts.
 REASONS = ("unknown_id", "too_small", "pose_failed", "grazing", "reprojection",
            "disagreement")
+
+#: rad: an upright object's pose candidate nearer to up by more than this goes first (two
+#: solutions that LM refined into one pose differ by far less; a flip, by 5-17 deg)
+UPRIGHT_MARGIN = math.radians(1.0)
 
 #: camera_link <- optical frame: optical z (view) = link x, optical x (right) = link -y,
 #: optical y (down) = link -z (REP 103/105's camera_optical_frame, rpy -pi/2, 0, -pi/2).
@@ -105,6 +121,8 @@ MARKER_MAP_SCHEMA: dict[str, Any] = {
                 "size": {"type": "number", "exclusiveMinimum": 0},
                 "offset": _POSE_SCHEMA,
             }}},
+        "upright": {"type": "array", "uniqueItems": True,
+                    "items": {"type": "string", "minLength": 1}},
         "detection": {
             "type": "object", "additionalProperties": False,
             "properties": {
@@ -116,6 +134,7 @@ MARKER_MAP_SCHEMA: dict[str, Any] = {
                 "agree_angle": {"type": ["number", "string"]},
                 "corner_refinement": {"enum": ["edges", "subpix"]},
                 "gamma": {"type": "number", "minimum": 0.2, "maximum": 5.0},
+                "upright_snap": {"type": ["number", "string"]},
             }},
     },
 }
@@ -158,7 +177,9 @@ class DetectorConfig:
     may differ; ``corner_refinement``: ``edges`` (intersections of the outer edges, see
     :mod:`hyperarm_perception.edges`) or ``subpix`` (OpenCV's ``CORNER_REFINE_SUBPIX`` alone);
     ``gamma``: the pictures' encoding, which the edges undo (1.0: linear, as the mock's; about
-    2.2 for the sRGB of most USB cameras)."""
+    2.2 for the sRGB of most USB cameras); ``upright_snap`` (rad): an ``upright`` object
+    whose estimated z axis is within this of up is turned upright about its markers'
+    centre (0: never; see :class:`MarkerDetector`)."""
 
     min_side_px: float = 20.0
     max_view_angle: float = math.radians(60.0)
@@ -168,15 +189,19 @@ class DetectorConfig:
     agree_angle: float = math.radians(10.0)
     corner_refinement: str = "edges"
     gamma: float = 1.0
+    upright_snap: float = math.radians(10.0)
 
 
 @dataclass(frozen=True)
 class MarkerMap:
-    """The markers of one dictionary (an OpenCV ``cv2.aruco.DICT_*`` name) by id."""
+    """The markers of one dictionary (an OpenCV ``cv2.aruco.DICT_*`` name) by id;
+    ``upright``: the objects that rest with their z axis up (the detector's prior against
+    a flipped single-marker pose, :class:`MarkerDetector`)."""
 
     dictionary: str
     markers: Mapping[int, MarkerSpec]
     config: DetectorConfig = field(default_factory=DetectorConfig)
+    upright: frozenset[str] = frozenset()
 
     @property
     def objects(self) -> list[str]:
@@ -266,8 +291,22 @@ def parse_marker_map(data: Any, source: str = "<data>") -> MarkerMap:
         agree_angle=(_angle(det["agree_angle"], f"{source}: detection.agree_angle")
                      if "agree_angle" in det else defaults.agree_angle),
         corner_refinement=str(det.get("corner_refinement", defaults.corner_refinement)),
-        gamma=float(det.get("gamma", defaults.gamma)))
-    return MarkerMap(name, markers, config)
+        gamma=float(det.get("gamma", defaults.gamma)),
+        upright_snap=(_snap_angle(det["upright_snap"], f"{source}: detection.upright_snap")
+                      if "upright_snap" in det else defaults.upright_snap))
+    objects = {m.object for m in markers.values()}
+    for k, obj in enumerate(data.get("upright", [])):
+        if obj not in objects:
+            raise MarkerMapError(f"{source}: upright[{k}]: {obj!r} is not an object of the "
+                                 f"map; objects: {', '.join(sorted(objects))}")
+    return MarkerMap(name, markers, config, frozenset(data.get("upright", [])))
+
+
+def _snap_angle(value: Any, where: str) -> float:
+    out = parse_angle_or_fail(value, where)
+    if not 0.0 <= out <= math.radians(45.0):
+        raise MarkerMapError(f"{where}: must be in [0, 45 deg], got {value!r}")
+    return out
 
 
 def parse_angle_or_fail(value: Any, where: str) -> float:
@@ -276,6 +315,12 @@ def parse_angle_or_fail(value: Any, where: str) -> float:
         return parse_angle(value, where)
     except DescriptionError as exc:
         raise MarkerMapError(str(exc)) from None
+
+
+def up_in_camera_link(camera_in_root: np.ndarray) -> np.ndarray:
+    """The root frame's +z (up, for a root frame with z up as the robot's base_link and
+    world) in ``camera_link``, from ``camera_link``'s 4x4 pose in the root frame."""
+    return np.asarray(camera_in_root, dtype=float)[:3, :3].T @ np.array([0.0, 0.0, 1.0])
 
 
 def default_marker_map_path() -> Path:
@@ -474,17 +519,29 @@ class MarkerDetector:
     """Detects the markers of a :class:`MarkerMap` in images of a :class:`CameraModel`.
 
     :attr:`counts` holds the number of rejections per reason (:data:`REASONS`) and
-    ``frames`` / ``detections`` since construction (for diagnostics)."""
+    ``frames`` / ``detections`` / ``edge_fallbacks`` / ``upright_choices`` since
+    construction (for diagnostics). ``up``: the direction opposite to gravity in
+    ``camera_link`` (3 values, any length; e.g. from the description's camera extrinsics:
+    :func:`up_in_camera_link`), for the map's ``upright`` objects; None: no such prior."""
 
-    def __init__(self, marker_map: MarkerMap, camera: CameraModel) -> None:
+    def __init__(self, marker_map: MarkerMap, camera: CameraModel,
+                 up: np.ndarray | None = None) -> None:
         self.map = marker_map
         self.camera = camera
+        self._up: np.ndarray | None = None
+        if up is not None:
+            u = np.asarray(up, dtype=float).reshape(-1)
+            n = float(np.linalg.norm(u)) if u.shape == (3,) else float("nan")
+            if not (math.isfinite(n) and n > 1e-9):
+                raise PerceptionError(f"up must be 3 finite values, not all 0, got {up!r}")
+            self._up = T_LINK_OPTICAL[:3, :3].T @ (u / n)     # in the optical frame
         self._aruco = aruco_detector(marker_map.dictionary)
         # the marker's width in modules, black border included (the edges' profiles stay
         # within the border and the margin)
         self._modules = int(self._aruco.getDictionary().markerSize) + 2
         self.counts: dict[str, int] = {r: 0 for r in REASONS}
-        self.counts.update(frames=0, detections=0, edge_fallbacks=0)
+        self.counts.update(frames=0, detections=0, edge_fallbacks=0, upright_choices=0,
+                           upright_snaps=0)
 
     def set_camera(self, camera: CameraModel) -> None:
         """Use new intrinsics (e.g. a changed CameraInfo) from the next image on."""
@@ -516,6 +573,48 @@ class MarkerDetector:
             T = _pose_matrix(rvec, tvec)
             if np.all(np.isfinite(T)) and T[2, 3] > 0:
                 out.append(T)
+        return out
+
+    def _upright_first(self, spec: MarkerSpec, img: np.ndarray,
+                       candidates: list[np.ndarray]) -> list[np.ndarray]:
+        """``candidates`` with the one whose object z axis is nearest to up first, if it is
+        nearer by more than :data:`UPRIGHT_MARGIN` and the corners cannot tell the two
+        apart: its RMS reprojection error within ``max_reprojection_px`` and larger than
+        the first's by at most ``corner_sigma_px`` (the corners' noise)."""
+        inv = np.linalg.inv(spec.offset)
+        tilts = [float(np.arccos(np.clip((T @ inv)[:3, 2] @ self._up, -1.0, 1.0)))
+                 for T in candidates]
+        k = int(np.argmin(tilts))
+        if k == 0 or tilts[k] > tilts[0] - UPRIGHT_MARGIN:   # the same pose, refined twice
+            return candidates
+        rms = []
+        for T in (candidates[0], candidates[k]):
+            res, _ = _residuals(marker_corners(spec.size), img, T, self.camera)
+            rms.append(float(np.sqrt(np.mean(res.reshape(-1, 2) ** 2) * 2.0)))
+        cfg = self.map.config
+        if rms[1] > cfg.max_reprojection_px or rms[1] > rms[0] + cfg.corner_sigma_px:
+            return candidates     # the corners tell them apart: the object is tilted
+        self.counts["upright_choices"] += 1
+        return [candidates[k], *candidates[:k], *candidates[k + 1:]]
+
+    def _snap_upright(self, T: np.ndarray, specs: list[MarkerSpec]) -> np.ndarray:
+        """An upright object's pose ``T`` (optical frame) turned so that its z axis is up,
+        about its markers' centre (measured well; the tilt of a small or partly covered
+        marker is not, and a marker 144 mm from the object's origin moves the origin 2.5 mm
+        per degree), if its z axis is within ``upright_snap`` of up; else ``T``."""
+        z = T[:3, 2]
+        tilt = math.acos(max(-1.0, min(1.0, float(z @ self._up))))
+        if tilt > self.map.config.upright_snap:
+            return T
+        self.counts["upright_snaps"] += 1
+        if tilt < 1e-12:
+            return T
+        axis = np.cross(z, self._up)
+        turn = cv2.Rodrigues((axis / np.linalg.norm(axis) * tilt).reshape(3, 1))[0]
+        centre = np.mean([spec.offset[:3, 3] for spec in specs], axis=0)   # object frame
+        out = T.copy()
+        out[:3, :3] = turn @ T[:3, :3]
+        out[:3, 3] = T[:3, :3] @ centre + T[:3, 3] - out[:3, :3] @ centre
         return out
 
     def detect(self, image: np.ndarray) -> FrameResult:
@@ -554,6 +653,8 @@ class MarkerDetector:
                 self._reject(rejections, "pose_failed", mid, spec.object,
                              f"marker {mid} ({spec.object}): no pose in front of the camera")
                 continue
+            if self._up is not None and spec.object in self.map.upright:
+                candidates = self._upright_first(spec, img, candidates)
             T = candidates[0]
             sight = T[:3, 3] / np.linalg.norm(T[:3, 3])
             view = math.acos(max(-1.0, min(1.0, float(-T[:3, 2] @ sight))))
@@ -622,6 +723,8 @@ class MarkerDetector:
             T = _pose_matrix(rvec, tvec)
         res, _ = _residuals(obj, img, T, self.camera)
         cov_opt = pose_covariance(obj, img, T, self.camera, cfg.corner_sigma_px)
+        if self._up is not None and name in self.map.upright and cfg.upright_snap > 0.0:
+            T = self._snap_upright(T, [spec for spec, *_ in markers])
         rot = np.zeros((6, 6))
         rot[:3, :3] = rot[3:, 3:] = T_LINK_OPTICAL[:3, :3]
         return Detection(name, T_LINK_OPTICAL @ T, rot @ cov_opt @ rot.T, T,

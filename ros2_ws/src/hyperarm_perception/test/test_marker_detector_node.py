@@ -75,7 +75,8 @@ def test_detections_and_every_bad_input(rclpy_context, executor, wait_for):
     mm = load_marker_map()
     rng = np.random.default_rng(1)
     marker = look_at_pose([0.03, -0.02, 0.4], 0.4, 1.0, 0.7)
-    block = render(CAM, mm.dictionary, [MarkerPlacement(0, 0.03, marker)], rng=rng)
+    block = render(CAM, mm.dictionary, [MarkerPlacement(0, mm.markers[0].size, marker)],
+                   rng=rng)
 
     # 1. an image before any CameraInfo: dropped, counted, nothing published
     images.publish(_image(probe, block))

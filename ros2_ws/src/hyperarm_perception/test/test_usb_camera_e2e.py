@@ -35,7 +35,8 @@ def _frames(folder, marker: np.ndarray, n: int = 5) -> None:
     rng = np.random.default_rng(7)
     folder.mkdir(parents=True, exist_ok=True)
     for i in range(n):
-        img = render(CAM, mm.dictionary, [MarkerPlacement(0, 0.03, marker)], rng=rng)
+        img = render(CAM, mm.dictionary, [MarkerPlacement(0, mm.markers[0].size, marker)],
+                     rng=rng)
         cv2.imwrite(str(folder / f"{i:04d}.png"), img)
 
 

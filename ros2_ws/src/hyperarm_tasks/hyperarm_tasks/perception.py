@@ -55,12 +55,14 @@ class Sighting:
 @dataclass(frozen=True)
 class Estimate:
     """An averaged detection: ``pose`` (4x4, root frame; rotation of the newest inlier),
-    ``used`` frames averaged, ``rejected`` outliers, ``age`` (s) of the newest."""
+    ``used`` frames averaged, ``rejected`` outliers, ``age`` (s) of the newest, and
+    ``stamp`` (s) the newest's exposure time."""
 
     pose: np.ndarray
     used: int
     rejected: int
     age: float
+    stamp: float = float("nan")
 
     @property
     def xyz(self) -> np.ndarray:
@@ -76,11 +78,15 @@ class DetectionBuffer:
         self._history = history
         self._seen: dict[str, deque[Sighting]] = {}
         self.frames = 0
+        #: s, exposure time of the newest frame that showed any object (-inf: none yet)
+        self.last_seen_any = float("-inf")
 
     def add(self, stamp: float, names, poses_in_camera) -> None:
         """One Detections message: ``poses_in_camera`` are 4x4 in camera_link."""
         with self._lock:
             self.frames += 1
+            if len(names):
+                self.last_seen_any = max(self.last_seen_any, float(stamp))
             for name, pose in zip(names, poses_in_camera):
                 q = self._seen.setdefault(name, deque(maxlen=self._history))
                 q.append(Sighting(float(stamp), self._cam @ np.asarray(pose, dtype=float)))
@@ -89,6 +95,11 @@ class DetectionBuffer:
         with self._lock:
             q = self._seen.get(name)
             return q[-1] if q else None
+
+    def since(self, name: str, stamp: float) -> list[Sighting]:
+        """The kept sightings of ``name`` exposed after ``stamp`` (s), oldest first."""
+        with self._lock:
+            return [s for s in self._seen.get(name, ()) if s.stamp > stamp]
 
     def clear(self, name: str | None = None) -> None:
         with self._lock:
@@ -114,4 +125,5 @@ class DetectionBuffer:
             return None
         out = fresh[max(i for i, k in enumerate(keep) if k)].pose.copy()
         out[:3, 3] = xyz[keep].mean(axis=0)
-        return Estimate(out, int(keep.sum()), int((~keep).sum()), now - fresh[-1].stamp)
+        return Estimate(out, int(keep.sum()), int((~keep).sum()), now - fresh[-1].stamp,
+                        fresh[-1].stamp)

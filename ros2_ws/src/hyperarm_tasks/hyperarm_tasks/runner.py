@@ -131,7 +131,8 @@ class RunnerParams:
             raise ValueError("located_max_age must be >= 0")
 
 
-TOUCH_RADIUS = 0.04   # m: a gripper closing or opening this near a located object moves it
+MOVED_SIGHTINGS = 2   # newer sightings away from a located pose that say the object moved
+TOUCH_RADIUS = 0.04   # m: fingers closing on or releasing what is this near tool0 move it
                       # (the block's centre is 6.5 cm from its peg's top on the table)
 STATE_WAIT = 5.0   # s: at a task's start, wait this long for the first joint_states
 STREAM_STALL_LIMIT = 5.0   # s of stale joint_states that fail a streamed move (kind driver)
@@ -174,8 +175,12 @@ class Runner:
         # when something else moves the arm: a hold, force control)
         self.last_sent: dict[str, float] = {}
         self.commanded = False              # any joint_command or force control yet
-        # objects the camera located and the arm has not touched since (see object_pose)
+        # objects the camera located and the arm has not touched since (see object_pose);
+        # when the fingers last closed on or released each touched object (robot clock, s);
+        # the objects a held grasp holds (never located while held)
         self.located: dict[str, Located] = {}
+        self.touched_at: dict[str, float] = {}
+        self.held_objects: set[str] = set()
         self._limits = {j.name: (j.lower, j.upper, j.velocity) for j in self.desc.joints}
         if self.desc.rail is not None:
             r = self.desc.rail
@@ -234,7 +239,7 @@ class Runner:
         eff = abs(self.robot.joint_efforts().get(g, 0.0))
         p = self.params
         if pos < p.grasp_min_position or eff < p.grasp_min_effort_ratio * self.holding:
-            self.holding = None
+            self.release_grasp()     # dropped: where it fell is for the camera to say
             raise StepFailed("grasp_lost", f"grasp lost: gripper at {pos:.3f} rad (empty below "
                              f"{p.grasp_min_position:g}), effort {eff:.2f} N·m")
 
@@ -242,18 +247,19 @@ class Runner:
     def detect(self, name: str, timeout: float | None = None,
                since: float | None = None, frames: int | None = None) -> Estimate:
         """Averaged fresh sightings of ``name`` (taken after ``since``, if given: the object
-        has moved), waited for up to ``timeout`` s."""
+        has moved; and after the gripper last closed or opened near it), waited for up to
+        ``timeout`` s. Locates the object (:attr:`located`) unless it is held."""
         p = self.params
         timeout = p.detection_timeout if timeout is None else timeout
         t0 = self.robot.now()
+        since = self._since(name, since)
         while True:
             n = frames or p.detection_frames
             est = self.robot.detections.estimate(name, self.robot.now(), n,
                                                  max(p.detection_max_age, 0.15 * n),
                                                  p.detection_outlier, since)
             if est is not None:
-                if since is None:
-                    self.located[name] = Located(self.robot.now() - est.age, est.pose.copy())
+                self._locate(name, est)
                 return est
             if self.robot.now() - t0 > timeout:
                 newest = self.robot.detections.newest(name)
@@ -266,12 +272,25 @@ class Runner:
                                  f"{timeout:g} s")
             self.tick()
 
+    def _since(self, name: str, since: float | None) -> float | None:
+        touched = self.touched_at.get(name)
+        if touched is None:
+            return since
+        return touched if since is None else max(since, touched)
+
+    def _locate(self, name: str, est: Estimate) -> None:
+        if name not in self.held_objects:
+            self.located[name] = Located(est.stamp, est.pose.copy())
+
     def object_pose(self, name: str) -> np.ndarray:
         """``name``'s pose: given with the goal; else the camera's fresh sightings (a
         ``detection_frames`` average) if it has them now; else, for an object the camera
         located (a ``locate`` step, or an earlier estimate) at most ``located_max_age`` s
-        ago and the arm has not touched since (:meth:`touch`), where it was located (logged:
-        the arm hides it from the camera); else fresh sightings waited for as
+        ago, not held, with no gripper closing on or releasing it since (:meth:`touch`) and
+        not seen since elsewhere (:data:`MOVED_SIGHTINGS` newer sightings or more, whose
+        median lies farther than ``detection_outlier`` from it: a moved object), while the
+        camera sees other objects (a camera that sees nothing is failing, not hidden), where
+        it was located (logged: the arm hides it); else fresh sightings waited for as
         :meth:`detect` does (failing kind "detection")."""
         given = self.robot.given_object(name)
         if given is not None:
@@ -280,29 +299,53 @@ class Runner:
         n = p.detection_frames
         now = self.robot.now()
         est = self.robot.detections.estimate(name, now, n, max(p.detection_max_age, 0.15 * n),
-                                             p.detection_outlier)
+                                             p.detection_outlier, self._since(name, None))
         if est is not None:
-            self.located[name] = Located(now - est.age, est.pose.copy())
+            self._locate(name, est)
             return est.pose
         loc = self.located.get(name)
-        if loc is not None and now - loc.stamp <= p.located_max_age:
-            xyz = ", ".join(f"{v:.3f}" for v in loc.pose[:3, 3])
-            self.robot.log("info", f"{name} not in view now: using where the camera located "
-                           f"it {now - loc.stamp:.1f} s ago, ({xyz}) m (untouched since; "
-                           f"located_max_age {p.located_max_age:g} s)")
-            self.metrics["located_used"] = self.metrics.get("located_used", 0.0) + 1.0
-            return loc.pose.copy()
+        blind = now - self.robot.detections.last_seen_any > p.detection_max_age
+        if loc is not None and blind:
+            # the camera sees nothing at all now: it is failing, not hidden by the arm
+            self.robot.log("warn", f"{name} not in view now and the camera has seen no "
+                           f"object for more than detection_max_age "
+                           f"({p.detection_max_age:g} s): not using where it was located")
+        elif (loc is not None and p.located_max_age > 0.0
+                and now - loc.stamp <= p.located_max_age and name not in self.held_objects):
+            newer = self.robot.detections.since(name, loc.stamp)
+            far = [float(np.linalg.norm(s.pose[:3, 3] - loc.pose[:3, 3])) for s in newer]
+            # moved: at least MOVED_SIGHTINGS newer sightings whose median lies farther than
+            # detection_outlier from it (one stray sighting, e.g. a marker half under the
+            # hand, is not evidence: it failed 1 soak cycle in 10)
+            moved = len(far) >= MOVED_SIGHTINGS and float(np.median(far)) > p.detection_outlier
+            if not moved:
+                xyz = ", ".join(f"{v:.3f}" for v in loc.pose[:3, 3])
+                self.robot.log("info", f"{name} not in view now: using where the camera "
+                               f"located it {now - loc.stamp:.1f} s ago, ({xyz}) m (untouched "
+                               f"since; located_max_age {p.located_max_age:g} s)")
+                self.metrics["located_used"] = self.metrics.get("located_used", 0.0) + 1.0
+                return loc.pose.copy()
+            self.robot.log("info", f"{name}: seen {len(far)} time(s) since it was located, "
+                           f"{float(np.median(far)) * 1000:.0f} mm from there (median; more "
+                           f"than detection_outlier {p.detection_outlier * 1000:g} mm): "
+                           f"waiting for fresh sightings")
         return self.detect(name).pose
 
-    def touch(self, xyz: np.ndarray, radius: float = TOUCH_RADIUS) -> list[str]:
-        """The gripper closes or opens at ``xyz`` (m, root frame): every located object within
-        ``radius`` of it may move now, so its located pose is forgotten (only fresh
-        sightings place it again). Returns the names forgotten."""
-        xyz = np.asarray(xyz, dtype=float)
-        gone = [n for n, loc in self.located.items()
-                if float(np.linalg.norm(loc.pose[:3, 3] - xyz)) <= radius]
+    def touch(self, xyz: np.ndarray | None, radius: float = TOUCH_RADIUS) -> list[str]:
+        """The fingers close on, or release, what is at ``xyz`` (m, root frame; None: the
+        tool's position is unknown, every located object counts): every located object
+        within ``radius`` of it may move now, so its located pose is forgotten, and only
+        sightings taken from now on place it again. Returns the names forgotten."""
+        if xyz is None:
+            gone = list(self.located)
+        else:
+            xyz = np.asarray(xyz, dtype=float)
+            gone = [n for n, loc in self.located.items()
+                    if float(np.linalg.norm(loc.pose[:3, 3] - xyz)) <= radius]
+        now = self.robot.now()
         for n in gone:
             del self.located[n]
+            self.touched_at[n] = now
         return gone
 
     def resolve(self, spec: PoseSpec) -> np.ndarray:
@@ -641,11 +684,27 @@ class Runner:
                     retries[i] = used + 1
                     self.force_off()
                     self.robot.log("warn", f"step {step.name} failed ({exc}); retry "
-                                   f"{used + 1}/{r.attempts} from {steps[r.from_index].name}")
-                    result.step_names.append(step.name)
-                    result.step_durations.append(self.robot.now() - t0)
-                    i = r.from_index
-                    continue
+                                   f"{used + 1}/{r.attempts} from {steps[r.from_index].name}"
+                                   + (f", the gripper opened and the tool {r.clear * 100:g} cm "
+                                      f"up first" if r.clear else ""))
+                    try:
+                        if r.clear:
+                            self.clear_for_retry(r.clear)
+                    except StepFailed as why:
+                        exc = StepFailed(why.kind, f"{exc}; clearing for the retry failed: "
+                                                   f"{why}")
+                    except Cancelled:
+                        self.safe_stop()
+                        result.message = f"cancelled during {step.name}"
+                        result.failure_kind = "cancelled"
+                        result.step_names.append(step.name)
+                        result.step_durations.append(self.robot.now() - t0)
+                        break
+                    else:
+                        result.step_names.append(step.name)
+                        result.step_durations.append(self.robot.now() - t0)
+                        i = r.from_index
+                        continue
                 self.safe_stop()
                 result.step_names.append(step.name)
                 result.step_durations.append(self.robot.now() - t0)
@@ -680,6 +739,35 @@ class Runner:
         self.metrics["retries"] = float(sum(retries.values()))
         result.metrics = dict(self.metrics)
         return result
+
+    def tool_position_or_none(self) -> np.ndarray | None:
+        try:
+            return self.tool_measured()[:3, 3]
+        except StepFailed:           # no joint_states of some chain joint
+            return None
+
+    def release_grasp(self) -> None:
+        """An open: what was held is let go where the fingers are (forgotten: only fresh
+        sightings place it again)."""
+        if self.holding is not None or self.held_objects:
+            self.touch(self.tool_position_or_none())
+            for name in self.held_objects:
+                self.touched_at[name] = self.robot.now()
+        self.holding = None
+        self.held_objects = set()
+
+    def clear_for_retry(self, distance: float) -> None:
+        """Before a retry goes back (``retry.clear``): open the gripper (whatever it held
+        stays where it is) and move the tool straight up by ``distance`` (m) at 5 cm/s, so
+        that the way back (a joint-space ``ready``, say) starts clear of what the fingers
+        were around. Raises StepFailed (the gripper's or the move's reason)."""
+        g = self.desc.gripper
+        self.release_grasp()
+        self.move_joint_goal({g.name: g.upper}, 0.02, 5.0, None, "opening to clear")
+        target = self.tool_reference()
+        target[:3, 3] += np.array([0.0, 0.0, distance])
+        self.move_line(target, 0.05, 0.005, 0.003, 15.0, True,
+                       f"clearing for the retry ({distance * 100:g} cm up)")
 
     def safe_stop(self) -> None:
         """Force control off, then hold where the arm is (nothing to do before the first

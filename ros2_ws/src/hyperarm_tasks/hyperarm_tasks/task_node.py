@@ -57,7 +57,8 @@ PARAMETERS: ParamSpec = {
                       "package's share/hyperarm_tasks/tasks", None),
     "detection_frames": (5, "camera frames averaged per object estimate", Range(1, 30)),
     "detection_max_age": (1.0, "s: an older detection is stale (and a detections message "
-                               "older than that, or than the newest used, is not used)",
+                               "older than that, or than the newest used, is not used); a "
+                               "located pose has its own age, located_max_age",
                           Range(0.05, 60.0)),
     "joint_states_max_age": (0.5, "s: a joint_states message older than this, or than the "
                                   "newest one used from the same driver, is not used",
@@ -66,9 +67,9 @@ PARAMETERS: ParamSpec = {
     "detection_outlier": (0.01, "m: detections this far from the median are rejected",
                           Range(0.0005, 1.0)),
     "located_max_age": (60.0, "s: an object the camera located (a locate step, or an "
-                              "earlier estimate) and the gripper has not touched since keeps "
-                              "that pose this long while the camera cannot see it; 0: only "
-                              "fresh detections count", Range(0.0, 3600.0)),
+                              "earlier estimate), not held and untouched by a close or release "
+                              "since, keeps that pose this long while the camera cannot see "
+                              "it; 0: only fresh detections count", Range(0.0, 3600.0)),
     "solver": ("", "IK solver ('' = the default; see hyperarm_ik)", None),
     "collision_check": (False, "IK avoids, and every planned joint path (move_to, "
                                "move_joints, retreat) is checked for, collisions of the arm "

@@ -64,9 +64,12 @@ class SimRobot:
         #: hides them from, e.g. looking down on the block in the gripper)
         self.hidden_while_held: set[str] = set()
         #: m: the hand hides an object from the (fixed, overhead) camera while tool0 is within
-        #: this horizontal distance of the object's frame and above it (0: never), as the
-        #: wrist hides the block and the peg tiles from the rendered camera
+        #: this horizontal distance of each of the object's ``hide_points`` and above it (0:
+        #: never), as the wrist hides the block's tab and the peg tiles from the rendered
+        #: camera; ``hide_points``: object -> points (m, object frame) that show it, e.g. its
+        #: markers' centres (default: the object's origin)
         self.hand_hides = 0.0
+        self.hide_points: dict[str, list[np.ndarray]] = {}
         self.hidden_frames = 0    # frames in which the hand hid something
         self.at_time: list[tuple[float, object]] = []   # (sim time, fn(sim)) to inject events
 
@@ -94,9 +97,11 @@ class SimRobot:
         truth = dict(zip(frame.names, frame.truth))
         keep = []
         for name, pose in zip(names, poses):
-            xyz = self._cam @ truth[name][:, 3]        # camera_link -> root
-            if (np.linalg.norm(tool[:2] - xyz[:2]) <= self.hand_hides
-                    and tool[2] >= xyz[2] - 0.01):
+            obj = self._cam @ truth[name]              # camera_link -> root
+            points = [obj[:3, :3] @ np.asarray(p) + obj[:3, 3]
+                      for p in self.hide_points.get(name, [np.zeros(3)])]
+            if all(np.linalg.norm(tool[:2] - xyz[:2]) <= self.hand_hides
+                   and tool[2] >= xyz[2] - 0.01 for xyz in points):
                 continue
             keep.append((name, pose))
         if len(keep) < len(names):

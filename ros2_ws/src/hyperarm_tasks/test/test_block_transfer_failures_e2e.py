@@ -31,8 +31,9 @@ def test_no_block_in_the_cell_fails_saying_it_is_not_seen(run_task_sh, tmp_path,
     cell = _share("hyperarm_driver") / "config" / "workcell_no_block.yaml"
     rc, out, logs = _run_script(run_task_sh, tmp_path, cell)
     assert rc == 1, out
-    assert "run_task: failed: step 'down_to_block' (move_to) failed" in out, out
-    assert "object 'block' not seen by the camera" in out, out
+    # found missing from the ready pose, before the arm reaches over the source peg
+    assert "run_task: failed: step 'locate' (locate) failed: object 'block' not seen by the " \
+        "camera in 5 s" in out, out
     assert "Traceback" not in out
     assert still_running(logs) == []
 

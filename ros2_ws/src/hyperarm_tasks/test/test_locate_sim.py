@@ -12,6 +12,7 @@ import yaml
 
 from hyperarm_driver.mock.joint_sim import JointSim
 from hyperarm_tasks.errors import StepFailed
+from hyperarm_tasks.perception import camera_pose
 from hyperarm_tasks.runner import Located, Runner, RunnerParams
 from hyperarm_tasks.errors import TaskError
 from hyperarm_tasks.sequence import load_task, load_task_file
@@ -23,10 +24,20 @@ pytestmark = [pytest.mark.core]
 HAND = 0.06     # m: the hand hides what lies within 6 cm of tool0 (horizontally), below it
 
 
+def _markers() -> dict[str, list[np.ndarray]]:
+    """The packaged marker map's marker centres per object (what the camera must see)."""
+    from hyperarm_perception.markers import load_marker_map
+    out: dict[str, list[np.ndarray]] = {}
+    for m in load_marker_map().markers.values():
+        out.setdefault(m.object, []).append(m.offset[:3, 3].copy())
+    return out
+
+
 def _transfer(desc, kin, seed: int, **params):
     sim = JointSim(desc, cell(seed))
     robot = ForceSimRobot(sim, kin)
     robot.hand_hides = HAND
+    robot.hide_points = _markers()
     runner = Runner(robot, kin, load_task("block_transfer", desc), RunnerParams(**params))
     return runner.run(), sim, robot, runner
 
@@ -38,12 +49,59 @@ def test_block_transfer_with_a_camera_the_hand_hides_uses_the_located_poses(desc
     assert result.success, result.message
     assert sim.world.on_peg("destination")
     assert robot.hidden_frames > 20            # the hand did hide things from the camera
-    assert result.metrics["located_used"] >= 2     # down_to_block, and a peg under the hand
+    assert result.metrics["located_used"] >= 1     # down_to_block: the tab under the hand
     used = [t for lvl, t in robot.logs if "not in view now" in t]
     assert any(t.startswith("block not in view now") for t in used), used
-    # the grasp made the block's located pose useless: it is never used after the close
-    assert "block" not in runner.located
-    assert any("close: block may move now" in t for _, t in robot.logs), robot.logs
+    # the close forgot the block's located pose: it is never used after the close
+    texts = [t for _, t in robot.logs]
+    closed = texts.index("close: block may move now; only fresh sightings place it again")
+    assert not any(t.startswith("block not in view now") for t in texts[closed:]), texts
+    assert "block" not in runner.located and runner.held_objects == set()
+    # nothing else was forgotten: the open above the source peg touches nothing
+    assert not any("peg may move now" in t for t in texts), texts
+
+
+@pytest.mark.slow
+def test_a_grasp_judged_missed_clears_the_peg_before_the_retry_goes_back(desc, kin):
+    """The fingers around the block, the grasp judged missed (here: an effort ratio no grasp
+    reaches): the retry opens the gripper, moves the tool straight up 10 cm (the fingers
+    clear the peg's top) before the joint-space move to ready, locates the block again and
+    fails the second close the same way; the block never leaves its place on the peg (the
+    task's failure then holds the fingers closed on it, as any failure keeps a grip)."""
+    sim = JointSim(desc, cell(3))
+    robot = ForceSimRobot(sim, kin)
+    robot.hand_hides = HAND
+    robot.hide_points = _markers()
+    start = sim.truth()["block"][:3, 3].copy()
+    where = []
+    robot.at_time = [(t, lambda s: where.append(s.truth()["block"][:3, 3].copy()))
+                     for t in np.arange(1, 40, 0.25)]
+    runner = Runner(robot, kin, load_task("block_transfer", desc),
+                    RunnerParams(grasp_min_effort_ratio=50.0))
+    closes = []
+    orig = runner.move_joint_goal
+
+    def spy(goal, *args, **kw):     # where the tool is at every gripper goal
+        if desc.gripper.name in goal:
+            closes.append((goal[desc.gripper.name], runner.tool_measured()[2, 3]))
+        return orig(goal, *args, **kw)
+
+    runner.move_joint_goal = spy
+    result = runner.run()
+    assert not result.success and result.failure_kind == "grasp", result.message
+    assert "step 'close' (gripper) failed: grasp missed" in result.message
+    assert result.step_names.count("close") == 2 and result.step_names.count("locate") == 2
+    assert any("the gripper opened and the tool 10 cm up first" in t for _, t in robot.logs)
+    assert len(where) > 60                        # 1-21 s of the run, every 0.25 s
+    drift = np.abs(np.array(where) - start).max(axis=0)
+    assert drift.max() < 0.003, drift             # never dragged off or up the peg
+    # the tool rose 10 cm from where the first close left it before ready's joint move
+    k = [g for g, _ in closes].index(desc.gripper.lower)      # the first close
+    first_close_z = closes[k][1]
+    opened, z_open = closes[k + 1]                             # the open to clear
+    assert opened == desc.gripper.upper and abs(z_open - first_close_z) < 0.005, closes
+    z_after = [z for _, z in closes[k + 2:]]                   # ready's goal, then the rest
+    assert z_after and z_after[0] > first_close_z + 0.095, (first_close_z, closes)
 
 
 @pytest.mark.slow
@@ -60,6 +118,14 @@ def parse_task(data: dict, desc, name: str, tmp_path):
     path = tmp_path / f"{name}.yaml"
     path.write_text(yaml.safe_dump(data))
     return load_task_file(path, desc)
+
+
+def _hide(robot, *names: str) -> None:
+    """The camera goes on seeing everything but ``names`` (the arm over them)."""
+    real = robot.detections.add
+    robot.detections.add = lambda stamp, seen, poses: real(
+        stamp, *(zip(*kept) if (kept := [(n, p) for n, p in zip(seen, poses)
+                                          if n not in names]) else ([], [])))
 
 
 def _still(desc, kin, tmp_path, **params):
@@ -80,7 +146,7 @@ def test_locate_keeps_each_objects_pose_and_a_hidden_object_uses_it(desc, kin, t
         np.testing.assert_allclose(runner.located[name].pose[:3, 3], truth[name][:3, 3],
                                    atol=0.005)
     assert any("look: block located at" in t for _, t in robot.logs)
-    robot.camera_on = False
+    _hide(robot, "block")
     robot.sleep(1.5)            # the sightings go stale, the located pose is 1.5 s old
     pose = runner.object_pose("block")
     np.testing.assert_allclose(pose, runner.located["block"].pose)
@@ -90,6 +156,23 @@ def test_locate_keeps_each_objects_pose_and_a_hidden_object_uses_it(desc, kin, t
     with pytest.raises(StepFailed) as exc:
         runner.object_pose("block")
     assert exc.value.kind == "detection" and "'block'" in str(exc.value)
+
+
+def test_locate_skips_objects_given_with_the_goal(desc, kin, tmp_path):
+    """An object whose pose comes with the goal is not looked for (the camera need not see
+    it: here it sees nothing of it) and the given pose is what the runner uses."""
+    runner, robot, sim = _still(desc, kin, tmp_path)
+    given = np.eye(4)
+    given[:3, 3] = [0.3, 0.2, -0.185]
+    robot.given["block"] = given
+    real = robot.detections.add
+    robot.detections.add = lambda stamp, names, poses: real(
+        stamp, *zip(*[(n, p) for n, p in zip(names, poses) if n != "block"]))
+    result = runner.run()
+    assert result.success, result.message
+    assert sorted(runner.located) == ["source_peg"]
+    assert not any("block located" in t for _, t in robot.logs)
+    np.testing.assert_allclose(runner.object_pose("block"), given)
 
 
 def test_fresh_sightings_override_a_located_pose(desc, kin, tmp_path):
@@ -106,6 +189,85 @@ def test_fresh_sightings_override_a_located_pose(desc, kin, tmp_path):
     assert "located_used" not in runner.metrics
 
 
+def test_a_held_object_is_never_located(desc, kin, tmp_path):
+    """While held, fresh sightings of the object are used but not kept as its located pose,
+    and an old located pose is not used: it moves with the hand."""
+    runner, robot, sim = _still(desc, kin, tmp_path, detection_timeout=0.3)
+    robot.sleep(1.0)
+    runner.held_objects = {"block"}
+    pose = runner.object_pose("block")
+    np.testing.assert_allclose(pose[:3, 3], sim.truth()["block"][:3, 3], atol=0.005)
+    assert "block" not in runner.located
+    runner.located["block"] = Located(robot.now(), pose)     # (as if located before)
+    _hide(robot, "block")
+    robot.sleep(1.5)
+    with pytest.raises(StepFailed, match="detections of 'block' are stale"):
+        runner.object_pose("block")
+    assert "located_used" not in runner.metrics
+
+
+def test_newer_sightings_away_from_the_located_pose_are_waited_for(desc, kin, tmp_path):
+    """Two frames (fewer than detection_frames) show the block 2 cm from where it was
+    located: it moved, so its located pose is not used; the runner waits for enough fresh
+    sightings and takes them."""
+    runner, robot, sim = _still(desc, kin, tmp_path)
+    robot.sleep(1.0)
+    robot.detections.clear()
+    where = sim.truth()["block"].copy()
+    where[0, 3] += 0.02
+    runner.located["block"] = Located(robot.now(), where)
+    robot.sleep(0.25)                    # 2-3 frames of the block where it really is
+    assert len(robot.detections.since("block", runner.located["block"].stamp)) < 5
+    pose = runner.object_pose("block")
+    np.testing.assert_allclose(pose[:3, 3], sim.truth()["block"][:3, 3], atol=0.005)
+    assert "located_used" not in runner.metrics
+    said = [t for _, t in robot.logs if t.startswith("block: seen ")]
+    assert len(said) == 1 and said[0].endswith("waiting for fresh sightings"), robot.logs
+    assert 15 <= int(said[0].split(" mm from there")[0].split()[-1]) <= 25, said  # 2 cm
+
+
+def test_one_stray_sighting_does_not_say_the_object_moved(desc, kin, tmp_path):
+    """One sighting 2 cm off since the object was located (a marker half under the hand
+    gives such; it failed a rendered soak cycle when it counted), then none: the located
+    pose is used."""
+    runner, robot, sim = _still(desc, kin, tmp_path)
+    robot.sleep(1.0)
+    runner.object_pose("block")              # located from fresh sightings
+    loc = runner.located["block"]
+    _hide(robot, "block")
+    robot.sleep(1.5)
+    stray = loc.pose.copy()
+    stray[0, 3] += 0.02
+    robot.detections.add(robot.now() - 0.1, ["block"],
+                         [np.linalg.inv(camera_pose(desc)) @ stray])
+    np.testing.assert_allclose(runner.object_pose("block"), loc.pose)
+    assert runner.metrics["located_used"] == 1.0
+
+
+def test_a_camera_that_sees_nothing_is_failing_not_hidden(desc, kin, tmp_path):
+    """No object in any frame for more than detection_max_age (a dead or covered camera,
+    the mock's camera dropout): located poses are not used, said in a warning, and the
+    step fails on stale detections (before this rule a whole block transfer ran on them)."""
+    runner, robot, sim = _still(desc, kin, tmp_path, detection_timeout=0.3)
+    assert runner.run().success
+    robot.camera_on = False
+    robot.sleep(1.2)
+    with pytest.raises(StepFailed, match="detections of 'block' are stale"):
+        runner.object_pose("block")
+    assert any(lvl == "warn" and "the camera has seen no object" in t
+               for lvl, t in robot.logs), robot.logs
+    assert "located_used" not in runner.metrics
+
+
+def test_located_max_age_zero_never_uses_a_located_pose(desc, kin, tmp_path):
+    runner, robot, sim = _still(desc, kin, tmp_path, located_max_age=0.0,
+                                detection_timeout=0.3)
+    runner.located["block"] = Located(robot.now(), sim.truth()["block"])
+    _hide(robot, "block")
+    with pytest.raises(StepFailed):
+        runner.object_pose("block")
+
+
 def test_touch_forgets_only_what_lies_within_the_radius(desc, kin, tmp_path):
     runner, robot, _ = _still(desc, kin, tmp_path)
     for name, xyz in (("block", [0.35, 0.12, -0.185]), ("source_peg", [0.35, 0.12, -0.12]),
@@ -117,6 +279,10 @@ def test_touch_forgets_only_what_lies_within_the_radius(desc, kin, tmp_path):
     assert runner.touch(np.array([0.35, 0.12, -0.185])) == ["block"]
     assert sorted(runner.located) == ["destination_peg", "source_peg"]
     assert runner.touch(np.array([0.0, 0.0, 0.3])) == []
+    assert runner.touched_at == {"block": robot.now()}
+    # the tool's position unknown (no joint_states): everything located is forgotten
+    assert sorted(runner.touch(None)) == ["destination_peg", "source_peg"]
+    assert runner.located == {}
 
 
 def test_locate_step_fields_are_checked(desc, tmp_path):

@@ -58,9 +58,9 @@ def main(argv: list[str] | None = None) -> None:
         block = look_at_pose([rng.uniform(-0.1, 0.1), rng.uniform(-0.08, 0.08), d],
                              rng.uniform(0, 0.5), rng.uniform(0, 6.3), rng.uniform(-3, 3))
         pegs = [look_at_pose([x, 0.12, 0.8], 0.1, 0.0, 0.0) for x in (-0.15, 0.15)]
-        image = render(cam, mm.dictionary, [MarkerPlacement(0, 0.03, block),
-                                            MarkerPlacement(1, 0.04, pegs[0]),
-                                            MarkerPlacement(2, 0.04, pegs[1])], rng=rng)
+        image = render(cam, mm.dictionary, [MarkerPlacement(i, mm.markers[i].size, pose)
+                                            for i, pose in ((0, block), (1, pegs[0]),
+                                                            (2, pegs[1]))], rng=rng)
         t0 = time.perf_counter()
         result = det.detect(image)
         times.append(time.perf_counter() - t0)

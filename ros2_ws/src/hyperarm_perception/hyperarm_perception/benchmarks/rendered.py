@@ -2,16 +2,18 @@
 
     MUJOCO_GL=egl python -m hyperarm_perception.benchmarks.rendered [--frames 40]
             [--seed 0] [--sizes 640x480 1280x960] [--refinements edges subpix]
-            [--save frame.png]
+            [--priors upright none] [--save frame.png]
 
 Per picture size: the render time per frame (ms; blur and noise included), the detector's
 time per frame, and each object's errors against the poses it was drawn at, in camera_link:
 position (norm), across and along the line of sight, and orientation. Each frame moves the
 pegs by up to 4 cm and lays the block on the table at a random place and yaw, clear of the
-pegs; the arm is turned away (out of view). Also how often the block's marker is found while
+pegs and their tiles (:func:`_scene`); the arm is turned away (out of view). Also how often the block's marker is found while
 the block is threaded on its peg (its marker on a tab beside the peg). ``--save`` writes
 the first frame of the first size with the detections drawn. Each of ``--refinements``
-(the marker map's ``corner_refinement``) detects on the same pictures, side by side. docs/perception.md keeps the
+(the marker map's ``corner_refinement``), with and without up (``--priors``: the upright
+prior and snap),
+detects on the same pictures, side by side. docs/perception.md keeps the
 figures."""
 from __future__ import annotations
 
@@ -31,7 +33,7 @@ from hyperarm_description.model import load_description, read_yaml  # noqa: E402
 from hyperarm_description.world import MOCK_WORLD_KEYS, parse_world  # noqa: E402
 from hyperarm_perception.benchmarks.detector import draw  # noqa: E402
 from hyperarm_perception.markers import (MarkerDetector, load_marker_map,  # noqa: E402
-                                         rotation_angle)
+                                         rotation_angle, up_in_camera_link)
 from hyperarm_perception.rendered_camera import (RenderOptions, RenderedCamera,  # noqa: E402
                                                  cell_poses)
 
@@ -39,19 +41,31 @@ CELL = Path(__file__).resolve().parents[3] / "hyperarm_driver" / "config" / "wor
 AWAY = {"joint1": math.pi, "joint2": -1.5}   # rad: the arm turned back, out of view
 
 
-def _scene(world, rng) -> dict[str, np.ndarray]:
+def _points(mm, name: str, pose: np.ndarray) -> list[np.ndarray]:
+    """The object's origin and its markers' centres, root-frame x-y (m)."""
+    pts = [pose[:2, 3]]
+    pts += [(pose @ m.offset)[:2, 3] for m in mm.markers.values() if m.object == name]
+    return pts
+
+
+def _scene(world, rng, mm) -> dict[str, np.ndarray]:
+    """The pegs moved by up to 4 cm, the block on the table at a random place and yaw with
+    its origin and its markers at least 7 cm from each peg's and its tile's centre (apart:
+    a marker partly covered by another object is not what this measures)."""
     poses = cell_poses(world)
     for name in ("source_peg", "destination_peg"):
         poses[name][:2, 3] += rng.uniform(-0.04, 0.04, 2)
+    fixed = [p for name in ("source_peg", "destination_peg")
+             for p in _points(mm, name, poses[name])]
     while True:
-        xy = rng.uniform([0.2, -0.2], [0.45, 0.2])
-        if all(np.linalg.norm(xy - poses[p][:2, 3]) > 0.07 for p in ("source_peg",
-                                                                        "destination_peg")):
+        yaw = rng.uniform(-math.pi, math.pi)
+        block = np.eye(4)
+        block[:2, :2] = [[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]]
+        block[:3, 3] = [*rng.uniform([0.2, -0.2], [0.45, 0.2]),
+                        world.table.height + 0.5 * world.block.size[2]]
+        if all(np.linalg.norm(a - b) > 0.07 for a in _points(mm, "block", block)
+               for b in fixed):
             break
-    yaw = rng.uniform(-math.pi, math.pi)
-    block = np.eye(4)
-    block[:2, :2] = [[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]]
-    block[:3, 3] = [*xy, world.table.height + 0.5 * world.block.size[2]]
     poses["block"] = block
     return poses
 
@@ -73,6 +87,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--sizes", nargs="+", default=["640x480", "1280x960"])
     parser.add_argument("--refinements", nargs="+", default=["edges", "subpix"],
                         choices=["edges", "subpix"])
+    parser.add_argument("--priors", nargs="+", default=["upright", "none"],
+                        choices=["upright", "none"],
+                        help="upright: the map's upright objects get the camera's up "
+                             "direction (the prior between IPPE's solutions and the upright "
+                             "snap: marker_detector's default); none: neither")
     parser.add_argument("--save", help="write the first frame, detections drawn, as a PNG")
     args = parser.parse_args(argv)
     desc = load_description(None, "arm")
@@ -84,8 +103,11 @@ def main(argv: list[str] | None = None) -> None:
         rng = np.random.default_rng(args.seed)
         with RenderedCamera(desc, world, mm, RenderOptions(width=width, height=height,
                                                            seed=args.seed)) as cam:
-            detectors = {r: MarkerDetector(replace(mm, config=replace(
-                mm.config, corner_refinement=r)), cam.camera) for r in args.refinements}
+            up = up_in_camera_link(cam.camera_pose)
+            detectors = {f"{r}, prior {prior}": MarkerDetector(
+                replace(mm, config=replace(mm.config, corner_refinement=r)), cam.camera,
+                up=up if prior == "upright" else None)
+                for r in args.refinements for prior in args.priors}
             link = np.linalg.inv(cam.camera_pose)
             cam.render(AWAY, cell_poses(world))          # the first render sets OpenGL up
             render_ms = []
@@ -93,7 +115,7 @@ def main(argv: list[str] | None = None) -> None:
             errs = {r: {"block": [], "source_peg": [], "destination_peg": []}
                     for r in detectors}
             for _ in range(args.frames):
-                poses = _scene(world, rng)
+                poses = _scene(world, rng, mm)
                 t0 = time.perf_counter()
                 image = cam.render(AWAY, poses)
                 t1 = time.perf_counter()
@@ -125,7 +147,8 @@ def main(argv: list[str] | None = None) -> None:
             print(f" corner_refinement {refinement}: detect median "
                   f"{np.median(detect_ms[refinement]):.1f} ms (p95 "
                   f"{np.percentile(detect_ms[refinement], 95):.1f}), edge fallbacks "
-                  f"{detector.counts['edge_fallbacks']}")
+                  f"{detector.counts['edge_fallbacks']}, upright choices "
+                  f"{detector.counts['upright_choices']}")
             for name, rows in errs[refinement].items():
                 print(_row(name, rows, args.frames))
             print(f"  block threaded on its peg: found {threaded}/5")

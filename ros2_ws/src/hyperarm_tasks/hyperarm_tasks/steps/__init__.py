@@ -47,12 +47,14 @@ def pose_schema() -> dict:
 
 @dataclass(frozen=True)
 class Retry:
-    """On a failure of one of the kinds ``on`` (YAML ``when``; empty = any), go back to step ``from_index`` (this
-    step by default), at most ``attempts`` times."""
+    """On a failure of one of the kinds ``on`` (YAML ``when``; empty = any), go back to step
+    ``from_index`` (this step by default), at most ``attempts`` times; with ``clear`` (m) > 0
+    the gripper opens and the tool moves straight up by that much first."""
 
     attempts: int = 0
     from_index: int = 0
     on: tuple[str, ...] = ()
+    clear: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -143,7 +145,9 @@ class BuildContext:
             if start not in self.step_names[:index + 1]:
                 raise self.FieldError(("retry", "from"),
                                       f"retry.from {start!r} is not this step or an earlier one")
-            retry = Retry(int(r["attempts"]), self.step_names.index(start), tuple(r.get("when", ())))
+            clear = self.si(r, "clear", "length", 0.0, nonneg=True, path=("retry",))
+            retry = Retry(int(r["attempts"]), self.step_names.index(start),
+                          tuple(r.get("when", ())), clear)
         return dict(name=raw["name"], type=raw["type"], index=index, timeout=timeout,
                     retry=retry, description=raw.get("description", ""))
 
@@ -195,7 +199,9 @@ _COMMON = {
     "retry": {"type": "object", "additionalProperties": False, "required": ["attempts"],
               "properties": {"attempts": {"type": "integer", "minimum": 0, "maximum": 20},
                              "from": {"type": "string"},
-                             "when": {"type": "array", "items": {"enum": list(FAILURE_KINDS)}}}},
+                             "when": {"type": "array", "items": {"enum": list(FAILURE_KINDS)}},
+                             "clear": quantity("length", "open the gripper and move the "
+                                                         "tool up this much first")}},
 }
 
 

@@ -42,17 +42,18 @@ def build(raw: dict, ctx: BuildContext, index: int) -> Gripper:
 def run(step: Gripper, runner) -> None:
     g = runner.desc.gripper
     p = runner.params
-    # what the fingers close on or let go of may move: its located pose is forgotten
-    gone = runner.touch(runner.tool_measured()[:3, 3]) if runner.located else []
-    if gone:
-        runner.robot.log("info", f"{step.name}: {', '.join(gone)} may move now; only fresh "
-                                 f"sightings place {'it' if len(gone) == 1 else 'them'} again")
     if step.action == "open":
-        runner.holding = None
+        runner.release_grasp()     # what was held may be anywhere now: forgotten
         goal = g.upper if step.position is None else step.position
         runner.move_joint_goal({g.name: goal}, 0.02, step.timeout,
                                {g.name: step.effort} if step.effort else None, "opening")
         return
+    # what the fingers close on may move: its located pose is forgotten (only sightings
+    # taken from now on place it again)
+    gone = runner.touch(runner.tool_position_or_none()) if runner.located else []
+    if gone:
+        runner.robot.log("info", f"{step.name}: {', '.join(gone)} may move now; only fresh "
+                                 f"sightings place {'it' if len(gone) == 1 else 'them'} again")
     goal = g.lower if step.position is None else step.position
     runner.move_joint_goal({g.name: goal}, 0.005, step.timeout, {g.name: step.effort},
                            "closing", settle_on_stop=True)
@@ -65,6 +66,7 @@ def run(step: Gripper, runner) -> None:
                              f"(empty below {p.grasp_min_position:g} rad) with {eff:.2f} N·m "
                              f"(a grasp needs >= {p.grasp_min_effort_ratio * step.effort:.2f})")
         runner.holding = step.effort
+        runner.held_objects = set(gone)       # held: never located until released
         runner.metrics["grasp_position"] = pos
     elif step.expect == "empty" and held:
         raise StepFailed("grasp", f"something is between the fingers ({pos:.3f} rad)")
