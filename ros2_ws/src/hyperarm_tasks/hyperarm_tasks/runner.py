@@ -690,7 +690,7 @@ class Runner:
                     try:
                         if r.clear:
                             self.clear_for_retry(r.clear)
-                    except StepFailed as why:
+                    except StepFailed as why:     # kind: the clearing's (what blocks now)
                         exc = StepFailed(why.kind, f"{exc}; clearing for the retry failed: "
                                                    f"{why}")
                     except Cancelled:
@@ -700,6 +700,9 @@ class Runner:
                         result.step_names.append(step.name)
                         result.step_durations.append(self.robot.now() - t0)
                         break
+                    except BaseException:
+                        self.safe_stop()
+                        raise
                     else:
                         result.step_names.append(step.name)
                         result.step_durations.append(self.robot.now() - t0)
@@ -763,6 +766,10 @@ class Runner:
         were around. Raises StepFailed (the gripper's or the move's reason)."""
         g = self.desc.gripper
         self.release_grasp()
+        # from where the arm is: a failure raised mid-stream (a grasp lost during a lift)
+        # leaves the last finished move's target behind the arm
+        self.q_target = self.q_measured()
+        self.tool_target = self.kin.forward(self.q_target)
         self.move_joint_goal({g.name: g.upper}, 0.02, 5.0, None, "opening to clear")
         target = self.tool_reference()
         target[:3, 3] += np.array([0.0, 0.0, distance])

@@ -43,6 +43,49 @@ def _transfer(desc, kin, seed: int, **params):
 
 
 @pytest.mark.slow
+def test_a_grasp_lost_mid_lift_clears_straight_up_from_where_the_arm_is(desc, kin):
+    """The grasp judged lost partway up the lift (its effort ratio raised mid-stream): the
+    clearing rises 10 cm from where the arm is, never back down towards the block (the
+    last finished move's target, down_to_block's, was behind the arm)."""
+    import dataclasses
+    sim = JointSim(desc, cell(3))
+    robot = ForceSimRobot(sim, kin)
+    runner = Runner(robot, kin, load_task("block_transfer", desc))
+    zs: list[tuple[float, float]] = []
+    robot.at_time = [(t, lambda s: zs.append((s.time, s.tool_pose()[2, 3])))
+                     for t in np.arange(0.5, 40, 0.02)]
+    lifting = {}
+    real_tick = runner.tick
+
+    def tick(joints=()):
+        if runner.step is not None and runner.step.name == "lift" and "at" not in lifting \
+                and sim.tool_pose()[2, 3] > -0.16:            # 2.5 cm up the lift
+            lifting["at"] = sim.time
+            runner.params = dataclasses.replace(runner.params, grasp_min_effort_ratio=50.0)
+        return real_tick(joints)
+
+    runner.tick = tick
+    clears = []
+    real_clear = runner.clear_for_retry
+
+    def clear(distance):
+        t0, z0 = sim.time, sim.tool_pose()[2, 3]
+        runner.params = dataclasses.replace(runner.params, grasp_min_effort_ratio=0.5)
+        real_clear(distance)
+        clears.append((t0, z0, sim.time, sim.tool_pose()[2, 3]))
+
+    runner.clear_for_retry = clear
+    result = runner.run()
+    assert "at" in lifting, "the lift never got 2.5 cm up"
+    assert any("grasp lost" in t for _, t in robot.logs), robot.logs
+    assert len(clears) == 1, (clears, result.message)
+    t0, z0, t1, z1 = clears[0]
+    during = [z for t, z in zs if t0 <= t <= t1]
+    assert during and min(during) > z0 - 0.003, (z0, min(during))     # never back down
+    assert z1 > z0 + 0.095, (z0, z1)
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [3, 17])
 def test_block_transfer_with_a_camera_the_hand_hides_uses_the_located_poses(desc, kin, seed):
     result, sim, robot, runner = _transfer(desc, kin, seed)
