@@ -440,6 +440,13 @@ def _pose_matrix(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
     return T
 
 
+def _rms_px(obj: np.ndarray, img: np.ndarray, T: np.ndarray, cam: CameraModel) -> float:
+    """RMS corner reprojection error (pixels, over both coordinates of each corner) of the
+    pose T."""
+    res, _ = _residuals(obj, img, T, cam)
+    return float(np.sqrt(np.mean(res ** 2) * 2.0))
+
+
 def _residuals(obj: np.ndarray, img: np.ndarray, T: np.ndarray, cam: CameraModel
                ) -> tuple[np.ndarray, np.ndarray]:
     """Reprojection residuals (2N, pixels) of the pose T (optical <- points' frame) and the
@@ -587,10 +594,8 @@ class MarkerDetector:
         k = int(np.argmin(tilts))
         if k == 0 or tilts[k] > tilts[0] - UPRIGHT_MARGIN:   # the same pose, refined twice
             return candidates
-        rms = []
-        for T in (candidates[0], candidates[k]):
-            res, _ = _residuals(marker_corners(spec.size), img, T, self.camera)
-            rms.append(float(np.sqrt(np.mean(res.reshape(-1, 2) ** 2) * 2.0)))
+        rms = [_rms_px(marker_corners(spec.size), img, T, self.camera)
+               for T in (candidates[0], candidates[k])]
         cfg = self.map.config
         if rms[1] > cfg.max_reprojection_px or rms[1] > rms[0] + cfg.corner_sigma_px:
             return candidates     # the corners tell them apart: the object is tilted
@@ -664,8 +669,7 @@ class MarkerDetector:
                              f" deg from its normal > max_view_angle "
                              f"{math.degrees(cfg.max_view_angle):.1f} deg")
                 continue
-            res, _ = _residuals(marker_corners(spec.size), img, T, self.camera)
-            rms = float(np.sqrt(np.mean(res.reshape(-1, 2) ** 2) * 2.0))
+            rms = _rms_px(marker_corners(spec.size), img, T, self.camera)
             if rms > cfg.max_reprojection_px:
                 self._reject(rejections, "reprojection", mid, spec.object,
                              f"marker {mid} ({spec.object}): RMS corner reprojection error "
@@ -721,12 +725,11 @@ class MarkerDetector:
                                               self.camera.D, cv2.Rodrigues(T[:3, :3])[0],
                                               T[:3, 3].reshape(3, 1).copy())
             T = _pose_matrix(rvec, tvec)
-        res, _ = _residuals(obj, img, T, self.camera)
+        rms = _rms_px(obj, img, T, self.camera)
         cov_opt = pose_covariance(obj, img, T, self.camera, cfg.corner_sigma_px)
         if self._up is not None and name in self.map.upright and cfg.upright_snap > 0.0:
             T = self._snap_upright(T, [spec for spec, *_ in markers])
         rot = np.zeros((6, 6))
         rot[:3, :3] = rot[3:, 3:] = T_LINK_OPTICAL[:3, :3]
         return Detection(name, T_LINK_OPTICAL @ T, rot @ cov_opt @ rot.T, T,
-                         tuple(spec.id for spec, *_ in markers),
-                         float(np.sqrt(np.mean(res ** 2) * 2.0)))
+                         tuple(spec.id for spec, *_ in markers), rms)

@@ -254,10 +254,7 @@ class Runner:
         t0 = self.robot.now()
         since = self._since(name, since)
         while True:
-            n = frames or p.detection_frames
-            est = self.robot.detections.estimate(name, self.robot.now(), n,
-                                                 max(p.detection_max_age, 0.15 * n),
-                                                 p.detection_outlier, since)
+            est = self._fresh(name, self.robot.now(), since, frames)
             if est is not None:
                 self._locate(name, est)
                 return est
@@ -271,6 +268,15 @@ class Runner:
                                  f"is {age:.1f} s old (max {p.detection_max_age:g} s), waited "
                                  f"{timeout:g} s")
             self.tick()
+
+    def _fresh(self, name: str, now: float, since: float | None,
+               frames: int | None = None) -> Estimate | None:
+        """The average of the newest ``frames`` (``detection_frames``) sightings of ``name``
+        fresh at ``now`` and taken after ``since`` (None if too few)."""
+        p = self.params
+        n = frames or p.detection_frames
+        return self.robot.detections.estimate(name, now, n, max(p.detection_max_age, 0.15 * n),
+                                              p.detection_outlier, since)
 
     def _since(self, name: str, since: float | None) -> float | None:
         touched = self.touched_at.get(name)
@@ -296,10 +302,8 @@ class Runner:
         if given is not None:
             return np.asarray(given, dtype=float)
         p = self.params
-        n = p.detection_frames
         now = self.robot.now()
-        est = self.robot.detections.estimate(name, now, n, max(p.detection_max_age, 0.15 * n),
-                                             p.detection_outlier, self._since(name, None))
+        est = self._fresh(name, now, self._since(name, None))
         if est is not None:
             self._locate(name, est)
             return est.pose
